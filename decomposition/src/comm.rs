@@ -1,0 +1,224 @@
+//! The communicator trait: everything the solver needs from MPI, and nothing more.
+//!
+//! Three implementations: [`SerialComm`] (one process, the 1-rank case of the same code
+//! path), [`MpiComm`] (rsmpi), and [`crate::local::LocalComm`] (many ranks as threads of
+//! one process, so unit tests exercise multi-rank logic without `mpirun`).
+
+use mpi::collective::SystemOperation;
+use mpi::traits::{
+    Communicator as _, CommunicatorCollectives as _, Destination as _, Root as _, Source as _,
+};
+
+/// Collective and point-to-point operations on `f64`/`u64` buffers.
+///
+/// Every collective must be called by all ranks in the same order. `exchange` is the only
+/// point-to-point operation: each rank sends one buffer to each of its peers and receives
+/// one buffer from each; a rank may be its own peer (periodic faces on one rank).
+pub trait Communicator {
+    fn rank(&self) -> usize;
+    fn size(&self) -> usize;
+    /// Element-wise sum over ranks, in place.
+    fn sum_f64(&self, x: &mut [f64]);
+    /// Element-wise maximum over ranks, in place.
+    fn max_f64(&self, x: &mut [f64]);
+    /// Element-wise minimum over ranks, in place.
+    fn min_f64(&self, x: &mut [f64]);
+    /// Element-wise sum over ranks, in place.
+    fn sum_u64(&self, x: &mut [u64]);
+    /// Sum of `x` over ranks below this one (0 on rank 0).
+    fn exclusive_scan_u64(&self, x: u64) -> u64;
+    /// Send `sends[k]` to `peers[k]` and receive into `recvs[k]` from `peers[k]`.
+    /// Receive buffers are resized to the incoming length (no reallocation once their
+    /// capacity suffices). `peers` must be symmetric: if A lists B, B lists A.
+    fn exchange(&self, peers: &[usize], sends: &[Vec<f64>], recvs: &mut [Vec<f64>]);
+    /// True on every rank if `flag` is true on any rank: how a local error reaches all.
+    fn any(&self, flag: bool) -> bool {
+        let mut x = [if flag { 1.0 } else { 0.0 }];
+        self.max_f64(&mut x);
+        x[0] > 0.0
+    }
+    /// Gather variable-length byte buffers on rank 0 (empty result elsewhere).
+    fn gather_bytes(&self, data: &[u8]) -> Vec<Vec<u8>>;
+    /// Broadcast bytes from rank 0 to all (the argument is ignored on other ranks).
+    fn broadcast_bytes(&self, data: &[u8]) -> Vec<u8>;
+}
+
+/// A single process: collectives are identities and exchanges loop back to itself.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct SerialComm;
+
+impl Communicator for SerialComm {
+    fn rank(&self) -> usize {
+        0
+    }
+    fn size(&self) -> usize {
+        1
+    }
+    fn sum_f64(&self, _: &mut [f64]) {}
+    fn max_f64(&self, _: &mut [f64]) {}
+    fn min_f64(&self, _: &mut [f64]) {}
+    fn sum_u64(&self, _: &mut [u64]) {}
+    fn exclusive_scan_u64(&self, _: u64) -> u64 {
+        0
+    }
+    fn exchange(&self, peers: &[usize], sends: &[Vec<f64>], recvs: &mut [Vec<f64>]) {
+        for (k, &p) in peers.iter().enumerate() {
+            assert_eq!(p, 0, "serial communicator has only rank 0");
+            recvs[k].clear();
+            recvs[k].extend_from_slice(&sends[k]);
+        }
+    }
+    fn gather_bytes(&self, data: &[u8]) -> Vec<Vec<u8>> {
+        vec![data.to_vec()]
+    }
+    fn broadcast_bytes(&self, data: &[u8]) -> Vec<u8> {
+        data.to_vec()
+    }
+}
+
+/// rsmpi's world communicator.
+pub struct MpiComm {
+    world: mpi::topology::SimpleCommunicator,
+}
+
+impl MpiComm {
+    pub fn new(world: mpi::topology::SimpleCommunicator) -> Self {
+        Self { world }
+    }
+    /// End every rank at once: for fatal errors met by one rank only.
+    pub fn abort(&self, code: i32) -> ! {
+        self.world.abort(code)
+    }
+}
+
+impl Communicator for MpiComm {
+    fn rank(&self) -> usize {
+        self.world.rank() as usize
+    }
+    fn size(&self) -> usize {
+        self.world.size() as usize
+    }
+    fn sum_f64(&self, x: &mut [f64]) {
+        let send = x.to_vec();
+        self.world
+            .all_reduce_into(&send[..], x, SystemOperation::sum());
+    }
+    fn max_f64(&self, x: &mut [f64]) {
+        let send = x.to_vec();
+        self.world
+            .all_reduce_into(&send[..], x, SystemOperation::max());
+    }
+    fn min_f64(&self, x: &mut [f64]) {
+        let send = x.to_vec();
+        self.world
+            .all_reduce_into(&send[..], x, SystemOperation::min());
+    }
+    fn sum_u64(&self, x: &mut [u64]) {
+        let send = x.to_vec();
+        self.world
+            .all_reduce_into(&send[..], x, SystemOperation::sum());
+    }
+    fn exclusive_scan_u64(&self, x: u64) -> u64 {
+        let mut out = 0u64;
+        self.world
+            .exclusive_scan_into(&x, &mut out, SystemOperation::sum());
+        if self.world.rank() == 0 {
+            0 // MPI leaves rank 0's result undefined
+        } else {
+            out
+        }
+    }
+    fn exchange(&self, peers: &[usize], sends: &[Vec<f64>], recvs: &mut [Vec<f64>]) {
+        // Lengths first (they differ for particle migration), then the data. Messages
+        // between a pair are matched in order, and a self-peer is served by a copy.
+        let me = self.rank();
+        let mut lens = vec![0u64; peers.len()];
+        let send_lens: Vec<u64> = sends.iter().map(|s| s.len() as u64).collect();
+        mpi::request::scope(|scope| {
+            let mut reqs = Vec::new();
+            for (k, &p) in peers.iter().enumerate() {
+                if p != me {
+                    reqs.push(
+                        self.world
+                            .process_at_rank(p as i32)
+                            .immediate_send_with_tag(scope, &send_lens[k..k + 1], 1),
+                    );
+                }
+            }
+            for (k, &p) in peers.iter().enumerate() {
+                if p != me {
+                    self.world
+                        .process_at_rank(p as i32)
+                        .receive_into_with_tag(&mut lens[k..k + 1], 1);
+                } else {
+                    lens[k] = sends[k].len() as u64;
+                }
+            }
+            for r in reqs {
+                r.wait();
+            }
+        });
+        for (k, r) in recvs.iter_mut().enumerate() {
+            r.resize(lens[k] as usize, 0.0);
+        }
+        mpi::request::scope(|scope| {
+            let mut reqs = Vec::new();
+            for (k, &p) in peers.iter().enumerate() {
+                if p != me {
+                    reqs.push(self.world.process_at_rank(p as i32).immediate_send_with_tag(
+                        scope,
+                        &sends[k][..],
+                        2,
+                    ));
+                }
+            }
+            for (k, &p) in peers.iter().enumerate() {
+                if p != me {
+                    self.world
+                        .process_at_rank(p as i32)
+                        .receive_into_with_tag(&mut recvs[k][..], 2);
+                } else {
+                    recvs[k].copy_from_slice(&sends[k]);
+                }
+            }
+            for r in reqs {
+                r.wait();
+            }
+        });
+    }
+    fn gather_bytes(&self, data: &[u8]) -> Vec<Vec<u8>> {
+        let n = self.size();
+        let root = self.world.process_at_rank(0);
+        let len = data.len() as u64;
+        if self.rank() == 0 {
+            let mut lens = vec![0u64; n];
+            root.gather_into_root(&len, &mut lens[..]);
+            let mut out = vec![data.to_vec()];
+            for (r, &l) in lens.iter().enumerate().skip(1) {
+                let mut buf = vec![0u8; l as usize];
+                self.world
+                    .process_at_rank(r as i32)
+                    .receive_into_with_tag(&mut buf[..], 3);
+                out.push(buf);
+            }
+            out
+        } else {
+            root.gather_into(&len);
+            root.send_with_tag(data, 3);
+            Vec::new()
+        }
+    }
+    fn broadcast_bytes(&self, data: &[u8]) -> Vec<u8> {
+        let root = self.world.process_at_rank(0);
+        let mut len = data.len() as u64;
+        root.broadcast_into(&mut len);
+        let mut buf = if self.rank() == 0 {
+            data.to_vec()
+        } else {
+            vec![0u8; len as usize]
+        };
+        root.broadcast_into(&mut buf[..]);
+        buf
+    }
+}
+

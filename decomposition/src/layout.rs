@@ -1,0 +1,196 @@
+//! Block partition of a cell grid over a process grid, and each rank's local node box.
+//!
+//! Cells are numbered `0..cells[a]` per axis. Nodes are numbered `0..=cells[a]` on a
+//! bounded axis and `0..cells[a]` on a periodic one (node `cells[a]` is node 0 again).
+//! A rank owns the cells of its block and the nodes at their lower corners, plus the
+//! upper boundary nodes of a bounded axis if its block touches them, so that every node
+//! has exactly one owner. Its local node box adds [`GHOST`] cells on every side that has
+//! a neighbour (periodic faces count, even when the neighbour is the rank itself).
+
+use crate::Error;
+
+/// Width of the ghost layer in cells. MPMCG needs two: its particle→node step scatters
+/// one cell past the block, and its node→node stencil reads one node further.
+pub const GHOST: usize = 2;
+
+/// The global grid and how its cells are split over ranks.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Layout<const D: usize> {
+    pub cells: [usize; D],
+    pub periodic: [bool; D],
+    /// Number of blocks along each axis; their product is the rank count.
+    pub procs: [usize; D],
+}
+
+impl<const D: usize> Layout<D> {
+    /// A layout with a fixed process grid. Each block must be at least [`GHOST`] cells
+    /// wide so that a ghost layer never reaches past the neighbouring block.
+    pub fn new(cells: [usize; D], periodic: [bool; D], procs: [usize; D]) -> Result<Self, Error> {
+        for a in 0..D {
+            if procs[a] == 0 || cells[a] < GHOST * procs[a] {
+                return Err(Error::BlocksTooSmall {
+                    axis: a,
+                    cells: cells[a],
+                    blocks: procs[a],
+                    min: GHOST,
+                });
+            }
+        }
+        Ok(Self {
+            cells,
+            periodic,
+            procs,
+        })
+    }
+
+    /// The process grid for `ranks` ranks with the smallest total ghost surface
+    /// (sum over blocks of their face areas, in cells), ties broken towards splitting
+    /// the first axis, so every rank computes the same answer.
+    pub fn choose(cells: [usize; D], periodic: [bool; D], ranks: usize) -> Result<Self, Error> {
+        let mut best: Option<([usize; D], f64)> = None;
+        let mut procs = [1usize; D];
+        fn rec<const D: usize>(
+            a: usize,
+            left: usize,
+            procs: &mut [usize; D],
+            cells: &[usize; D],
+            best: &mut Option<([usize; D], f64)>,
+        ) {
+            if a == D - 1 {
+                procs[a] = left;
+                if (0..D).any(|d| cells[d] < GHOST * procs[d]) {
+                    return;
+                }
+                // Each internal cut along axis d exposes the cross-section of the grid.
+                let surface: f64 = (0..D)
+                    .map(|d| {
+                        let cross: f64 = (0..D)
+                            .filter(|&e| e != d)
+                            .map(|e| cells[e] as f64)
+                            .product();
+                        (procs[d] - 1) as f64 * cross
+                    })
+                    .sum();
+                if best.as_ref().is_none_or(|(_, s)| surface < *s) {
+                    *best = Some((*procs, surface));
+                }
+                return;
+            }
+            for p in (1..=left).rev() {
+                if left % p == 0 {
+                    procs[a] = p;
+                    rec(a + 1, left / p, procs, cells, best);
+                }
+            }
+        }
+        if ranks == 0 {
+            return Err(Error::NoRanks);
+        }
+        rec(0, ranks, &mut procs, &cells, &mut best);
+        match best {
+            Some((p, _)) => Self::new(cells, periodic, p),
+            None => Err(Error::TooManyRanks {
+                ranks,
+                cells: cells.to_vec(),
+            }),
+        }
+    }
+
+    pub fn ranks(&self) -> usize {
+        self.procs.iter().product()
+    }
+
+    /// Block coordinates of a rank (axis 0 fastest).
+    pub fn block_coords(&self, rank: usize) -> [usize; D] {
+        let mut c = [0; D];
+        let mut r = rank;
+        for a in 0..D {
+            c[a] = r % self.procs[a];
+            r /= self.procs[a];
+        }
+        c
+    }
+
+    pub fn rank_of_block(&self, coords: [usize; D]) -> usize {
+        let mut r = 0;
+        for a in (0..D).rev() {
+            r = r * self.procs[a] + coords[a];
+        }
+        r
+    }
+
+    /// First cell of block `k` along axis `a` (`k = procs[a]` gives `cells[a]`).
+    pub fn split(&self, a: usize, k: usize) -> usize {
+        k * self.cells[a] / self.procs[a]
+    }
+
+    /// Owned cell range `[lo, hi)` of a rank.
+    pub fn block_cells(&self, rank: usize) -> ([usize; D], [usize; D]) {
+        let c = self.block_coords(rank);
+        let mut lo = [0; D];
+        let mut hi = [0; D];
+        for a in 0..D {
+            lo[a] = self.split(a, c[a]);
+            hi[a] = self.split(a, c[a] + 1);
+        }
+        (lo, hi)
+    }
+
+    /// Block index along axis `a` that owns cell `i` (0 <= i < cells[a]).
+    fn block_along(&self, a: usize, i: usize) -> usize {
+        // Inverse of `split`: the largest k with split(a, k) <= i.
+        let mut k = ((i + 1) * self.procs[a]) / self.cells[a];
+        k = k.min(self.procs[a] - 1);
+        while self.split(a, k) > i {
+            k -= 1;
+        }
+        while k + 1 < self.procs[a] && self.split(a, k + 1) <= i {
+            k += 1;
+        }
+        k
+    }
+
+    /// Rank owning a (valid, in-range) cell.
+    pub fn cell_owner(&self, cell: [usize; D]) -> usize {
+        let mut c = [0; D];
+        for a in 0..D {
+            c[a] = self.block_along(a, cell[a]);
+        }
+        self.rank_of_block(c)
+    }
+
+    /// Number of distinct nodes along an axis.
+    pub fn nodes(&self, a: usize) -> usize {
+        if self.periodic[a] {
+            self.cells[a]
+        } else {
+            self.cells[a] + 1
+        }
+    }
+
+    /// Wrap a node index on periodic axes; `None` if it lies outside a bounded axis.
+    pub fn wrap_node(&self, node: [i64; D]) -> Option<[usize; D]> {
+        let mut w = [0; D];
+        for a in 0..D {
+            let n = self.nodes(a) as i64;
+            if self.periodic[a] {
+                w[a] = node[a].rem_euclid(n) as usize;
+            } else if node[a] < 0 || node[a] >= n {
+                return None;
+            } else {
+                w[a] = node[a] as usize;
+            }
+        }
+        Some(w)
+    }
+
+    /// Owner of a wrapped node: the owner of the cell it is the lower corner of; the
+    /// upper boundary node of a bounded axis goes with the last cell.
+    pub fn node_owner(&self, node: [usize; D]) -> usize {
+        let mut cell = node;
+        for a in 0..D {
+            cell[a] = cell[a].min(self.cells[a] - 1);
+        }
+        self.cell_owner(cell)
+    }
+}
