@@ -1,6 +1,8 @@
 //! A rank's local block: its node box with ghost layers and the halo operations on
 //! nodal fields stored node-major (`field[node * ncomp + c]`).
 
+use std::collections::BTreeMap;
+
 use crate::comm::Communicator;
 use crate::layout::{Layout, GHOST};
 
@@ -143,75 +145,232 @@ impl<const D: usize> Block<D> {
     }
 }
 
+/// One axis of a rank's node box: first global (unwrapped) node, node count, and the
+/// owned local range `[own_lo, own_hi)`.
+#[derive(Clone, Copy, Debug)]
+struct AxisBox {
+    node_lo: i64,
+    dims: usize,
+    own_lo: usize,
+    own_hi: usize,
+}
+
+impl AxisBox {
+    /// Axis `a` of the box of the block with coordinate `k` along that axis. A box is
+    /// the product of its axes, which is what makes the halo build cheap.
+    fn new<const D: usize>(layout: &Layout<D>, a: usize, k: usize) -> Self {
+        let n = layout.cells[a];
+        let (lo, hi) = (layout.split(a, k), layout.split(a, k + 1));
+        let per = layout.periodic[a];
+        let below = if per || lo > 0 { GHOST } else { 0 };
+        let above = if per || hi < n { GHOST } else { 0 };
+        Self {
+            node_lo: lo as i64 - below as i64,
+            // Nodes lo-below ..= hi+above.
+            dims: hi - lo + below + above + 1,
+            own_lo: below,
+            own_hi: below + hi - lo + usize::from(!per && hi == n),
+        }
+    }
+
+    fn owns(&self, l: usize) -> bool {
+        l >= self.own_lo && l < self.own_hi
+    }
+}
+
 type NodeBox<const D: usize> = ([i64; D], [usize; D], [usize; D], [usize; D]);
 
 fn node_box<const D: usize>(layout: &Layout<D>, rank: usize) -> NodeBox<D> {
-    let (lo, hi) = layout.block_cells(rank);
-    let mut node_lo = [0i64; D];
-    let mut dims = [0usize; D];
-    let mut own_lo = [0usize; D];
-    let mut own_hi = [0usize; D];
+    let k = layout.block_coords(rank);
+    let mut out = ([0i64; D], [0usize; D], [0usize; D], [0usize; D]);
     for a in 0..D {
-        let n = layout.cells[a];
-        let per = layout.periodic[a];
-        let below = if per || lo[a] > 0 { GHOST } else { 0 };
-        let above = if per || hi[a] < n { GHOST } else { 0 };
-        node_lo[a] = lo[a] as i64 - below as i64;
-        // Nodes lo-below ..= hi+above.
-        dims[a] = hi[a] - lo[a] + below + above + 1;
-        own_lo[a] = below;
-        own_hi[a] = below + hi[a] - lo[a] + usize::from(!per && hi[a] == n);
-    }
-    (node_lo, dims, own_lo, own_hi)
-}
-
-/// Ghost nodes of `rank`'s box, as (local index, wrapped global node), in local order.
-fn ghost_nodes<const D: usize>(layout: &Layout<D>, rank: usize) -> Vec<(usize, [usize; D])> {
-    let (node_lo, dims, own_lo, own_hi) = node_box(layout, rank);
-    let total: usize = dims.iter().product();
-    let mut out = Vec::new();
-    for i in 0..total {
-        let mut c = [0usize; D];
-        let mut r = i;
-        for a in 0..D {
-            c[a] = r % dims[a];
-            r /= dims[a];
-        }
-        if (0..D).all(|a| c[a] >= own_lo[a] && c[a] < own_hi[a]) {
-            continue;
-        }
-        let mut g = [0i64; D];
-        for a in 0..D {
-            g[a] = node_lo[a] + c[a] as i64;
-        }
-        let w = layout
-            .wrap_node(g)
-            .expect("a node box lies inside the grid on bounded axes");
-        out.push((i, w));
+        let b = AxisBox::new(layout, a, k[a]);
+        out.0[a] = b.node_lo;
+        out.1[a] = b.dims;
+        out.2[a] = b.own_lo;
+        out.3[a] = b.own_hi;
     }
     out
 }
 
-fn build_halo<const D: usize>(layout: &Layout<D>, rank: usize) -> Halo {
-    let nranks = layout.ranks();
-    let (my_lo, dims, own_lo, _) = node_box(layout, rank);
-    // Local index on this rank of a wrapped global node it owns.
-    let local_of_owned = |w: [usize; D]| -> usize {
-        let mut i = 0;
-        for a in (0..D).rev() {
-            let l = (w[a] as i64 - my_lo[a]) as usize;
-            debug_assert!(l >= own_lo[a]);
-            i = i * dims[a] + l;
+/// Block coordinate along axis `a` of the owner of global (unwrapped) node `g`. Node
+/// ownership is a product over axes too: the owner of a node is the block whose
+/// per-axis coordinates own the node's per-axis indices.
+fn axis_owner<const D: usize>(layout: &Layout<D>, a: usize, g: i64) -> usize {
+    let w = if layout.periodic[a] {
+        g.rem_euclid(layout.nodes(a) as i64) as usize
+    } else {
+        debug_assert!(g >= 0 && (g as usize) < layout.nodes(a));
+        g as usize
+    };
+    layout.block_along(a, w.min(layout.cells[a] - 1))
+}
+
+/// Call `f` for every index tuple `i` with `i[a] < lens[a]`, axis 0 fastest (so local
+/// node boxes are walked in increasing linear index).
+fn odometer<const D: usize>(lens: [usize; D], mut f: impl FnMut([usize; D])) {
+    if lens.contains(&0) {
+        return;
+    }
+    let mut i = [0usize; D];
+    loop {
+        f(i);
+        let mut a = 0;
+        loop {
+            if a == D {
+                return;
+            }
+            i[a] += 1;
+            if i[a] < lens[a] {
+                break;
+            }
+            i[a] = 0;
+            a += 1;
         }
-        i
+    }
+}
+
+fn linear<const D: usize>(dims: [usize; D], c: [usize; D]) -> usize {
+    let mut i = 0;
+    for a in (0..D).rev() {
+        i = i * dims[a] + c[a];
+    }
+    i
+}
+
+/// The halo plan of `rank`, touching only the blocks that can share nodes with it.
+///
+/// Boxes and node ownership are both products over axes, so everything is decided per
+/// axis: along axis `a`, which block coordinates own a position of a box. Blocks are at
+/// least [`GHOST`] cells wide, so a box reaches at most one block below and two above
+/// (the node two cells past the block is the lower corner of the second block up when
+/// the first is exactly two cells wide); the candidate set is thus within two
+/// block-steps, wrapped and deduplicated on periodic axes (with one or two blocks along
+/// a periodic axis the same neighbour is met in both directions). Work is proportional
+/// to the box, not to the rank count.
+fn build_halo<const D: usize>(layout: &Layout<D>, rank: usize) -> Halo {
+    let me = layout.block_coords(rank);
+    let mine: [AxisBox; D] = std::array::from_fn(|a| AxisBox::new(layout, a, me[a]));
+    let my_dims: [usize; D] = std::array::from_fn(|a| mine[a].dims);
+    let is_mine_owned = |l: [usize; D]| (0..D).all(|a| mine[a].owns(l[a]));
+    // Per peer: (my ghosts it owns, my owned nodes that are its ghosts).
+    let mut lists: BTreeMap<usize, (Vec<usize>, Vec<usize>)> = BTreeMap::new();
+
+    // My ghosts, grouped by owner.
+    let owner_along: [Vec<usize>; D] = std::array::from_fn(|a| {
+        (0..mine[a].dims)
+            .map(|l| axis_owner(layout, a, mine[a].node_lo + l as i64))
+            .collect()
+    });
+    let owners: [Vec<usize>; D] = std::array::from_fn(|a| {
+        let mut v = owner_along[a].clone();
+        v.sort_unstable();
+        v.dedup();
+        v
+    });
+    odometer::<D>(std::array::from_fn(|a| owners[a].len()), |j| {
+        let q: [usize; D] = std::array::from_fn(|a| owners[a][j[a]]);
+        let pos: [Vec<usize>; D] = std::array::from_fn(|a| {
+            (0..mine[a].dims)
+                .filter(|&l| owner_along[a][l] == q[a])
+                .collect()
+        });
+        let mut ghosts = Vec::new();
+        odometer::<D>(std::array::from_fn(|a| pos[a].len()), |i| {
+            let l: [usize; D] = std::array::from_fn(|a| pos[a][i[a]]);
+            if !is_mine_owned(l) {
+                ghosts.push(linear(my_dims, l));
+            }
+        });
+        if !ghosts.is_empty() {
+            lists.entry(layout.rank_of_block(q)).or_default().0 = ghosts;
+        }
+    });
+
+    // My owned nodes in other boxes: per axis, the nearby blocks whose box has
+    // positions I own, with those positions.
+    let near: [Vec<(AxisBox, Vec<usize>, usize)>; D] = std::array::from_fn(|a| {
+        let p = layout.procs[a] as i64;
+        let mut ks: Vec<usize> = (-2..=2)
+            .map(|d| me[a] as i64 + d)
+            .filter_map(|k| {
+                if layout.periodic[a] {
+                    Some(k.rem_euclid(p) as usize)
+                } else {
+                    (0..p).contains(&k).then_some(k as usize)
+                }
+            })
+            .collect();
+        ks.sort_unstable();
+        ks.dedup();
+        ks.into_iter()
+            .filter_map(|k| {
+                let b = AxisBox::new(layout, a, k);
+                let pos: Vec<usize> = (0..b.dims)
+                    .filter(|&l| axis_owner(layout, a, b.node_lo + l as i64) == me[a])
+                    .collect();
+                (!pos.is_empty()).then_some((b, pos, k))
+            })
+            .collect()
+    });
+    odometer::<D>(std::array::from_fn(|a| near[a].len()), |j| {
+        let other: [&(AxisBox, Vec<usize>, usize); D] = std::array::from_fn(|a| &near[a][j[a]]);
+        let mut owned = Vec::new();
+        odometer::<D>(std::array::from_fn(|a| other[a].1.len()), |i| {
+            let l: [usize; D] = std::array::from_fn(|a| other[a].1[i[a]]);
+            if (0..D).all(|a| other[a].0.owns(l[a])) {
+                return; // owned there, so it is that block's node, i.e. mine: not a ghost
+            }
+            // Wrapped global index of the node, which lies in my owned range, hence
+            // equals its unwrapped index there.
+            let local: [usize; D] = std::array::from_fn(|a| {
+                let g = other[a].0.node_lo + l[a] as i64;
+                let w = if layout.periodic[a] {
+                    g.rem_euclid(layout.nodes(a) as i64)
+                } else {
+                    g
+                };
+                let m = (w - mine[a].node_lo) as usize;
+                debug_assert!(mine[a].owns(m));
+                m
+            });
+            owned.push(linear(my_dims, local));
+        });
+        if !owned.is_empty() {
+            let q: [usize; D] = std::array::from_fn(|a| other[a].2);
+            lists.entry(layout.rank_of_block(q)).or_default().1 = owned;
+        }
+    });
+
+    let mut h = Halo::default();
+    for (p, (ghosts, owned)) in lists {
+        h.peers.push(p);
+        h.ghosts.push(ghosts);
+        h.owned.push(owned);
+    }
+    h.send = vec![Vec::new(); h.peers.len()];
+    h.recv = vec![Vec::new(); h.peers.len()];
+    h
+}
+
+/// The straightforward plan, scanning every rank's ghost nodes: the reference that
+/// [`build_halo`] is tested against.
+#[cfg(test)]
+fn build_halo_brute<const D: usize>(layout: &Layout<D>, rank: usize) -> Halo {
+    let nranks = layout.ranks();
+    let (my_lo, dims, _, _) = node_box(layout, rank);
+    let local_of_owned = |w: [usize; D]| -> usize {
+        let mut c = [0usize; D];
+        for a in 0..D {
+            c[a] = (w[a] as i64 - my_lo[a]) as usize;
+        }
+        linear(dims, c)
     };
     let mut ghosts_by: Vec<Vec<usize>> = vec![Vec::new(); nranks];
     for (i, w) in ghost_nodes(layout, rank) {
         ghosts_by[layout.node_owner(w)].push(i);
     }
     let mut owned_by: Vec<Vec<usize>> = vec![Vec::new(); nranks];
-    // Only blocks within one block-step in every direction can hold my nodes as ghosts;
-    // scanning all ranks is simpler and only runs at set-up.
     for (other, list) in owned_by.iter_mut().enumerate() {
         for (_, w) in ghost_nodes(layout, other) {
             if layout.node_owner(w) == rank {
@@ -227,7 +386,93 @@ fn build_halo<const D: usize>(layout: &Layout<D>, rank: usize) -> Halo {
             h.owned.push(std::mem::take(&mut owned_by[p]));
         }
     }
-    h.send = vec![Vec::new(); h.peers.len()];
-    h.recv = vec![Vec::new(); h.peers.len()];
     h
+}
+
+/// Ghost nodes of `rank`'s box, as (local index, wrapped global node), in local order.
+#[cfg(test)]
+fn ghost_nodes<const D: usize>(layout: &Layout<D>, rank: usize) -> Vec<(usize, [usize; D])> {
+    let (node_lo, dims, own_lo, own_hi) = node_box(layout, rank);
+    let mut out = Vec::new();
+    odometer(dims, |c| {
+        if (0..D).all(|a| c[a] >= own_lo[a] && c[a] < own_hi[a]) {
+            return;
+        }
+        let g: [i64; D] = std::array::from_fn(|a| node_lo[a] + c[a] as i64);
+        let w = layout
+            .wrap_node(g)
+            .expect("a node box lies inside the grid on bounded axes");
+        out.push((linear(dims, c), w));
+    });
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn check_against_brute<const D: usize>(layout: &Layout<D>) {
+        for rank in 0..layout.ranks() {
+            let fast = build_halo(layout, rank);
+            let brute = build_halo_brute(layout, rank);
+            assert_eq!(fast.peers, brute.peers, "{layout:?} rank {rank}: peers");
+            assert_eq!(fast.ghosts, brute.ghosts, "{layout:?} rank {rank}: ghosts");
+            assert_eq!(fast.owned, brute.owned, "{layout:?} rank {rank}: owned");
+        }
+    }
+
+    /// The neighbour-restricted halo build gives exactly the plan of a scan over all
+    /// ranks, including blocks exactly GHOST cells wide (reach two blocks up) and one
+    /// or two blocks along periodic axes (the same neighbour in both directions).
+    #[test]
+    fn halo_matches_brute_force() {
+        for (cells, per, procs) in [
+            (7, false, 1),
+            (7, true, 1),
+            (7, false, 3),
+            (7, true, 3),
+            (4, true, 2),
+            (5, true, 2),
+            (13, true, 6),
+            (13, false, 6),
+            (2, true, 1),
+        ] {
+            check_against_brute(&Layout::new([cells], [per], [procs]).unwrap());
+        }
+        for per in [[false, false], [true, false], [false, true], [true, true]] {
+            for (cells, procs) in [
+                ([9, 7], [2, 3]),
+                ([4, 4], [2, 2]),
+                ([6, 5], [3, 1]),
+                ([4, 9], [1, 4]),
+                ([11, 4], [5, 2]),
+                ([2, 3], [1, 1]),
+            ] {
+                check_against_brute(&Layout::new(cells, per, procs).unwrap());
+            }
+        }
+        for per in [
+            [true, false, true],
+            [true, true, true],
+            [false, false, false],
+        ] {
+            for (cells, procs) in [
+                ([5, 6, 7], [2, 1, 3]),
+                ([4, 4, 4], [2, 2, 1]),
+                ([6, 4, 9], [3, 2, 4]),
+            ] {
+                check_against_brute(&Layout::new(cells, per, procs).unwrap());
+            }
+        }
+    }
+
+    #[test]
+    fn odometer_walks_in_linear_order() {
+        let mut seen = Vec::new();
+        odometer([3, 2, 2], |c| seen.push(linear([3, 2, 2], c)));
+        assert_eq!(seen, (0..12).collect::<Vec<_>>());
+        let mut n = 0;
+        odometer([3, 0], |_| n += 1);
+        assert_eq!(n, 0);
+    }
 }

@@ -165,11 +165,11 @@ impl Communicator for MpiComm {
             let mut reqs = Vec::new();
             for (k, &p) in peers.iter().enumerate() {
                 if p != me {
-                    reqs.push(self.world.process_at_rank(p as i32).immediate_send_with_tag(
-                        scope,
-                        &sends[k][..],
-                        2,
-                    ));
+                    reqs.push(
+                        self.world
+                            .process_at_rank(p as i32)
+                            .immediate_send_with_tag(scope, &sends[k][..], 2),
+                    );
                 }
             }
             for (k, &p) in peers.iter().enumerate() {
@@ -221,4 +221,3 @@ impl Communicator for MpiComm {
         buf
     }
 }
-

@@ -43,50 +43,58 @@ impl<const D: usize> Layout<D> {
         })
     }
 
-    /// The process grid for `ranks` ranks with the smallest total ghost surface
-    /// (sum over blocks of their face areas, in cells), ties broken towards splitting
-    /// the first axis, so every rank computes the same answer.
+    /// The process grid for `ranks` ranks with the smallest total ghost volume: the
+    /// cells in all blocks' ghost layers, counting periodic faces (they are exchanged
+    /// like any other, even with oneself) and ignoring the faces on bounded
+    /// boundaries. This is both the memory and the halo traffic that the choice
+    /// controls, and it prefers cube-like blocks. Ties go to the grid that splits the
+    /// first axis most, so every rank computes the same answer.
     pub fn choose(cells: [usize; D], periodic: [bool; D], ranks: usize) -> Result<Self, Error> {
-        let mut best: Option<([usize; D], f64)> = None;
-        let mut procs = [1usize; D];
         fn rec<const D: usize>(
             a: usize,
             left: usize,
             procs: &mut [usize; D],
             cells: &[usize; D],
-            best: &mut Option<([usize; D], f64)>,
+            periodic: &[bool; D],
+            best: &mut Option<([usize; D], u128)>,
         ) {
             if a == D - 1 {
                 procs[a] = left;
                 if (0..D).any(|d| cells[d] < GHOST * procs[d]) {
                     return;
                 }
-                // Each internal cut along axis d exposes the cross-section of the grid.
-                let surface: f64 = (0..D)
-                    .map(|d| {
-                        let cross: f64 = (0..D)
-                            .filter(|&e| e != d)
-                            .map(|e| cells[e] as f64)
-                            .product();
-                        (procs[d] - 1) as f64 * cross
-                    })
-                    .sum();
-                if best.as_ref().is_none_or(|(_, s)| surface < *s) {
-                    *best = Some((*procs, surface));
+                // Summed over a grid of blocks, the product of the blocks' extents
+                // (ghosts included) factorises into a product over axes of the summed
+                // extents: each axis contributes its cells plus GHOST per ghost side.
+                let mut with_ghosts = 1u128;
+                let mut inner = 1u128;
+                for d in 0..D {
+                    let sides = if periodic[d] {
+                        2 * procs[d]
+                    } else {
+                        2 * (procs[d] - 1)
+                    };
+                    with_ghosts *= (cells[d] + GHOST * sides) as u128;
+                    inner *= cells[d] as u128;
+                }
+                let volume = with_ghosts - inner;
+                if best.as_ref().is_none_or(|(_, v)| volume < *v) {
+                    *best = Some((*procs, volume));
                 }
                 return;
             }
             for p in (1..=left).rev() {
-                if left % p == 0 {
+                if left.is_multiple_of(p) {
                     procs[a] = p;
-                    rec(a + 1, left / p, procs, cells, best);
+                    rec(a + 1, left / p, procs, cells, periodic, best);
                 }
             }
         }
         if ranks == 0 {
             return Err(Error::NoRanks);
         }
-        rec(0, ranks, &mut procs, &cells, &mut best);
+        let mut best = None;
+        rec(0, ranks, &mut [1usize; D], &cells, &periodic, &mut best);
         match best {
             Some((p, _)) => Self::new(cells, periodic, p),
             None => Err(Error::TooManyRanks {
@@ -137,7 +145,7 @@ impl<const D: usize> Layout<D> {
     }
 
     /// Block index along axis `a` that owns cell `i` (0 <= i < cells[a]).
-    fn block_along(&self, a: usize, i: usize) -> usize {
+    pub(crate) fn block_along(&self, a: usize, i: usize) -> usize {
         // Inverse of `split`: the largest k with split(a, k) <= i.
         let mut k = ((i + 1) * self.procs[a]) / self.cells[a];
         k = k.min(self.procs[a] - 1);
