@@ -43,12 +43,13 @@ impl<const D: usize> Layout<D> {
         })
     }
 
-    /// The process grid for `ranks` ranks with the smallest total ghost volume: the
-    /// cells in all blocks' ghost layers, counting periodic faces (they are exchanged
-    /// like any other, even with oneself) and ignoring the faces on bounded
-    /// boundaries. This is both the memory and the halo traffic that the choice
-    /// controls, and it prefers cube-like blocks. Ties go to the grid that splits the
-    /// first axis most, so every rank computes the same answer.
+    /// The process grid for `ranks` ranks that exchanges the fewest ghost cells per
+    /// halo update: the cells of all blocks' ghost layers except those a block owns
+    /// itself (the images across a periodic axis it spans alone, which are a local
+    /// copy). Periodic faces count like internal ones, bounded boundaries not at all.
+    /// Ties go to the smaller total ghost volume (memory and scatter work, which
+    /// favours cube-like blocks), then to the grid that splits the first axis most, so
+    /// every rank computes the same answer.
     pub fn choose(cells: [usize; D], periodic: [bool; D], ranks: usize) -> Result<Self, Error> {
         fn rec<const D: usize>(
             a: usize,
@@ -56,30 +57,33 @@ impl<const D: usize> Layout<D> {
             procs: &mut [usize; D],
             cells: &[usize; D],
             periodic: &[bool; D],
-            best: &mut Option<([usize; D], u128)>,
+            best: &mut Option<([usize; D], (u128, u128))>,
         ) {
             if a == D - 1 {
                 procs[a] = left;
                 if (0..D).any(|d| cells[d] < GHOST * procs[d]) {
                     return;
                 }
-                // Summed over a grid of blocks, the product of the blocks' extents
-                // (ghosts included) factorises into a product over axes of the summed
-                // extents: each axis contributes its cells plus GHOST per ghost side.
-                let mut with_ghosts = 1u128;
+                // Summed over a grid of blocks, a product of per-axis block extents
+                // factorises into a product over axes of the extents summed along the
+                // axis: cells plus GHOST per ghost side (total box), or cells plus the
+                // self-image layers of a periodic axis with one block (self-owned part).
+                let mut boxes = 1u128;
+                let mut own = 1u128;
                 let mut inner = 1u128;
                 for d in 0..D {
-                    let sides = if periodic[d] {
-                        2 * procs[d]
-                    } else {
-                        2 * (procs[d] - 1)
+                    let (sides, self_sides) = match (periodic[d], procs[d]) {
+                        (true, 1) => (2, 2),
+                        (true, p) => (2 * p, 0),
+                        (false, p) => (2 * (p - 1), 0),
                     };
-                    with_ghosts *= (cells[d] + GHOST * sides) as u128;
+                    boxes *= (cells[d] + GHOST * sides) as u128;
+                    own *= (cells[d] + GHOST * self_sides) as u128;
                     inner *= cells[d] as u128;
                 }
-                let volume = with_ghosts - inner;
-                if best.as_ref().is_none_or(|(_, v)| volume < *v) {
-                    *best = Some((*procs, volume));
+                let cost = (boxes - own, boxes - inner);
+                if best.as_ref().is_none_or(|(_, c)| cost < *c) {
+                    *best = Some((*procs, cost));
                 }
                 return;
             }
