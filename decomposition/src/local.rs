@@ -149,9 +149,8 @@ impl LocalComm {
         out
     }
 
-    /// The `n` connected communicators of a group, for callers that manage their own
-    /// threads. Every one must be moved to its own thread: collectives block.
-    pub fn group(n: usize) -> Vec<LocalComm> {
+    /// The `n` connected communicators of a group, one per thread of [`LocalComm::run`].
+    fn group(n: usize) -> Vec<LocalComm> {
         let shared = Arc::new(Shared {
             size: n,
             coll: Mutex::new(Collective {
