@@ -1,1 +1,146 @@
-pub fn main() {}
+//! The command line. Exit status: 0 done, 2 bad input or usage, 3 numerically
+//! unstable, 1 any other failure (I/O, MPI).
+
+use crate::run::{self, RunError, RunOptions};
+use crate::scene::{self, SceneError};
+use clap::{Parser, Subcommand};
+use decomposition::{Communicator, MpiComm};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Parser, Debug)]
+#[command(name = "mpmcg", version, about = "Material Point Method with continuous gradient, MPI-parallel")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Run a scene (the built-in default scene if none is given).
+    Run {
+        /// Scene file (TOML).
+        scene: Option<PathBuf>,
+        /// Output folder [default: out/<scene name>].
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Threads per rank [default: 1 under mpirun with several ranks, else all cores].
+        #[arg(long)]
+        threads: Option<usize>,
+        /// No progress line.
+        #[arg(long, short)]
+        quiet: bool,
+    },
+    /// Validate a scene file and exit.
+    Check {
+        /// Scene file (TOML).
+        scene: PathBuf,
+    },
+}
+
+fn scene_error(e: &SceneError) -> ExitCode {
+    eprintln!("error: {e}");
+    ExitCode::from(2)
+}
+
+pub fn main() -> ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(c) => c,
+        Err(e) => {
+            let code = if e.use_stderr() { 2 } else { 0 };
+            let _ = e.print();
+            return ExitCode::from(code);
+        }
+    };
+    match cli.command {
+        Command::Check { scene } => match scene::load(&scene) {
+            Ok((s, _)) => {
+                println!(
+                    "{}: ok ({}D, {} cells, {} bodies, gradient {})",
+                    scene.display(),
+                    s.dim,
+                    s.grid.cells.iter().product::<usize>(),
+                    s.bodies.len(),
+                    s.method.gradient.name()
+                );
+                ExitCode::SUCCESS
+            }
+            Err(e) => scene_error(&e),
+        },
+        Command::Run {
+            scene,
+            out,
+            threads,
+            quiet,
+        } => {
+            let (sc, _text) = match &scene {
+                Some(path) => match scene::load(path) {
+                    Ok(x) => x,
+                    Err(e) => return scene_error(&e),
+                },
+                None => match scene::parse(scene::DEFAULT_SCENE, scene::DEFAULT_SCENE_NAME) {
+                    Ok(s) => (s, scene::DEFAULT_SCENE.to_string()),
+                    Err(e) => return scene_error(&e),
+                },
+            };
+            let Some(universe) = mpi::initialize() else {
+                eprintln!("error: MPI could not be initialised");
+                return ExitCode::from(1);
+            };
+            let comm = MpiComm::new(universe.world());
+            let root = comm.rank() == 0;
+            let threads = threads.unwrap_or(if comm.size() > 1 {
+                1
+            } else {
+                std::thread::available_parallelism().map_or(1, |n| n.get())
+            });
+            if threads == 0 {
+                if root {
+                    eprintln!("error: --threads must be >= 1");
+                }
+                return ExitCode::from(2);
+            }
+            if let Err(e) = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build_global()
+            {
+                {
+                    eprintln!("error: cannot start {threads} threads: {e}");
+                    return ExitCode::from(1);
+                }
+            }
+            let opts = RunOptions {
+                out: out.unwrap_or_else(|| PathBuf::from("out").join(&sc.name)),
+                quiet,
+                threads,
+            };
+            let result = run::run(&sc, &comm, &opts);
+            match result {
+                Ok(s) => {
+                    if root && !quiet {
+                        eprintln!(
+                            "{}: completed {} steps to t = {:.6e} in {:.2} s ({:.3e} particle updates/s); output in {}",
+                            s.scene,
+                            s.steps,
+                            s.time,
+                            s.wall_seconds,
+                            s.particle_updates_per_second,
+                            opts.out.display()
+                        );
+                    }
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    if root {
+                        eprintln!("error: {e}");
+                    }
+                    ExitCode::from(match e {
+                        RunError::Input(_) => 2,
+                        RunError::Unstable(_) => 3,
+                        RunError::Io(_) => 1,
+                    })
+                }
+            }
+        }
+    }
+}

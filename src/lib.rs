@@ -1,1 +1,13 @@
-pub mod cli; 
+//! mpmcg: an explicit Material Point Method with the continuous-gradient scheme
+//! (MPMCG, Zhang, Ma & Giguere 2011), next to standard MPM, GIMP and the averaged
+//! gradient, for 1D, 2D and 3D, distributed over MPI ranks.
+
+pub mod benchmark;
+pub mod cli;
+pub mod material;
+pub mod particles;
+pub mod run;
+pub mod scene;
+pub mod shape;
+pub mod solver;
+pub mod tensor;

@@ -1,1 +1,3 @@
-fn main() { mpmcg::cli::main() }
+fn main() -> std::process::ExitCode {
+    mpmcg::cli::main()
+}

@@ -1,0 +1,394 @@
+//! Problems with exact solutions (the scene's `[benchmark]` table): initial state, body
+//! force and exact displacement/velocity of each particle from its reference position.
+//! Formulas and sources: `shared/reference/benchmarks.md` and the README.
+
+use crate::material::{lame, Material};
+use crate::scene::{BenchmarkKind, BenchmarkSpec, Model, Scene, Shape};
+use crate::tensor::{Mat, Vector};
+use std::f64::consts::PI;
+
+#[derive(Clone, Debug)]
+pub enum Benchmark<const D: usize> {
+    /// `v_x = v0 cos(ωt) sin(β (X − x0))`, fixed at `x0`, free at `x0 + L`.
+    VibratingBar {
+        v0: f64,
+        beta: f64,
+        omega: f64,
+        x0: f64,
+    },
+    /// `u_i = A sin(π X_i) sin(cπt + φ_i)` on the unit cube, neo-Hookean.
+    AxisAlignedMms {
+        a: f64,
+        c: f64,
+        mu: f64,
+        lambda: f64,
+        rho0: f64,
+    },
+    /// Rotation of circles by `α(R,t) = A sin(cπt) h(R)` in the ring 0.75 <= R <= 1.25.
+    GeneralizedVortex {
+        a: f64,
+        c: f64,
+        mu: f64,
+        rho0: f64,
+        center: [f64; 2],
+    },
+}
+
+const PHASE: [f64; 3] = [0.0, 2.0 * PI / 3.0, 4.0 * PI / 3.0];
+
+/// Scene-level checks of a benchmark table (the solver relies on them).
+pub fn validate(s: &Scene, b: &BenchmarkSpec) -> Result<(), (String, String)> {
+    let m0 = &s.materials[0];
+    let body = &s.bodies[0];
+    let need_model = |model: Model, what: &str| {
+        if s.materials.iter().any(|m| m.model != model) {
+            Err((
+                "benchmark.kind".to_string(),
+                format!("`{what}` needs every material to be `{model:?}`").replace("LinearElastic", "linear_elastic").replace("NeoHookean", "neo_hookean"),
+            ))
+        } else {
+            Ok(())
+        }
+    };
+    match b.kind {
+        BenchmarkKind::VibratingBar => {
+            need_model(Model::LinearElastic, "vibrating_bar")?;
+            if b.c.is_some() {
+                return Err(("benchmark.c".into(), "not used by `vibrating_bar`".into()));
+            }
+            if !matches!(body.shape, Shape::Box { .. }) {
+                return Err((
+                    "bodies[0].shape".into(),
+                    "`vibrating_bar` needs the bar as a `box`".into(),
+                ));
+            }
+            if m0.poisson_ratio != 0.0 && s.dim > 1 {
+                return Err((
+                    "materials[0].poisson_ratio".into(),
+                    "the 2D/3D vibrating bar needs poisson_ratio = 0 for the 1D solution to hold".into(),
+                ));
+            }
+        }
+        BenchmarkKind::AxisAlignedMms | BenchmarkKind::GeneralizedVortex => {
+            let name = if b.kind == BenchmarkKind::AxisAlignedMms {
+                "axis_aligned_mms"
+            } else {
+                "generalized_vortex"
+            };
+            need_model(Model::NeoHookean, name)?;
+            if b.mode.is_some() {
+                return Err(("benchmark.mode".into(), format!("not used by `{name}`")));
+            }
+            if b.kind == BenchmarkKind::GeneralizedVortex {
+                if s.dim != 2 {
+                    return Err(("dim".into(), "`generalized_vortex` is a 2D problem".into()));
+                }
+                if !matches!(body.shape, Shape::Annulus { .. }) {
+                    return Err((
+                        "bodies[0].shape".into(),
+                        "`generalized_vortex` needs the ring as an `annulus`".into(),
+                    ));
+                }
+            } else {
+                for a in 0..s.dim {
+                    if s.grid.lower[a] != 0.0 || s.grid.upper[a] != 1.0 {
+                        return Err((
+                            "grid.lower".into(),
+                            "`axis_aligned_mms` is posed on the unit interval/square/cube: lower = 0, upper = 1".into(),
+                        ));
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+impl<const D: usize> Benchmark<D> {
+    pub fn new(s: &Scene) -> Option<Self> {
+        let b = s.benchmark.as_ref()?;
+        let m = &s.materials[0];
+        let (lambda, mu) = lame(m.youngs_modulus, m.poisson_ratio);
+        Some(match b.kind {
+            BenchmarkKind::VibratingBar => {
+                let (lo, hi) = match &s.bodies[0].shape {
+                    Shape::Box { lower, upper } => (lower[0], upper[0]),
+                    _ => unreachable!("validated"),
+                };
+                let n = b.mode.unwrap_or(1) as f64;
+                let beta = (2.0 * n - 1.0) * PI / (2.0 * (hi - lo));
+                let speed = Material::from_spec(m).wave_speed(1.0);
+                Benchmark::VibratingBar {
+                    v0: b.amplitude.unwrap_or(0.1),
+                    beta,
+                    omega: beta * speed,
+                    x0: lo,
+                }
+            }
+            BenchmarkKind::AxisAlignedMms => Benchmark::AxisAlignedMms {
+                a: b.amplitude.unwrap_or(0.05),
+                c: b.c.unwrap_or(100.0),
+                mu,
+                lambda,
+                rho0: m.density,
+            },
+            BenchmarkKind::GeneralizedVortex => {
+                let center = match &s.bodies[0].shape {
+                    Shape::Annulus { center, .. } => [center[0], center[1]],
+                    _ => unreachable!("validated"),
+                };
+                Benchmark::GeneralizedVortex {
+                    a: b.amplitude.unwrap_or(1.0),
+                    c: b.c.unwrap_or(1.0),
+                    mu,
+                    rho0: m.density,
+                    center,
+                }
+            }
+        })
+    }
+
+    /// Whether the problem drives the material with a body force.
+    pub fn has_body_force(&self) -> bool {
+        !matches!(self, Benchmark::VibratingBar { .. })
+    }
+
+    /// Exact displacement and velocity at reference position `x0`, time `t`.
+    pub fn exact(&self, x0: &Vector<D>, t: f64) -> (Vector<D>, Vector<D>) {
+        let mut u = Vector::<D>::zeros();
+        let mut v = Vector::<D>::zeros();
+        match *self {
+            Benchmark::VibratingBar {
+                v0,
+                beta,
+                omega,
+                x0: o,
+            } => {
+                let s = (beta * (x0[0] - o)).sin();
+                u[0] = v0 / omega * (omega * t).sin() * s;
+                v[0] = v0 * (omega * t).cos() * s;
+            }
+            Benchmark::AxisAlignedMms { a, c, .. } => {
+                for i in 0..D {
+                    let s = (PI * x0[i]).sin();
+                    u[i] = a * s * (c * PI * t + PHASE[i]).sin();
+                    v[i] = a * s * c * PI * (c * PI * t + PHASE[i]).cos();
+                }
+            }
+            Benchmark::GeneralizedVortex { .. } => {
+                let (x, vel) = self.vortex_motion(x0, t);
+                u = x - x0;
+                v = vel;
+            }
+        }
+        (u, v)
+    }
+
+    /// Exact deformation gradient at `x0`, time `t` (the initial state uses it).
+    pub fn deformation_gradient(&self, x0: &Vector<D>, t: f64) -> Mat<D> {
+        let mut f = Mat::<D>::identity();
+        match *self {
+            Benchmark::VibratingBar {
+                v0,
+                beta,
+                omega,
+                x0: o,
+            } => {
+                f[(0, 0)] += v0 / omega * (omega * t).sin() * beta * (beta * (x0[0] - o)).cos();
+            }
+            Benchmark::AxisAlignedMms { a, c, .. } => {
+                for i in 0..D {
+                    f[(i, i)] += a * PI * (PI * x0[i]).cos() * (c * PI * t + PHASE[i]).sin();
+                }
+            }
+            Benchmark::GeneralizedVortex { .. } => {
+                // F = Q(α) (I + R α_R (e_θ ⊗ e_R)) in the reference polar frame.
+                let (r, th, al, _, _, al_r, _) = self.vortex_terms(x0, t);
+                let (c, s) = (al.cos(), al.sin());
+                let er = [th.cos(), th.sin()];
+                let et = [-th.sin(), th.cos()];
+                let mut g = [[0.0; 2]; 2];
+                for i in 0..2 {
+                    for j in 0..2 {
+                        g[i][j] = f64::from(u8::from(i == j)) + r * al_r * et[i] * er[j];
+                    }
+                }
+                let q = [[c, -s], [s, c]];
+                for i in 0..2 {
+                    for j in 0..2 {
+                        f[(i, j)] = q[i][0] * g[0][j] + q[i][1] * g[1][j];
+                    }
+                }
+            }
+        }
+        f
+    }
+
+    /// Body force per unit mass at reference position `x0`, time `t`.
+    pub fn body_force(&self, x0: &Vector<D>, t: f64) -> Vector<D> {
+        let mut b = Vector::<D>::zeros();
+        match *self {
+            Benchmark::VibratingBar { .. } => {}
+            Benchmark::AxisAlignedMms {
+                a,
+                c,
+                mu,
+                lambda,
+                rho0,
+            } => {
+                let mut u = [0.0; D];
+                let mut fii = [0.0; D];
+                let mut lnj = 0.0;
+                for i in 0..D {
+                    let ph = c * PI * t + PHASE[i];
+                    u[i] = a * (PI * x0[i]).sin() * ph.sin();
+                    fii[i] = 1.0 + a * PI * (PI * x0[i]).cos() * ph.sin();
+                    lnj += fii[i].ln();
+                }
+                for i in 0..D {
+                    b[i] = PI * PI
+                        * u[i]
+                        * (mu / rho0 - c * c - (lambda * (lnj - 1.0) - mu) / (rho0 * fii[i] * fii[i]));
+                }
+            }
+            Benchmark::GeneralizedVortex { mu, rho0, .. } => {
+                let (r, th, al, al_t, al_tt, al_r, al_rr) = self.vortex_terms(x0, t);
+                let g = mu / rho0;
+                let br = -r * al_t * al_t + g * r * al_r * al_r;
+                let bt = r * al_tt - g * (r * al_rr + 3.0 * al_r);
+                let phi = th + al; // current polar angle
+                b[0] = br * phi.cos() - bt * phi.sin();
+                b[1] = br * phi.sin() + bt * phi.cos();
+            }
+        }
+        b
+    }
+
+    /// (R, Θ, α, α_t, α_tt, α_R, α_RR) of the vortex at a reference point.
+    fn vortex_terms(&self, x0: &Vector<D>, t: f64) -> (f64, f64, f64, f64, f64, f64, f64) {
+        let Benchmark::GeneralizedVortex { a, c, center, .. } = *self else {
+            unreachable!()
+        };
+        let dx = x0[0] - center[0];
+        let dy = x0[1] - center[1];
+        let r = dx.hypot(dy);
+        let th = dy.atan2(dx);
+        let q = r - 1.0;
+        let h = 1.0 - 32.0 * q * q + 256.0 * q.powi(4);
+        let hr = -64.0 * q + 1024.0 * q.powi(3);
+        let hrr = -64.0 + 3072.0 * q * q;
+        let w = c * PI;
+        let (s, co) = (w * t).sin_cos();
+        (
+            r,
+            th,
+            a * s * h,
+            a * w * co * h,
+            -a * w * w * s * h,
+            a * s * hr,
+            a * s * hrr,
+        )
+    }
+
+    fn vortex_motion(&self, x0: &Vector<D>, t: f64) -> (Vector<D>, Vector<D>) {
+        let Benchmark::GeneralizedVortex { center, .. } = *self else {
+            unreachable!()
+        };
+        let (r, th, al, al_t, ..) = self.vortex_terms(x0, t);
+        let phi = th + al;
+        let mut x = Vector::<D>::zeros();
+        let mut v = Vector::<D>::zeros();
+        x[0] = center[0] + r * phi.cos();
+        x[1] = center[1] + r * phi.sin();
+        v[0] = -al_t * r * phi.sin();
+        v[1] = al_t * r * phi.cos();
+        (x, v)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The MMS body force balances the equation of motion: compute ρ0 ü − ∇·P by finite
+    /// differences of the exact field and compare with ρ0 b.
+    #[test]
+    fn mms_body_force_satisfies_momentum_balance_2d() {
+        let (lambda, mu) = lame(1e4, 0.3);
+        let bm = Benchmark::<2>::AxisAlignedMms {
+            a: 0.05,
+            c: 100.0,
+            mu,
+            lambda,
+            rho0: 1.0,
+        };
+        let piola = |x: &Vector<2>, t: f64| {
+            let f = bm.deformation_gradient(x, t);
+            let fit = f.try_inverse().unwrap().transpose();
+            let j = crate::tensor::det(&f);
+            (f - fit) * mu + fit * (lambda * j.ln())
+        };
+        let x = Vector::<2>::new(0.3, 0.7);
+        let t = 0.0071;
+        let e = 1e-5;
+        let et = 1e-7;
+        let acc = (bm.exact(&x, t + et).1 - bm.exact(&x, t - et).1) / (2.0 * et);
+        let mut div = Vector::<2>::zeros();
+        for j in 0..2 {
+            let mut dx = Vector::<2>::zeros();
+            dx[j] = e;
+            let dp = (piola(&(x + dx), t) - piola(&(x - dx), t)) / (2.0 * e);
+            for i in 0..2 {
+                div[i] += dp[(i, j)];
+            }
+        }
+        let b = bm.body_force(&x, t);
+        let resid = acc - div - b;
+        assert!(resid.norm() < 1e-4 * b.norm().max(1.0), "residual {resid}");
+    }
+
+    /// The vortex body force balances the equation of motion in the current frame:
+    /// ρ a = ∇·σ + ρ b with σ = μ (F Fᵀ − I) (J = 1), by finite differences in x.
+    #[test]
+    fn vortex_body_force_satisfies_momentum_balance() {
+        let (_, mu) = lame(1000.0, 0.3);
+        let bm = Benchmark::<2>::GeneralizedVortex {
+            a: 1.0,
+            c: 1.0,
+            mu,
+            rho0: 1000.0,
+            center: [0.0, 0.0],
+        };
+        let x0 = Vector::<2>::new(0.6, 0.75);
+        let t = 0.37;
+        // Cauchy stress as a function of the current position: invert the motion.
+        let cauchy = |x: &Vector<2>| {
+            // Reference point of current point x: rotate back by α(R, t), R = |x|.
+            let r = x.norm();
+            let th = x[1].atan2(x[0]);
+            let probe = Vector::<2>::new(r, 0.0);
+            let (_, _, al, ..) = bm.vortex_terms(&probe, t);
+            let xr = Vector::<2>::new(r * (th - al).cos(), r * (th - al).sin());
+            let f = bm.deformation_gradient(&xr, t);
+            (f * f.transpose() - Mat::<2>::identity()) * mu
+        };
+        let (xc, _) = bm.vortex_motion(&x0, t);
+        let e = 1e-5;
+        let mut div = Vector::<2>::zeros();
+        for j in 0..2 {
+            let mut dx = Vector::<2>::zeros();
+            dx[j] = e;
+            let ds = (cauchy(&(xc + dx)) - cauchy(&(xc - dx))) / (2.0 * e);
+            for i in 0..2 {
+                div[i] += ds[(i, j)];
+            }
+        }
+        let et = 1e-6;
+        let acc = (bm.exact(&x0, t + et).1 - bm.exact(&x0, t - et).1) / (2.0 * et);
+        let b = bm.body_force(&x0, t);
+        let resid = acc * 1000.0 - div - b * 1000.0;
+        assert!(resid.norm() < 1e-3 * (div.norm() + 1.0), "residual {resid}");
+        // J = 1 for a rigid rotation of each circle.
+        assert!((crate::tensor::det(&bm.deformation_gradient(&x0, t)) - 1.0).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,106 @@
+//! Compressible neo-Hookean solid, `W = μ/2 (F:F − D) − μ ln J + λ/2 (ln J)²`, Cauchy
+//! stress `σ = [μ (F Fᵀ − I) + λ ln J I] / J`. With D = 2 (plane strain, F₃₃ = 1) and
+//! D = 1 (uniaxial strain) this is the 3D model restricted, since the missing
+//! directions contribute `1 − 1 = 0` to `F:F − D`.
+
+use crate::tensor::{det, Mat};
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct NeoHookean {
+    pub lambda: f64,
+    pub mu: f64,
+    pub density: f64,
+}
+
+impl NeoHookean {
+    #[inline]
+    pub fn stress<const D: usize>(&self, f: &Mat<D>) -> Mat<D> {
+        let j = det(f);
+        let b = f * f.transpose();
+        (b * self.mu + Mat::<D>::identity() * (self.lambda * j.ln() - self.mu)) / j
+    }
+
+    /// Energy per reference volume.
+    pub fn energy_density<const D: usize>(&self, f: &Mat<D>) -> f64 {
+        let j = det(f);
+        let lj = j.ln();
+        0.5 * self.mu * (f.component_mul(f).sum() - D as f64) - self.mu * lj
+            + 0.5 * self.lambda * lj * lj
+    }
+
+    /// Longitudinal wave speed from the current tangent modulus `λ + 2(μ − λ ln J)`
+    /// over the reference density; never below the small-strain speed.
+    #[inline]
+    pub fn wave_speed(&self, j: f64) -> f64 {
+        let m = (self.lambda + 2.0 * (self.mu - self.lambda * j.ln())).max(self.lambda + 2.0 * self.mu);
+        (m / self.density).sqrt()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn model() -> NeoHookean {
+        NeoHookean {
+            lambda: 5.0,
+            mu: 3.0,
+            density: 1.0,
+        }
+    }
+
+    /// Uniaxial stretch F = diag(s, 1, 1): σ_xx = [μ (s² − 1) + λ ln s] / s,
+    /// σ_yy = λ ln s / s, and W matches the closed form.
+    #[test]
+    fn uniaxial_strain() {
+        let m = model();
+        let s = 1.3;
+        let mut f = Mat::<3>::identity();
+        f[(0, 0)] = s;
+        let sig = m.stress(&f);
+        assert!((sig[(0, 0)] - (3.0 * (s * s - 1.0) + 5.0 * s.ln()) / s).abs() < 1e-14);
+        assert!((sig[(1, 1)] - 5.0 * s.ln() / s).abs() < 1e-14);
+        let w = 0.5 * 3.0 * (s * s - 1.0) - 3.0 * s.ln() + 2.5 * s.ln().powi(2);
+        assert!((m.energy_density(&f) - w).abs() < 1e-14);
+        // 1D and plane strain give the same normal stress along the stretch.
+        let f1 = Mat::<1>::identity() * s;
+        assert!((m.stress(&f1)[(0, 0)] - sig[(0, 0)]).abs() < 1e-14);
+        assert!((m.energy_density(&f1) - w).abs() < 1e-14);
+    }
+
+    /// Simple shear F = I + γ e_x⊗e_y: J = 1, σ_xy = μγ, σ_xx = μγ², σ_yy = 0.
+    #[test]
+    fn simple_shear() {
+        let m = model();
+        let g = 0.4;
+        let mut f = Mat::<2>::identity();
+        f[(0, 1)] = g;
+        let sig = m.stress(&f);
+        assert!((sig[(0, 1)] - 3.0 * g).abs() < 1e-14);
+        assert!((sig[(0, 0)] - 3.0 * g * g).abs() < 1e-14);
+        assert!(sig[(1, 1)].abs() < 1e-14);
+        assert!((m.energy_density(&f) - 0.5 * 3.0 * g * g).abs() < 1e-14);
+    }
+
+    /// Hydrostatic F = s I in 3D: pressure-only stress (μ (s² − 1) + 3λ ln s) / s³ and
+    /// energy from the formula; the stress is the derivative of the energy: for
+    /// F = s I, dW/ds = 3 s² σ_xx (Cauchy × J / s, times the three directions).
+    #[test]
+    fn hydrostatic() {
+        let m = model();
+        let s = 0.9;
+        let f = Mat::<3>::identity() * s;
+        let sig = m.stress(&f);
+        let j = s * s * s;
+        let expect = (3.0 * (s * s - 1.0) + 5.0 * j.ln()) / j;
+        for a in 0..3 {
+            assert!((sig[(a, a)] - expect).abs() < 1e-13);
+        }
+        assert!(sig[(0, 1)].abs() < 1e-15);
+        let e = 1e-6;
+        let dw = (m.energy_density(&(Mat::<3>::identity() * (s + e)))
+            - m.energy_density(&(Mat::<3>::identity() * (s - e))))
+            / (2.0 * e);
+        assert!((dw - 3.0 * s * s * sig[(0, 0)]).abs() < 1e-7);
+    }
+}

@@ -1,0 +1,295 @@
+//! Particles as a structure of arrays. Optional state is an empty `Vec` unless the
+//! scene needs it: the deformation gradient only for materials that use it, the
+//! reference position only for benchmarks, the GIMP half-width only for `gimp`.
+
+use crate::benchmark::Benchmark;
+use crate::material::Material;
+use crate::scene::{Scene, Shape};
+use crate::shape::Geom;
+use crate::tensor::{det, vector, Mat, Vector};
+
+#[derive(Clone, Debug, Default)]
+pub struct Particles<const D: usize> {
+    pub x: Vec<Vector<D>>,
+    pub v: Vec<Vector<D>>,
+    pub mass: Vec<f64>,
+    /// Current volume.
+    pub vol: Vec<f64>,
+    /// Reference volume.
+    pub vol0: Vec<f64>,
+    pub stress: Vec<Mat<D>>,
+    /// Deformation gradient (materials that need it).
+    pub def_grad: Vec<Mat<D>>,
+    /// Material index.
+    pub mat: Vec<u16>,
+    /// Global id, independent of the rank count.
+    pub id: Vec<u64>,
+    /// Reference position (benchmarks).
+    pub x0: Vec<Vector<D>>,
+    /// GIMP particle half-width per axis.
+    pub half: Vec<[f64; D]>,
+}
+
+/// Which optional arrays the particles carry.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Carries {
+    pub def_grad: bool,
+    pub x0: bool,
+    pub half: bool,
+}
+
+impl<const D: usize> Particles<D> {
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    pub fn carries(&self) -> Carries {
+        Carries {
+            def_grad: !self.def_grad.is_empty() || self.is_empty(),
+            x0: !self.x0.is_empty(),
+            half: !self.half.is_empty(),
+        }
+    }
+
+    /// Apply the permutation `perm` (new position k holds old particle `perm[k]`) to
+    /// every array, using `scratch` so no allocation happens once it has grown.
+    pub fn permute(&mut self, perm: &[usize], scratch: &mut Vec<f64>) {
+        fn apply<T: Copy>(v: &mut [T], perm: &[usize], scratch: &mut Vec<f64>)
+        where
+            T: AsF64Slice,
+        {
+            if v.is_empty() {
+                return;
+            }
+            let w = T::WIDTH;
+            scratch.clear();
+            for &p in perm {
+                scratch.extend_from_slice(v[p].as_slice());
+            }
+            for (k, item) in v.iter_mut().enumerate() {
+                item.set_from(&scratch[k * w..(k + 1) * w]);
+            }
+        }
+        apply(&mut self.x, perm, scratch);
+        apply(&mut self.v, perm, scratch);
+        apply(&mut self.mass, perm, scratch);
+        apply(&mut self.vol, perm, scratch);
+        apply(&mut self.vol0, perm, scratch);
+        apply(&mut self.stress, perm, scratch);
+        apply(&mut self.def_grad, perm, scratch);
+        apply(&mut self.x0, perm, scratch);
+        apply(&mut self.half, perm, scratch);
+        // Integer arrays: ids and materials fit exactly in f64 (ids < 2^53).
+        scratch.clear();
+        scratch.extend(perm.iter().map(|&p| self.id[p] as f64));
+        for (k, id) in self.id.iter_mut().enumerate() {
+            *id = scratch[k] as u64;
+        }
+        scratch.clear();
+        scratch.extend(perm.iter().map(|&p| f64::from(self.mat[p])));
+        for (k, m) in self.mat.iter_mut().enumerate() {
+            *m = scratch[k] as u16;
+        }
+    }
+
+    /// Seed the particles of every body whose current position falls in the owned
+    /// cells `[cell_lo, cell_hi)`, in global id order.
+    pub fn seed(
+        scene: &Scene,
+        geom: &Geom<D>,
+        materials: &[Material],
+        benchmark: Option<&Benchmark<D>>,
+        cell_lo: [usize; D],
+        cell_hi: [usize; D],
+    ) -> Self {
+        let needs_f = materials.iter().any(Material::needs_def_grad);
+        let gimp = scene.method.gradient == crate::scene::Gradient::Gimp;
+        let mut p = Particles::<D>::default();
+        // Benchmarks may start displaced: look that many cells beyond the block.
+        let disp = match benchmark {
+            Some(Benchmark::AxisAlignedMms { a, .. }) => a.abs(),
+            _ => 0.0,
+        };
+        let mut id_base = 0u64;
+        for body in &scene.bodies {
+            let mi = scene
+                .materials
+                .iter()
+                .position(|m| m.name == body.material)
+                .expect("validated");
+            let mat = &materials[mi];
+            let n = body.particles_per_cell;
+            let sub = n.pow(D as u32);
+            let vol0 = geom.cell_volume() / sub as f64;
+            let (blo, bhi) = shape_bounds::<D>(&body.shape);
+            // Cells of the grid overlapping the body's bounding box.
+            let mut c0 = [0usize; D];
+            let mut c1 = [0usize; D];
+            for a in 0..D {
+                let lo = ((blo[a] - geom.lower[a]) * geom.inv_h[a]).floor().max(0.0) as usize;
+                let hi = (((bhi[a] - geom.lower[a]) * geom.inv_h[a]).ceil() as usize).min(geom.cells[a]);
+                c0[a] = lo;
+                c1[a] = hi.max(lo + 1);
+            }
+            // Restrict to the block, padded by the initial displacement.
+            let pad: [usize; D] = std::array::from_fn(|a| 1 + (disp * geom.inv_h[a]).ceil() as usize);
+            let mut r0 = [0usize; D];
+            let mut r1 = [0usize; D];
+            let mut empty = false;
+            for a in 0..D {
+                r0[a] = c0[a].max(cell_lo[a].saturating_sub(pad[a]));
+                r1[a] = c1[a].min(cell_hi[a] + pad[a]);
+                if r0[a] >= r1[a] {
+                    empty = true;
+                }
+            }
+            let dims: [usize; D] = std::array::from_fn(|a| c1[a] - c0[a]);
+            let body_cells: usize = dims.iter().product();
+            if !empty {
+                let counts: [usize; D] = std::array::from_fn(|a| r1[a] - r0[a]);
+                let total: usize = counts.iter().product();
+                for k in 0..total {
+                    let mut rem = k;
+                    let mut cell = [0usize; D];
+                    for a in 0..D {
+                        cell[a] = r0[a] + rem % counts[a];
+                        rem /= counts[a];
+                    }
+                    let mut lin = 0usize;
+                    for a in (0..D).rev() {
+                        lin = lin * dims[a] + (cell[a] - c0[a]);
+                    }
+                    for s in 0..sub {
+                        let mut r = s;
+                        let mut xref = [0.0; D];
+                        for a in 0..D {
+                            let q = r % n;
+                            r /= n;
+                            xref[a] = geom.lower[a]
+                                + (cell[a] as f64 + (q as f64 + 0.5) / n as f64) * geom.h[a];
+                        }
+                        if !inside(&body.shape, &xref) {
+                            continue;
+                        }
+                        let xr = vector::<D>(&xref);
+                        let (mut x, mut v, mut f) = (xr, Vector::<D>::zeros(), Mat::<D>::identity());
+                        if let Some(b) = benchmark {
+                            let (u, vel) = b.exact(&xr, 0.0);
+                            x += u;
+                            v = vel;
+                            f = b.deformation_gradient(&xr, 0.0);
+                        }
+                        if let Some(bv) = &body.velocity {
+                            v += vector::<D>(bv);
+                        }
+                        let (c, _) = geom.locate(&std::array::from_fn(|a| x[a]));
+                        if (0..D).any(|a| c[a] < cell_lo[a] as i64 || c[a] >= cell_hi[a] as i64) {
+                            continue;
+                        }
+                        let j = det(&f);
+                        p.x.push(x);
+                        p.v.push(v);
+                        p.mass.push(mat.density() * vol0);
+                        p.vol0.push(vol0);
+                        p.vol.push(vol0 * j);
+                        let mut st = Mat::<D>::zeros();
+                        if mat.needs_def_grad() {
+                            mat.update_stress(&mut st, &Mat::<D>::zeros(), &f, 0.0);
+                        }
+                        p.stress.push(st);
+                        if needs_f {
+                            p.def_grad.push(f);
+                        }
+                        p.mat.push(mi as u16);
+                        p.id.push(id_base + (lin * sub + s) as u64);
+                        if benchmark.is_some() {
+                            p.x0.push(xr);
+                        }
+                        if gimp {
+                            p.half.push(std::array::from_fn(|a| 0.5 * geom.h[a] / n as f64));
+                        }
+                    }
+                }
+            }
+            id_base += (body_cells * sub) as u64;
+        }
+        p
+    }
+}
+
+/// Bounding box of a shape.
+pub fn shape_bounds<const D: usize>(s: &Shape) -> ([f64; D], [f64; D]) {
+    match s {
+        Shape::Box { lower, upper } => (
+            std::array::from_fn(|a| lower[a]),
+            std::array::from_fn(|a| upper[a]),
+        ),
+        Shape::Sphere { center, radius } => (
+            std::array::from_fn(|a| center[a] - radius),
+            std::array::from_fn(|a| center[a] + radius),
+        ),
+        Shape::Annulus { center, outer, .. } => (
+            std::array::from_fn(|a| center[a] - outer),
+            std::array::from_fn(|a| center[a] + outer),
+        ),
+    }
+}
+
+/// Is a point inside a shape (closed sets)?
+pub fn inside<const D: usize>(s: &Shape, x: &[f64; D]) -> bool {
+    match s {
+        Shape::Box { lower, upper } => (0..D).all(|a| x[a] >= lower[a] && x[a] <= upper[a]),
+        Shape::Sphere { center, radius } => {
+            (0..D).map(|a| (x[a] - center[a]).powi(2)).sum::<f64>() <= radius * radius
+        }
+        Shape::Annulus {
+            center,
+            inner,
+            outer,
+        } => {
+            let r2: f64 = (0..D).map(|a| (x[a] - center[a]).powi(2)).sum();
+            r2 >= inner * inner && r2 <= outer * outer
+        }
+    }
+}
+
+/// Fixed-width `f64` view of particle array elements, for permutation and migration.
+pub trait AsF64Slice: Copy {
+    const WIDTH: usize;
+    fn as_slice(&self) -> &[f64];
+    fn set_from(&mut self, s: &[f64]);
+}
+
+impl AsF64Slice for f64 {
+    const WIDTH: usize = 1;
+    fn as_slice(&self) -> &[f64] {
+        std::slice::from_ref(self)
+    }
+    fn set_from(&mut self, s: &[f64]) {
+        *self = s[0];
+    }
+}
+
+impl<const D: usize> AsF64Slice for [f64; D] {
+    const WIDTH: usize = D;
+    fn as_slice(&self) -> &[f64] {
+        self
+    }
+    fn set_from(&mut self, s: &[f64]) {
+        self.copy_from_slice(s);
+    }
+}
+
+impl<const R: usize, const C: usize> AsF64Slice for nalgebra::SMatrix<f64, R, C> {
+    const WIDTH: usize = R * C;
+    fn as_slice(&self) -> &[f64] {
+        nalgebra::SMatrix::as_slice(self)
+    }
+    fn set_from(&mut self, s: &[f64]) {
+        self.copy_from_slice(s);
+    }
+}

@@ -1,0 +1,320 @@
+//! Grid geometry, shape functions and the closed-form grid integrals the gradient
+//! schemes are built from.
+//!
+//! Nodes are addressed by global (unwrapped) index; a node on a bounded axis is an *end
+//! node* if it lies on the grid boundary, where the integrals over the grid domain are
+//! halved. On a periodic axis there are no end nodes.
+
+/// Most nodes a particle touches: 3 per axis (GIMP) in 3D.
+pub const MAX_NODES: usize = 27;
+
+/// The uniform tensor grid, global.
+#[derive(Clone, Debug)]
+pub struct Geom<const D: usize> {
+    pub lower: [f64; D],
+    pub upper: [f64; D],
+    pub h: [f64; D],
+    pub inv_h: [f64; D],
+    pub cells: [usize; D],
+    pub periodic: [bool; D],
+}
+
+impl<const D: usize> Geom<D> {
+    pub fn new(lower: [f64; D], upper: [f64; D], cells: [usize; D], periodic: [bool; D]) -> Self {
+        let mut h = [0.0; D];
+        let mut inv_h = [0.0; D];
+        for a in 0..D {
+            h[a] = (upper[a] - lower[a]) / cells[a] as f64;
+            inv_h[a] = 1.0 / h[a];
+        }
+        Self {
+            lower,
+            upper,
+            h,
+            inv_h,
+            cells,
+            periodic,
+        }
+    }
+
+    pub fn min_h(&self) -> f64 {
+        self.h.iter().cloned().fold(f64::INFINITY, f64::min)
+    }
+
+    pub fn cell_volume(&self) -> f64 {
+        self.h.iter().product()
+    }
+
+    /// Cell containing `x` and the local coordinate in it, per axis. On a bounded axis a
+    /// point on the upper face belongs to the last cell (ξ = 1).
+    #[inline]
+    pub fn locate(&self, x: &[f64; D]) -> ([i64; D], [f64; D]) {
+        let mut c = [0i64; D];
+        let mut xi = [0.0; D];
+        for a in 0..D {
+            let s = (x[a] - self.lower[a]) * self.inv_h[a];
+            let mut i = s.floor() as i64;
+            if !self.periodic[a] {
+                i = i.clamp(0, self.cells[a] as i64 - 1);
+            }
+            c[a] = i;
+            xi[a] = s - i as f64;
+        }
+        (c, xi)
+    }
+
+    /// Is node index `g` along axis `a` on the lower (-1), upper (+1) boundary, or not (0)?
+    #[inline]
+    pub fn end(&self, a: usize, g: i64) -> i32 {
+        if self.periodic[a] {
+            0
+        } else if g == 0 {
+            -1
+        } else if g == self.cells[a] as i64 {
+            1
+        } else {
+            0
+        }
+    }
+
+    /// Does node `g` exist along axis `a` (always, on a periodic axis)?
+    #[inline]
+    pub fn exists(&self, a: usize, g: i64) -> bool {
+        self.periodic[a] || (0..=self.cells[a] as i64).contains(&g)
+    }
+
+    /// `V_j = ∫ S_j dv` over the grid domain.
+    pub fn node_volume(&self, node: [i64; D]) -> f64 {
+        let mut v = 1.0;
+        for (a, &g) in node.iter().enumerate() {
+            v *= if self.end(a, g) != 0 {
+                0.5 * self.h[a]
+            } else {
+                self.h[a]
+            };
+        }
+        v
+    }
+
+    /// Position of a node.
+    pub fn node_position(&self, node: [i64; D]) -> [f64; D] {
+        let mut x = [0.0; D];
+        for a in 0..D {
+            x[a] = self.lower[a] + node[a] as f64 * self.h[a];
+        }
+        x
+    }
+}
+
+/// 1D integral `∫ N_j N_i' dx` for `j - i = dj` at node `gi` along axis `a`.
+#[inline]
+pub fn int_n_dn<const D: usize>(geom: &Geom<D>, a: usize, gi: i64, dj: i64) -> f64 {
+    match dj {
+        -1 => 0.5,
+        1 => -0.5,
+        0 => 0.5 * geom.end(a, gi) as f64,
+        _ => 0.0,
+    }
+}
+
+/// 1D integral `∫ N_j N_i dx` for `j - i = dj` at node `gi` along axis `a`.
+#[inline]
+pub fn int_n_n<const D: usize>(geom: &Geom<D>, a: usize, gi: i64, dj: i64) -> f64 {
+    let h = geom.h[a];
+    match dj {
+        -1 | 1 => h / 6.0,
+        0 => {
+            if geom.end(a, gi) != 0 {
+                h / 3.0
+            } else {
+                2.0 * h / 3.0
+            }
+        }
+        _ => 0.0,
+    }
+}
+
+/// `W_ji = ∫ S_j ∇S_i dv` for node `i` and neighbour `j = i + dj` (|dj| <= 1 per axis),
+/// a tensor product of the 1D integrals. Zero if `j` does not exist.
+pub fn grid_integral<const D: usize>(geom: &Geom<D>, gi: [i64; D], dj: [i64; D]) -> [f64; D] {
+    let mut w = [0.0; D];
+    for a in 0..D {
+        if !geom.exists(a, gi[a] + dj[a]) {
+            return [0.0; D];
+        }
+    }
+    for (d, wd) in w.iter_mut().enumerate() {
+        let mut p = int_n_dn(geom, d, gi[d], dj[d]);
+        for e in 0..D {
+            if e != d {
+                p *= int_n_n(geom, e, gi[e], dj[e]);
+            }
+        }
+        *wd = p;
+    }
+    w
+}
+
+/// Weight function α(x) of MPMCG: 1 gives MPM's gradient, 0 the averaged one. It must
+/// vanish on cell faces for the gradient to be continuous.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Alpha {
+    /// `Π_d 4 ξ_d (1 − ξ_d)`: a product of shape functions, 1 at the cell centre.
+    ProductOfShapes,
+    /// A constant: 0 is the averaged gradient, 1 standard MPM (used by tests).
+    Constant(f64),
+}
+
+impl Alpha {
+    #[inline]
+    pub fn eval<const D: usize>(self, xi: &[f64; D]) -> f64 {
+        match self {
+            Alpha::ProductOfShapes => xi.iter().map(|&x| 4.0 * x * (1.0 - x)).product(),
+            Alpha::Constant(c) => c,
+        }
+    }
+}
+
+/// Per-axis 1D weights of one particle; the tensor product gives node weights.
+#[derive(Clone, Copy, Debug)]
+pub struct Weights1<const D: usize> {
+    /// Global index of the first node touched along each axis.
+    pub base: [i64; D],
+    /// Nodes per axis: 2 (linear) or 3 (GIMP).
+    pub n: usize,
+    pub w: [[f64; 3]; D],
+    pub dw: [[f64; 3]; D],
+    /// Local cell coordinate (for α).
+    pub xi: [f64; D],
+}
+
+/// Linear hat functions.
+#[inline]
+pub fn linear<const D: usize>(geom: &Geom<D>, x: &[f64; D]) -> Weights1<D> {
+    let (c, xi) = geom.locate(x);
+    let mut w = [[0.0; 3]; D];
+    let mut dw = [[0.0; 3]; D];
+    for a in 0..D {
+        w[a][0] = 1.0 - xi[a];
+        w[a][1] = xi[a];
+        dw[a][0] = -geom.inv_h[a];
+        dw[a][1] = geom.inv_h[a];
+    }
+    Weights1 {
+        base: c,
+        n: 2,
+        w,
+        dw,
+        xi,
+    }
+}
+
+/// Uniform GIMP: hat functions convolved with the particle's characteristic function of
+/// half-width `lp[a]` (< h/2). Nodes outside a bounded grid are dropped (their weight
+/// is non-zero only for a particle within `lp` of the boundary).
+#[inline]
+pub fn gimp<const D: usize>(geom: &Geom<D>, x: &[f64; D], lp: &[f64; D]) -> Weights1<D> {
+    let (c, xi) = geom.locate(x);
+    let mut base = c;
+    let mut w = [[0.0; 3]; D];
+    let mut dw = [[0.0; 3]; D];
+    for a in 0..D {
+        let h = geom.h[a];
+        let l = lp[a];
+        if xi[a] < 0.5 {
+            base[a] = c[a] - 1;
+        }
+        for k in 0..3 {
+            let g = base[a] + k as i64;
+            if !geom.exists(a, g) {
+                continue;
+            }
+            // Signed distance from the node to the particle.
+            let r = (xi[a] + (c[a] - g) as f64) * h;
+            let ar = r.abs();
+            let s = r.signum();
+            let (wk, dk) = if ar < l {
+                (1.0 - (r * r + l * l) / (2.0 * h * l), -r / (h * l))
+            } else if ar < h - l {
+                (1.0 - ar / h, -s / h)
+            } else if ar < h + l {
+                let q = h + l - ar;
+                (q * q / (4.0 * h * l), -s * q / (2.0 * h * l))
+            } else {
+                (0.0, 0.0)
+            };
+            w[a][k] = wk;
+            dw[a][k] = dk;
+        }
+        // Keep the three slots on existing nodes at a bounded end (the dropped node has
+        // weight zero), so the stencil never indexes outside the grid.
+        if !geom.periodic[a] {
+            if base[a] < 0 {
+                base[a] = 0;
+                w[a] = [w[a][1], w[a][2], 0.0];
+                dw[a] = [dw[a][1], dw[a][2], 0.0];
+            } else if base[a] + 2 > geom.cells[a] as i64 {
+                base[a] -= 1;
+                w[a] = [0.0, w[a][0], w[a][1]];
+                dw[a] = [0.0, dw[a][0], dw[a][1]];
+            }
+        }
+    }
+    Weights1 {
+        base,
+        n: 3,
+        w,
+        dw,
+        xi,
+    }
+}
+
+/// Node weights and gradients of one particle, tensor products of [`Weights1`].
+#[derive(Clone, Copy, Debug)]
+pub struct Stencil<const D: usize> {
+    pub count: usize,
+    /// Offsets of the nodes from `base`, per axis.
+    pub off: [[u8; D]; MAX_NODES],
+    pub s: [f64; MAX_NODES],
+    pub g: [[f64; D]; MAX_NODES],
+}
+
+impl<const D: usize> Weights1<D> {
+    #[inline]
+    pub fn stencil(&self) -> Stencil<D> {
+        let n = self.n;
+        let count = n.pow(D as u32);
+        let mut st = Stencil {
+            count,
+            off: [[0; D]; MAX_NODES],
+            s: [0.0; MAX_NODES],
+            g: [[0.0; D]; MAX_NODES],
+        };
+        for k in 0..count {
+            let mut r = k;
+            let mut o = [0u8; D];
+            for oa in o.iter_mut() {
+                *oa = (r % n) as u8;
+                r /= n;
+            }
+            let mut s = 1.0;
+            for a in 0..D {
+                s *= self.w[a][o[a] as usize];
+            }
+            let mut g = [0.0; D];
+            for (d, gd) in g.iter_mut().enumerate() {
+                let mut p = self.dw[d][o[d] as usize];
+                for e in 0..D {
+                    if e != d {
+                        p *= self.w[e][o[e] as usize];
+                    }
+                }
+                *gd = p;
+            }
+            st.off[k] = o;
+            st.s[k] = s;
+            st.g[k] = g;
+        }
+        st
+    }
+}

@@ -1,0 +1,811 @@
+//! The explicit MPM step on one rank's block, for every gradient scheme and update
+//! order. Physics never sees MPI: it calls the decomposition layer at fixed points
+//! (ghost sum after particle→grid, ghost copy before grid→particle and before the
+//! node→node stencils, migration after the position update).
+
+use crate::benchmark::Benchmark;
+use crate::material::Material;
+use crate::particles::Particles;
+use crate::scene::{Face, Gradient, Scene, Update};
+use crate::shape::{self, Alpha, Geom, Stencil, MAX_NODES};
+use crate::tensor::{det, vector, Mat, Vector};
+use decomposition::{Block, Communicator, Layout};
+
+/// Why a run cannot go on.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Failure {
+    /// Non-finite or non-physical state (NaN, J <= 0): the run became unstable.
+    Unstable(String),
+    /// A particle left a bounded grid.
+    LeftGrid(String),
+}
+
+impl std::fmt::Display for Failure {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Failure::Unstable(m) => write!(f, "numerically unstable: {m}"),
+            Failure::LeftGrid(m) => write!(f, "material left the grid: {m}"),
+        }
+    }
+}
+
+/// Conserved and diagnostic totals over all ranks.
+#[derive(Clone, Debug, Default)]
+pub struct Totals {
+    pub mass: f64,
+    pub momentum: Vec<f64>,
+    pub kinetic: f64,
+    pub strain: f64,
+    pub external_work: f64,
+    pub particles: u64,
+}
+
+impl Totals {
+    /// Kinetic plus stored energy minus the work done by external forces: constant for
+    /// an exact integrator.
+    pub fn total_energy(&self) -> f64 {
+        self.kinetic + self.strain - self.external_work
+    }
+}
+
+/// Corner offsets of a cell's 2^D nodes (bit `a` of the index = offset along axis `a`).
+const CORNERS: usize = 8;
+
+pub struct Solver<'c, const D: usize> {
+    comm: &'c dyn Communicator,
+    pub geom: Geom<D>,
+    pub layout: Layout<D>,
+    pub block: Block<D>,
+    faces: [[Face; 2]; D],
+    pub parts: Particles<D>,
+    pub materials: Vec<Material>,
+    pub benchmark: Option<Benchmark<D>>,
+    gravity: Vector<D>,
+    pub gradient: Gradient,
+    pub alpha: Alpha,
+    pub update: Update,
+    flip: f64,
+    cfl: Option<f64>,
+    fixed_dt: Option<f64>,
+    pub end: f64,
+    pub t: f64,
+    pub step: u64,
+    pub dt: f64,
+    /// Accumulated work of gravity and body forces (this rank's particles).
+    external_work: f64,
+    /// Maximum of wave speed + particle speed after the last update (this rank).
+    max_speed: f64,
+    // Grid fields, node-major over the local node box.
+    strides: [usize; D],
+    /// Scatter record per node: mass, momentum (D), force (D), [Σ(1−α) v σ S (D×D)].
+    scat: Vec<f64>,
+    sw: usize,
+    /// Per node: velocity before (D) and after (D) the force update.
+    vel: Vec<f64>,
+    /// Per node: σ̄ (D×D), then reused for L̄ (D×D).
+    avg: Vec<f64>,
+    /// Per node: number of particles in the cell whose lower corner it is (the cell is
+    /// *occupied* if non-zero), copied to the ghosts.
+    occupied: Vec<f64>,
+    /// Per owned node: `V_j = ∫_Ω S_j dv` over the occupied cells Ω.
+    node_vol: Vec<f64>,
+    /// `∫_c S_j ∇S_i dv` over one cell for its corners j (first index) and i (second).
+    cell_k: [[[f64; D]; CORNERS]; CORNERS],
+    /// Linear index offset of each cell corner.
+    corner_delta: [usize; CORNERS],
+    /// Node mass below which a node is treated as empty.
+    mass_floor: f64,
+    // Scratch reused every step (no allocation in the loop once grown).
+    dx: Vec<Vector<D>>,
+    perm: Vec<usize>,
+    scratch: Vec<f64>,
+}
+
+const SORT_EVERY: u64 = 20;
+
+impl<'c, const D: usize> Solver<'c, D> {
+    pub fn new(scene: &Scene, comm: &'c dyn Communicator, layout: Layout<D>) -> Self {
+        let g = &scene.grid;
+        let faces: [[Face; 2]; D] =
+            std::array::from_fn(|a| [g.boundary.face(a, false), g.boundary.face(a, true)]);
+        let periodic: [bool; D] = std::array::from_fn(|a| faces[a][0] == Face::Periodic);
+        let geom = Geom::new(
+            std::array::from_fn(|a| g.lower[a]),
+            std::array::from_fn(|a| g.upper[a]),
+            std::array::from_fn(|a| g.cells[a]),
+            periodic,
+        );
+        let block = Block::new(&layout, comm.rank());
+        let materials: Vec<Material> = scene.materials.iter().map(Material::from_spec).collect();
+        let benchmark = Benchmark::<D>::new(scene);
+        let parts = Particles::seed(
+            scene,
+            &geom,
+            &materials,
+            benchmark.as_ref(),
+            block.cell_lo,
+            block.cell_hi,
+        );
+        let gradient = scene.method.gradient;
+        let alpha = match gradient {
+            Gradient::Mpm | Gradient::Gimp => Alpha::Constant(1.0),
+            Gradient::Averaged => Alpha::Constant(0.0),
+            Gradient::Mpmcg => Alpha::ProductOfShapes,
+        };
+        let mut s = Self {
+            comm,
+            geom,
+            layout,
+            block,
+            faces,
+            parts,
+            materials,
+            benchmark,
+            gravity: scene
+                .gravity
+                .as_ref()
+                .map_or(Vector::<D>::zeros(), |gr| vector::<D>(&gr.value)),
+            gradient,
+            alpha,
+            update: scene.method.update,
+            flip: scene.method.flip,
+            cfl: match (scene.time.cfl, scene.time.dt) {
+                (None, None) => Some(0.2),
+                (c, _) => c,
+            },
+            fixed_dt: scene.time.dt,
+            end: scene.time.end,
+            t: 0.0,
+            step: 0,
+            dt: 0.0,
+            external_work: 0.0,
+            max_speed: 0.0,
+            strides: [0; D],
+            scat: Vec::new(),
+            sw: 0,
+            vel: Vec::new(),
+            avg: Vec::new(),
+            occupied: Vec::new(),
+            node_vol: Vec::new(),
+            cell_k: [[[0.0; D]; CORNERS]; CORNERS],
+            corner_delta: [0; CORNERS],
+            mass_floor: 0.0,
+            dx: Vec::new(),
+            perm: Vec::new(),
+            scratch: Vec::new(),
+        };
+        s.setup_grid();
+        let mut mmin = [s.parts.mass.iter().cloned().fold(f64::INFINITY, f64::min)];
+        s.comm.min_f64(&mut mmin);
+        s.mass_floor = if mmin[0].is_finite() { 1e-12 * mmin[0] } else { 0.0 };
+        s.max_speed = s.compute_max_speed();
+        s
+    }
+
+    /// Replace the scheme's α (tests: α ≡ 0 is `averaged`, α ≡ 1 is `mpm`).
+    pub fn set_alpha(&mut self, alpha: Alpha) {
+        self.alpha = alpha;
+        self.setup_grid();
+    }
+
+    /// The scheme evaluates its gradient through grid averages (σ̄, L̄)?
+    pub fn two_step(&self) -> bool {
+        self.gradient == Gradient::Averaged
+            || self.gradient == Gradient::Mpmcg
+            || self.alpha != Alpha::Constant(1.0)
+    }
+
+    fn setup_grid(&mut self) {
+        let b = &self.block;
+        let nn = b.num_nodes();
+        let mut st = [0usize; D];
+        let mut acc = 1;
+        for a in 0..D {
+            st[a] = acc;
+            acc *= b.node_dims[a];
+        }
+        self.strides = st;
+        let two = self.two_step();
+        self.sw = 1 + 2 * D + if two { D * D + 1 } else { 0 };
+        self.scat = vec![0.0; nn * self.sw];
+        self.vel = vec![0.0; nn * 2 * D];
+        if two {
+            self.avg = vec![0.0; nn * D * D];
+            self.occupied = vec![0.0; nn];
+            self.node_vol = vec![0.0; nn];
+            for q in 0..(1 << D) {
+                self.corner_delta[q] = (0..D).map(|a| ((q >> a) & 1) * st[a]).sum();
+                for r in 0..(1 << D) {
+                    self.cell_k[r][q] = cell_integral::<D>(&self.geom.h, r, q);
+                }
+            }
+        } else {
+            self.avg = Vec::new();
+            self.occupied = Vec::new();
+            self.node_vol = Vec::new();
+        }
+    }
+
+    /// Particle weights, local node indices and α.
+    #[inline]
+    fn stencil(&self, p: usize) -> (Stencil<D>, [usize; MAX_NODES], f64) {
+        let x: [f64; D] = std::array::from_fn(|a| self.parts.x[p][a]);
+        let w = if self.gradient == Gradient::Gimp {
+            shape::gimp(&self.geom, &x, &self.parts.half[p])
+        } else {
+            shape::linear(&self.geom, &x)
+        };
+        let st = w.stencil();
+        let mut base = 0usize;
+        for a in 0..D {
+            base += (w.base[a] - self.block.node_lo[a]) as usize * self.strides[a];
+        }
+        let mut idx = [0usize; MAX_NODES];
+        for k in 0..st.count {
+            let mut i = base;
+            for a in 0..D {
+                i += st.off[k][a] as usize * self.strides[a];
+            }
+            idx[k] = i;
+        }
+        (st, idx, self.alpha.eval(&w.xi))
+    }
+
+    /// External force per unit mass on particle `p` at the current time.
+    #[inline]
+    fn body_accel(&self, p: usize) -> Vector<D> {
+        match &self.benchmark {
+            Some(b) if b.has_body_force() => self.gravity + b.body_force(&self.parts.x0[p], self.t),
+            _ => self.gravity,
+        }
+    }
+
+    /// Particle → grid: mass, momentum and, if `forces`, external and internal forces.
+    fn scatter(&mut self, forces: bool) {
+        let sw = self.sw;
+        self.scat.iter_mut().for_each(|v| *v = 0.0);
+        let two = self.two_step();
+        for p in 0..self.parts.len() {
+            let (st, idx, alpha) = self.stencil(p);
+            let m = self.parts.mass[p];
+            let mv = self.parts.v[p] * m;
+            let fe = if forces {
+                self.body_accel(p) * m
+            } else {
+                Vector::<D>::zeros()
+            };
+            let vs = self.parts.stress[p] * self.parts.vol[p];
+            if two {
+                // The linear stencil's first node is the lower corner of the cell.
+                self.scat[idx[0] * sw + sw - 1] += 1.0;
+            }
+            for k in 0..st.count {
+                let n = idx[k] * sw;
+                let s = st.s[k];
+                let rec = &mut self.scat[n..n + sw];
+                rec[0] += m * s;
+                for a in 0..D {
+                    rec[1 + a] += mv[a] * s;
+                }
+                if forces {
+                    let g = &st.g[k];
+                    for a in 0..D {
+                        let mut f = fe[a] * s;
+                        if alpha != 0.0 {
+                            let mut sg = 0.0;
+                            for b in 0..D {
+                                sg += vs[(a, b)] * g[b];
+                            }
+                            f -= alpha * sg;
+                        }
+                        rec[1 + D + a] += f;
+                    }
+                    if two {
+                        let c = (1.0 - alpha) * s;
+                        for a in 0..D {
+                            for b in 0..D {
+                                rec[1 + 2 * D + a * D + b] += c * vs[(a, b)];
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        self.block.ghost_sum(self.comm, &mut self.scat, sw);
+        if two {
+            self.occupancy();
+        }
+    }
+
+    /// Iterate the owned nodes' local indices.
+    fn for_owned(&self, mut f: impl FnMut(usize, [usize; D])) {
+        let b = &self.block;
+        let counts: [usize; D] = std::array::from_fn(|a| b.own_hi[a] - b.own_lo[a]);
+        let total: usize = counts.iter().product();
+        for k in 0..total {
+            let mut r = k;
+            let mut c = [0usize; D];
+            for a in 0..D {
+                c[a] = b.own_lo[a] + r % counts[a];
+                r /= counts[a];
+            }
+            f(b.index(c), c);
+        }
+    }
+
+    /// Visit the occupied cells around local node `c` (index `n`): for each, the
+    /// node's corner number in the cell and the cell's lower-corner index.
+    #[inline]
+    fn cells_around(&self, n: usize, c: &[usize; D], mut f: impl FnMut(usize, usize)) {
+        for q in 0..(1 << D) {
+            if (0..D).any(|a| c[a] < (q >> a) & 1) {
+                continue; // no cell there: bounded grid face
+            }
+            let cell = n - self.corner_delta[q];
+            if self.occupied[cell] > 0.0 {
+                f(q, cell);
+            }
+        }
+    }
+
+    /// Occupied cells and node volumes `V_j` from the particle counts of the scatter.
+    fn occupancy(&mut self) {
+        let sw = self.sw;
+        let cnt = sw - 1;
+        let mut occ = std::mem::take(&mut self.occupied);
+        self.for_owned(|n, _| occ[n] = self.scat[n * sw + cnt]);
+        self.block.ghost_copy(self.comm, &mut occ, 1);
+        self.occupied = occ;
+        let share = self.geom.cell_volume() / (1 << D) as f64;
+        let mut vol = std::mem::take(&mut self.node_vol);
+        self.for_owned(|n, c| {
+            let mut k = 0;
+            self.cells_around(n, &c, |_, _| k += 1);
+            vol[n] = k as f64 * share;
+        });
+        self.node_vol = vol;
+    }
+
+    /// Node → node step of the internal force: `f_i −= Σ_j σ̄_j · ∫_Ω S_j ∇S_i dv`,
+    /// assembled cell by cell over the occupied cells around each owned node.
+    fn averaged_force(&mut self) {
+        let sw = self.sw;
+        let dd = D * D;
+        let t0 = 1 + 2 * D;
+        // σ̄_j = T_j / V_j on owned nodes, then to the ghosts.
+        let mut avg = std::mem::take(&mut self.avg);
+        self.for_owned(|n, _| {
+            let v = self.node_vol[n];
+            for c in 0..dd {
+                avg[n * dd + c] = if v > 0.0 {
+                    self.scat[n * sw + t0 + c] / v
+                } else {
+                    0.0
+                };
+            }
+        });
+        self.block.ghost_copy(self.comm, &mut avg, dd);
+        let mut scat = std::mem::take(&mut self.scat);
+        self.for_owned(|i, ci| {
+            let mut f = [0.0; D];
+            self.cells_around(i, &ci, |q, cell| {
+                for r in 0..(1 << D) {
+                    let j = cell + self.corner_delta[r];
+                    let w = &self.cell_k[r][q];
+                    let s = &avg[j * dd..(j + 1) * dd];
+                    for a in 0..D {
+                        for b in 0..D {
+                            f[a] += s[a * D + b] * w[b];
+                        }
+                    }
+                }
+            });
+            for a in 0..D {
+                scat[i * sw + 1 + D + a] -= f[a];
+            }
+        });
+        self.scat = scat;
+        self.avg = avg;
+    }
+
+    /// Grid velocities from momentum (and, if `dt > 0`, forces), with boundary
+    /// conditions, on owned nodes; then copied to ghosts.
+    fn grid_velocity(&mut self, dt: f64) {
+        let sw = self.sw;
+        let mut vel = std::mem::take(&mut self.vel);
+        self.for_owned(|n, c| {
+            let rec = &self.scat[n * sw..(n + 1) * sw];
+            let m = rec[0];
+            let v = &mut vel[n * 2 * D..(n + 1) * 2 * D];
+            if m > self.mass_floor {
+                for a in 0..D {
+                    v[a] = rec[1 + a] / m;
+                    v[D + a] = v[a] + dt * rec[1 + D + a] / m;
+                }
+                self.apply_bc(c, v);
+            } else {
+                v.iter_mut().for_each(|x| *x = 0.0);
+            }
+        });
+        self.block.ghost_copy(self.comm, &mut vel, 2 * D);
+        self.vel = vel;
+    }
+
+    /// Fixed and slip faces on both velocity slots of a node.
+    #[inline]
+    fn apply_bc(&self, c: [usize; D], v: &mut [f64]) {
+        for a in 0..D {
+            let g = self.block.node_lo[a] + c[a] as i64;
+            let side = self.geom.end(a, g);
+            if side == 0 {
+                continue;
+            }
+            match self.faces[a][usize::from(side > 0)] {
+                Face::Fixed => v.iter_mut().for_each(|x| *x = 0.0),
+                Face::Slip => {
+                    v[a] = 0.0;
+                    v[D + a] = 0.0;
+                }
+                Face::Free | Face::Periodic => {}
+            }
+        }
+    }
+
+    /// `L̄_j = (1/V_j) Σ_i v_i ⊗ ∫_Ω S_j ∇S_i dv` on owned nodes from velocity slot
+    /// `slot`, then to the ghosts (stored in `avg`).
+    fn averaged_velocity_gradient(&mut self, slot: usize) {
+        let dd = D * D;
+        let mut avg = std::mem::take(&mut self.avg);
+        self.for_owned(|j, cj| {
+            let mut l = [0.0; 9];
+            self.cells_around(j, &cj, |q, cell| {
+                for r in 0..(1 << D) {
+                    let i = cell + self.corner_delta[r];
+                    let w = &self.cell_k[q][r];
+                    let v = &self.vel[i * 2 * D + slot * D..i * 2 * D + slot * D + D];
+                    for a in 0..D {
+                        for b in 0..D {
+                            l[a * D + b] += v[a] * w[b];
+                        }
+                    }
+                }
+            });
+            let vol = self.node_vol[j];
+            for c in 0..dd {
+                avg[j * dd + c] = if vol > 0.0 { l[c] / vol } else { 0.0 };
+            }
+        });
+        self.block.ghost_copy(self.comm, &mut avg, dd);
+        self.avg = avg;
+    }
+
+    /// Velocity gradient at particle `p` from velocity slot `slot` (0 = before forces,
+    /// 1 = after) and, for two-step schemes, `L̄` in `avg`.
+    #[inline]
+    fn velocity_gradient(&self, st: &Stencil<D>, idx: &[usize; MAX_NODES], alpha: f64, slot: usize) -> Mat<D> {
+        let mut l = Mat::<D>::zeros();
+        let dd = D * D;
+        for k in 0..st.count {
+            let n = idx[k];
+            let v = &self.vel[n * 2 * D + slot * D..n * 2 * D + slot * D + D];
+            if alpha != 0.0 {
+                for a in 0..D {
+                    for b in 0..D {
+                        l[(a, b)] += alpha * v[a] * st.g[k][b];
+                    }
+                }
+            }
+            if alpha != 1.0 {
+                let c = (1.0 - alpha) * st.s[k];
+                let lb = &self.avg[n * dd..(n + 1) * dd];
+                for a in 0..D {
+                    for b in 0..D {
+                        l[(a, b)] += c * lb[a * D + b];
+                    }
+                }
+            }
+        }
+        l
+    }
+
+    /// Deformation, volume and stress of particle `p` after a step `dt` with gradient `l`.
+    /// Returns false if the state is no longer physical.
+    #[inline]
+    fn deform(&mut self, p: usize, l: &Mat<D>, dt: f64) -> bool {
+        let inc = Mat::<D>::identity() + l * dt;
+        let j = det(&inc);
+        self.parts.vol[p] *= j;
+        let mat = &self.materials[self.parts.mat[p] as usize];
+        let f = if self.parts.def_grad.is_empty() {
+            Mat::<D>::identity()
+        } else {
+            let f = inc * self.parts.def_grad[p];
+            self.parts.def_grad[p] = f;
+            f
+        };
+        mat.update_stress(&mut self.parts.stress[p], l, &f, dt);
+        j > 0.0 && self.parts.vol[p].is_finite()
+    }
+
+    fn compute_max_speed(&self) -> f64 {
+        let mut m = 0.0f64;
+        for p in 0..self.parts.len() {
+            m = m.max(self.particle_speed(p));
+        }
+        m
+    }
+
+    #[inline]
+    fn particle_speed(&self, p: usize) -> f64 {
+        let j = self.parts.vol[p] / self.parts.vol0[p];
+        self.materials[self.parts.mat[p] as usize].wave_speed(j) + self.parts.v[p].norm()
+    }
+
+    /// Pick the step size: fixed, or the CFL number over the fastest signal anywhere.
+    fn choose_dt(&mut self) -> f64 {
+        let mut s = [self.max_speed];
+        self.comm.max_f64(&mut s);
+        let dt = match (self.fixed_dt, self.cfl) {
+            (Some(dt), _) => dt,
+            (None, Some(c)) => c * self.geom.min_h() / s[0].max(1e-300),
+            (None, None) => unreachable!("a CFL number is always set without dt"),
+        };
+        // Land exactly on the end time rather than overshoot it.
+        let left = self.end - self.t;
+        if dt > left || (left - dt) < 1e-9 * dt {
+            left
+        } else {
+            dt
+        }
+    }
+
+    /// Advance one step. On failure the particle state is that of the failed step.
+    pub fn advance(&mut self) -> Result<(), Failure> {
+        let dt = self.choose_dt();
+        self.dt = dt;
+        let mut ok = true;
+        match self.update {
+            Update::Usl => {
+                self.scatter(true);
+                if self.two_step() {
+                    self.averaged_force();
+                }
+                self.grid_velocity(dt);
+                if self.two_step() {
+                    self.averaged_velocity_gradient(1);
+                }
+                ok &= self.gather(dt, true, true);
+            }
+            Update::Usf => {
+                self.scatter(false);
+                self.grid_velocity(0.0);
+                if self.two_step() {
+                    self.averaged_velocity_gradient(0);
+                }
+                ok &= self.update_stress_from(0, dt);
+                self.scatter(true);
+                if self.two_step() {
+                    self.averaged_force();
+                }
+                self.grid_velocity(dt);
+                ok &= self.gather(dt, false, true);
+            }
+            Update::Musl => {
+                self.scatter(true);
+                if self.two_step() {
+                    self.averaged_force();
+                }
+                self.grid_velocity(dt);
+                ok &= self.gather(dt, false, false);
+                // Remap the new particle momentum to the grid, still at the old positions.
+                self.scatter(false);
+                self.grid_velocity(0.0);
+                if self.two_step() {
+                    self.averaged_velocity_gradient(0);
+                }
+                ok &= self.update_stress_from(0, dt);
+                for p in 0..self.parts.len() {
+                    self.parts.x[p] += self.dx[p];
+                }
+            }
+        }
+        self.t += dt;
+        self.step += 1;
+        let bad = self.comm.any(!ok);
+        if bad {
+            return Err(Failure::Unstable(format!(
+                "non-finite or inverted (J <= 0) particle state at step {}, t = {:.6e}",
+                self.step, self.t
+            )));
+        }
+        self.relocate()?;
+        self.max_speed = self.compute_max_speed();
+        if self.step % SORT_EVERY == 0 {
+            self.sort();
+        }
+        Ok(())
+    }
+
+    /// Grid → particle: velocities (FLIP/PIC blend) and positions from slot 1, and if
+    /// `stress` the velocity gradient, deformation and stress. If `!move_now`, the
+    /// position increments are kept in `dx` for later (MUSL).
+    fn gather(&mut self, dt: f64, stress: bool, move_now: bool) -> bool {
+        let n = self.parts.len();
+        if !move_now {
+            self.dx.resize(n, Vector::<D>::zeros());
+        }
+        let d2 = 2 * D;
+        let mut ok = true;
+        let mut work = 0.0;
+        for p in 0..n {
+            let (st, idx, alpha) = self.stencil(p);
+            let mut vn = Vector::<D>::zeros();
+            let mut dv = Vector::<D>::zeros();
+            for k in 0..st.count {
+                let v = &self.vel[idx[k] * d2..(idx[k] + 1) * d2];
+                for a in 0..D {
+                    vn[a] += st.s[k] * v[D + a];
+                    dv[a] += st.s[k] * (v[D + a] - v[a]);
+                }
+            }
+            let old = self.parts.v[p];
+            let new = (old + dv) * self.flip + vn * (1.0 - self.flip);
+            work += dt * self.parts.mass[p] * self.body_accel(p).dot(&(old + new)) * 0.5;
+            self.parts.v[p] = new;
+            if stress {
+                let l = self.velocity_gradient(&st, &idx, alpha, 1);
+                ok &= self.deform(p, &l, dt);
+            }
+            if move_now {
+                self.parts.x[p] += vn * dt;
+            } else {
+                self.dx[p] = vn * dt;
+            }
+            ok &= new.iter().all(|x| x.is_finite());
+        }
+        self.external_work += work;
+        ok
+    }
+
+    /// Stress update from grid velocity slot `slot` at the current positions.
+    fn update_stress_from(&mut self, slot: usize, dt: f64) -> bool {
+        let mut ok = true;
+        for p in 0..self.parts.len() {
+            let (st, idx, alpha) = self.stencil(p);
+            let l = self.velocity_gradient(&st, &idx, alpha, slot);
+            ok &= self.deform(p, &l, dt);
+        }
+        ok
+    }
+
+    /// Wrap periodic coordinates, check bounded ones, and hand particles that left the
+    /// block to their new owner.
+    fn relocate(&mut self) -> Result<(), Failure> {
+        let mut left = None;
+        for p in 0..self.parts.len() {
+            let x = &mut self.parts.x[p];
+            for a in 0..D {
+                let (lo, hi) = (self.geom.lower[a], self.geom.upper[a]);
+                if self.geom.periodic[a] {
+                    let len = hi - lo;
+                    if x[a] < lo || x[a] >= hi {
+                        x[a] = lo + (x[a] - lo).rem_euclid(len);
+                        if x[a] >= hi {
+                            x[a] = lo; // rem_euclid can round up to len
+                        }
+                    }
+                } else if !(x[a] >= lo && x[a] <= hi) && left.is_none() {
+                    left = Some(format!(
+                        "particle {} at {:?} is outside the grid on axis {a} ([{lo}, {hi}]) at t = {:.6e}; \
+                         close the face (fixed/slip) or enlarge the grid",
+                        self.parts.id[p],
+                        x.as_slice(),
+                        self.t
+                    ));
+                }
+            }
+        }
+        let any = self.comm.any(left.is_some());
+        if any {
+            return Err(Failure::LeftGrid(left.unwrap_or_else(|| {
+                "a particle left the grid on another rank".to_string()
+            })));
+        }
+        Ok(())
+    }
+
+    /// Reorder particles by cell (then id, for determinism) for cache locality.
+    pub fn sort(&mut self) {
+        let n = self.parts.len();
+        self.perm.clear();
+        self.perm.extend(0..n);
+        let geom = &self.geom;
+        let parts = &self.parts;
+        let key = |p: usize| {
+            let (c, _) = geom.locate(&std::array::from_fn(|a| parts.x[p][a]));
+            let mut k = 0i64;
+            for a in (0..D).rev() {
+                k = k * (geom.cells[a] as i64 + 1) + c[a];
+            }
+            (k, parts.id[p])
+        };
+        self.perm.sort_unstable_by_key(|&p| key(p));
+        let perm = std::mem::take(&mut self.perm);
+        self.parts.permute(&perm, &mut self.scratch);
+        self.perm = perm;
+    }
+
+    /// Totals over all ranks.
+    pub fn totals(&self) -> Totals {
+        let mut sums = vec![0.0; 4 + D];
+        for p in 0..self.parts.len() {
+            let m = self.parts.mass[p];
+            let v = self.parts.v[p];
+            sums[0] += m;
+            sums[1] += 0.5 * m * v.norm_squared();
+            let mat = &self.materials[self.parts.mat[p] as usize];
+            let f = if self.parts.def_grad.is_empty() {
+                Mat::<D>::identity()
+            } else {
+                self.parts.def_grad[p]
+            };
+            sums[2] += mat.strain_energy(&self.parts.stress[p], &f, self.parts.vol[p], self.parts.vol0[p]);
+            for a in 0..D {
+                sums[4 + a] += m * v[a];
+            }
+        }
+        sums[3] = self.external_work;
+        self.comm.sum_f64(&mut sums);
+        let mut n = [self.parts.len() as u64];
+        self.comm.sum_u64(&mut n);
+        Totals {
+            mass: sums[0],
+            kinetic: sums[1],
+            strain: sums[2],
+            external_work: sums[3],
+            momentum: sums[4..].to_vec(),
+            particles: n[0],
+        }
+    }
+
+    /// Volume-weighted L2 norms of the displacement and velocity errors against the
+    /// benchmark's exact solution at the current time (over all ranks).
+    pub fn errors(&self) -> Option<(f64, f64)> {
+        let b = self.benchmark.as_ref()?;
+        let mut s = [0.0; 3];
+        for p in 0..self.parts.len() {
+            let (u, v) = b.exact(&self.parts.x0[p], self.t);
+            let eu = self.parts.x[p] - self.parts.x0[p] - u;
+            let ev = self.parts.v[p] - v;
+            let w = self.parts.vol[p];
+            s[0] += w * eu.norm_squared();
+            s[1] += w * ev.norm_squared();
+            s[2] += w;
+        }
+        self.comm.sum_f64(&mut s);
+        Some(((s[0] / s[2]).sqrt(), (s[1] / s[2]).sqrt()))
+    }
+
+    pub fn done(&self) -> bool {
+        self.t >= self.end * (1.0 - 1e-12)
+    }
+}
+
+/// `∫_c S_j ∂S_i/∂x_d dv` over one cell, for corners `j` and `i` (bit `a` = upper side
+/// along axis `a`): a tensor product of the 1D integrals `∫N_j N_i' = ±1/2` (sign of
+/// `i`'s side) and `∫N_j N_i = h/3` (same node) or `h/6`.
+pub fn cell_integral<const D: usize>(h: &[f64; D], j: usize, i: usize) -> [f64; D] {
+    std::array::from_fn(|d| {
+        let mut p = if (i >> d) & 1 == 1 { 0.5 } else { -0.5 };
+        for (e, he) in h.iter().enumerate() {
+            if e != d {
+                p *= if (i >> e) & 1 == (j >> e) & 1 {
+                    he / 3.0
+                } else {
+                    he / 6.0
+                };
+            }
+        }
+        p
+    })
+}
