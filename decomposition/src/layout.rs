@@ -27,7 +27,10 @@ impl<const D: usize> Layout<D> {
     /// wide so that a ghost layer never reaches past the neighbouring block.
     pub fn new(cells: [usize; D], periodic: [bool; D], procs: [usize; D]) -> Result<Self, Error> {
         for a in 0..D {
-            if procs[a] == 0 || cells[a] < GHOST * procs[a] {
+            // A lone block on a bounded axis has no ghost layer along it, so any width
+            // will do (a 2D bar one cell thick, say).
+            let needs_ghost = procs[a] > 1 || periodic[a];
+            if procs[a] == 0 || (needs_ghost && cells[a] < GHOST * procs[a]) || cells[a] == 0 {
                 return Err(Error::BlocksTooSmall {
                     axis: a,
                     cells: cells[a],
@@ -61,7 +64,7 @@ impl<const D: usize> Layout<D> {
         ) {
             if a == D - 1 {
                 procs[a] = left;
-                if (0..D).any(|d| cells[d] < GHOST * procs[d]) {
+                if (0..D).any(|d| (procs[d] > 1 || periodic[d]) && cells[d] < GHOST * procs[d]) {
                     return;
                 }
                 // Summed over a grid of blocks, a product of per-axis block extents

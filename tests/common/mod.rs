@@ -1,0 +1,44 @@
+//! Helpers shared by the integration tests: run a scene in-process on one rank and
+//! read the files it writes.
+#![allow(dead_code)]
+
+use mpmcg::run::{run, RunOptions, Summary};
+use mpmcg::scene::parse;
+use std::collections::HashMap;
+use std::path::PathBuf;
+
+/// A fresh, empty folder under the system temp dir.
+pub fn temp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("mpmcg-test-{}-{tag}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Run scene text on one rank; returns the summary and the output folder.
+pub fn run_text(text: &str, tag: &str) -> (Summary, PathBuf) {
+    let scene = parse(text, tag).unwrap_or_else(|e| panic!("scene {tag}: {e}"));
+    let out = temp_dir(tag);
+    let opts = RunOptions {
+        out: out.clone(),
+        quiet: true,
+        threads: 1,
+    };
+    let s = run(&scene, &decomposition::SerialComm, &opts).unwrap_or_else(|e| panic!("run {tag}: {e}"));
+    (s, out)
+}
+
+/// The rows of `history.csv` as column name → value.
+pub fn history(out: &std::path::Path) -> Vec<HashMap<String, f64>> {
+    let text = std::fs::read_to_string(out.join("history.csv")).unwrap();
+    let mut lines = text.lines();
+    let head: Vec<String> = lines.next().unwrap().split(',').map(String::from).collect();
+    lines
+        .map(|l| {
+            head.iter()
+                .cloned()
+                .zip(l.split(',').map(|x| x.parse::<f64>().unwrap()))
+                .collect()
+        })
+        .collect()
+}

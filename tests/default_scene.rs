@@ -1,0 +1,37 @@
+//! `mpmcg run` with no scene runs the built-in default scene (two colliding elastic
+//! disks, MPMCG) through the real binary and writes its summary and history.
+
+mod common;
+use common::{history, temp_dir};
+use std::process::Command;
+
+#[test]
+fn default_scene_runs_collides_and_rebounds() {
+    let out = temp_dir("default-scene");
+    let st = Command::new(env!("CARGO_BIN_EXE_mpmcg"))
+        .args(["run", "--quiet", "--out"])
+        .arg(&out)
+        .status()
+        .unwrap();
+    assert!(st.success(), "exit status {st}");
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(s["scene"], "colliding_disks");
+    assert_eq!(s["status"], "completed");
+    assert_eq!(s["gradient"], "mpmcg");
+    assert_eq!(s["mass"]["initial"], s["mass"]["final"]);
+    let h = history(&out);
+    let ke0 = h[0]["kinetic"];
+    let mv = s["mass"]["initial"].as_f64().unwrap() * 0.1 * 2f64.sqrt();
+    for r in &h {
+        // Symmetric disks: total momentum zero to round-off throughout.
+        assert!(r["momentum_0"].abs() < 1e-12 * mv && r["momentum_1"].abs() < 1e-12 * mv);
+    }
+    // Contact turns most kinetic energy into strain energy, the rebound returns it.
+    let ke_min = h.iter().map(|r| r["kinetic"]).fold(f64::INFINITY, f64::min);
+    let ke_end = h.last().unwrap()["kinetic"];
+    assert!(ke_min < 0.1 * ke0, "no collision: min KE {ke_min} of {ke0}");
+    assert!(ke_end > 0.8 * ke0, "no rebound: final KE {ke_end} of {ke0}");
+    // And the energy balance holds within the drift MPM's impact dissipates.
+    assert!(s["energy"]["max_relative_drift"].as_f64().unwrap() < 0.1);
+}
