@@ -5,6 +5,18 @@
 //! node* if it lies on the grid boundary, where the integrals over the grid domain are
 //! halved. On a periodic axis there are no end nodes.
 
+/// `floor` as an integer without a libm call (x86-64's baseline has no SSE4.1 round):
+/// truncate, then step down for negative non-integers.
+#[inline(always)]
+pub fn floor_i64(s: f64) -> i64 {
+    let i = s as i64;
+    if (i as f64) > s {
+        i - 1
+    } else {
+        i
+    }
+}
+
 /// Most nodes a particle touches: 3 per axis (GIMP) in 3D.
 pub const MAX_NODES: usize = 27;
 
@@ -53,7 +65,7 @@ impl<const D: usize> Geom<D> {
         let mut xi = [0.0; D];
         for a in 0..D {
             let s = (x[a] - self.lower[a]) * self.inv_h[a];
-            let mut i = s.floor() as i64;
+            let mut i = floor_i64(s);
             if !self.periodic[a] {
                 i = i.clamp(0, self.cells[a] as i64 - 1);
             }

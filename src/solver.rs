@@ -7,9 +7,61 @@ use crate::benchmark::Benchmark;
 use crate::material::Material;
 use crate::particles::Particles;
 use crate::scene::{Face, Gradient, Scene, Update};
-use crate::shape::{self, Alpha, Geom, Stencil, MAX_NODES};
-use crate::tensor::{det, vector, Mat, Vector};
+use crate::kernel::{self, SlabOrder};
+use crate::shape::{Alpha, Geom};
+use crate::tensor::{vector, Mat, Vector};
 use decomposition::{Block, Communicator, Layout};
+
+/// The read-only context of the particle loops, borrowed field by field from a solver.
+macro_rules! ctx {
+    ($s:ident) => {
+        kernel::Ctx {
+            geom: &$s.geom,
+            node_lo: $s.block.node_lo,
+            strides: $s.strides,
+            gimp: $s.gradient == Gradient::Gimp,
+            alpha: $s.alpha,
+            materials: &$s.materials,
+            gravity: $s.gravity,
+            body_force: $s.benchmark.as_ref().filter(|b| b.has_body_force()),
+            t: $s.t,
+        }
+    };
+}
+
+/// The particle arrays of a solver as splittable slices.
+macro_rules! slices {
+    ($s:ident) => {
+        kernel::Slices {
+            x: &mut $s.parts.x,
+            v: &mut $s.parts.v,
+            stress: &mut $s.parts.stress,
+            vol: &mut $s.parts.vol,
+            def_grad: &mut $s.parts.def_grad,
+            dx: &mut $s.dx,
+            mass: &$s.parts.mass,
+            vol0: &$s.parts.vol0,
+            mat: &$s.parts.mat,
+            x0: &$s.parts.x0,
+            half: &$s.parts.half,
+        }
+    };
+}
+
+/// Call a particle loop monomorphised for the nodes a particle touches: 2 per axis for
+/// hat functions, 3 for GIMP.
+macro_rules! by_nodes {
+    ($gimp:expr, $f:ident, $($arg:expr),*) => {
+        match ($gimp, D) {
+            (false, 1) => kernel::$f::<D, 2, 2>($($arg),*),
+            (false, 2) => kernel::$f::<D, 2, 4>($($arg),*),
+            (false, _) => kernel::$f::<D, 2, 8>($($arg),*),
+            (true, 1) => kernel::$f::<D, 3, 3>($($arg),*),
+            (true, 2) => kernel::$f::<D, 3, 9>($($arg),*),
+            (true, _) => kernel::$f::<D, 3, 27>($($arg),*),
+        }
+    };
+}
 
 /// Why a run cannot go on.
 #[derive(Debug, Clone, PartialEq)]
@@ -96,6 +148,7 @@ pub struct Solver<'c, const D: usize> {
     /// Node mass below which a node is treated as empty.
     mass_floor: f64,
     // Scratch reused every step (no allocation in the loop once grown).
+    slabs: SlabOrder,
     dx: Vec<Vector<D>>,
     perm: Vec<usize>,
     scratch: Vec<f64>,
@@ -170,6 +223,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             cell_k: [[[0.0; D]; CORNERS]; CORNERS],
             corner_delta: [0; CORNERS],
             mass_floor: 0.0,
+            slabs: SlabOrder::default(),
             dx: Vec::new(),
             perm: Vec::new(),
             scratch: Vec::new(),
@@ -226,92 +280,31 @@ impl<'c, const D: usize> Solver<'c, D> {
         }
     }
 
-    /// Particle weights, local node indices and α.
-    #[inline]
-    fn stencil(&self, p: usize) -> (Stencil<D>, [usize; MAX_NODES], f64) {
-        let x: [f64; D] = std::array::from_fn(|a| self.parts.x[p][a]);
-        let w = if self.gradient == Gradient::Gimp {
-            shape::gimp(&self.geom, &x, &self.parts.half[p])
-        } else {
-            shape::linear(&self.geom, &x)
-        };
-        let st = w.stencil();
-        let mut base = 0usize;
-        for a in 0..D {
-            base += (w.base[a] - self.block.node_lo[a]) as usize * self.strides[a];
-        }
-        let mut idx = [0usize; MAX_NODES];
-        for k in 0..st.count {
-            let mut i = base;
-            for a in 0..D {
-                i += st.off[k][a] as usize * self.strides[a];
-            }
-            idx[k] = i;
-        }
-        (st, idx, self.alpha.eval(&w.xi))
-    }
-
-    /// External force per unit mass on particle `p` at the current time.
-    #[inline]
-    fn body_accel(&self, p: usize) -> Vector<D> {
-        match &self.benchmark {
-            Some(b) if b.has_body_force() => self.gravity + b.body_force(&self.parts.x0[p], self.t),
-            _ => self.gravity,
-        }
-    }
-
     /// Particle → grid: mass, momentum and, if `forces`, external and internal forces.
     fn scatter(&mut self, forces: bool) {
-        let sw = self.sw;
-        self.scat.iter_mut().for_each(|v| *v = 0.0);
         let two = self.two_step();
-        for p in 0..self.parts.len() {
-            let (st, idx, alpha) = self.stencil(p);
-            let m = self.parts.mass[p];
-            let mv = self.parts.v[p] * m;
-            let fe = if forces {
-                self.body_accel(p) * m
-            } else {
-                Vector::<D>::zeros()
-            };
-            let vs = self.parts.stress[p] * self.parts.vol[p];
-            if two {
-                // The linear stencil's first node is the lower corner of the cell.
-                self.scat[idx[0] * sw + sw - 1] += 1.0;
-            }
-            for k in 0..st.count {
-                let n = idx[k] * sw;
-                let s = st.s[k];
-                let rec = &mut self.scat[n..n + sw];
-                rec[0] += m * s;
-                for a in 0..D {
-                    rec[1 + a] += mv[a] * s;
-                }
-                if forces {
-                    let g = &st.g[k];
-                    for a in 0..D {
-                        let mut f = fe[a] * s;
-                        if alpha != 0.0 {
-                            let mut sg = 0.0;
-                            for b in 0..D {
-                                sg += vs[(a, b)] * g[b];
-                            }
-                            f -= alpha * sg;
-                        }
-                        rec[1 + D + a] += f;
-                    }
-                    if two {
-                        let c = (1.0 - alpha) * s;
-                        for a in 0..D {
-                            for b in 0..D {
-                                rec[1 + 2 * D + a * D + b] += c * vs[(a, b)];
-                            }
-                        }
-                    }
-                }
-            }
-        }
-        self.block.ghost_sum(self.comm, &mut self.scat, sw);
+        self.scat.iter_mut().for_each(|v| *v = 0.0);
+        let last = D - 1;
+        self.slabs.build(&self.geom, &self.parts.x, self.block.cell_lo[last], self.block.cell_hi[last]);
+        let ctx = ctx!(self);
+        let parts = kernel::ScatterParts {
+            x: &self.parts.x,
+            v: &self.parts.v,
+            stress: &self.parts.stress,
+            vol: &self.parts.vol,
+            mass: &self.parts.mass,
+            x0: &self.parts.x0,
+            half: &self.parts.half,
+        };
+        let m = kernel::ScatterMode {
+            sw: self.sw,
+            forces,
+            two_step: two,
+            row0: self.block.own_lo[last],
+            rows: self.block.node_dims[last],
+        };
+        by_nodes!(self.gradient == Gradient::Gimp, scatter, &ctx, &parts, &self.slabs, &mut self.scat, m);
+        self.block.ghost_sum(self.comm, &mut self.scat, self.sw);
         if two {
             self.occupancy();
         }
@@ -479,66 +472,14 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.avg = avg;
     }
 
-    /// Velocity gradient at particle `p` from velocity slot `slot` (0 = before forces,
-    /// 1 = after) and, for two-step schemes, `L̄` in `avg`.
-    #[inline]
-    fn velocity_gradient(&self, st: &Stencil<D>, idx: &[usize; MAX_NODES], alpha: f64, slot: usize) -> Mat<D> {
-        let mut l = Mat::<D>::zeros();
-        let dd = D * D;
-        for k in 0..st.count {
-            let n = idx[k];
-            let v = &self.vel[n * 2 * D + slot * D..n * 2 * D + slot * D + D];
-            if alpha != 0.0 {
-                for a in 0..D {
-                    for b in 0..D {
-                        l[(a, b)] += alpha * v[a] * st.g[k][b];
-                    }
-                }
-            }
-            if alpha != 1.0 {
-                let c = (1.0 - alpha) * st.s[k];
-                let lb = &self.avg[n * dd..(n + 1) * dd];
-                for a in 0..D {
-                    for b in 0..D {
-                        l[(a, b)] += c * lb[a * D + b];
-                    }
-                }
-            }
-        }
-        l
-    }
-
-    /// Deformation, volume and stress of particle `p` after a step `dt` with gradient `l`.
-    /// Returns false if the state is no longer physical.
-    #[inline]
-    fn deform(&mut self, p: usize, l: &Mat<D>, dt: f64) -> bool {
-        let inc = Mat::<D>::identity() + l * dt;
-        let j = det(&inc);
-        self.parts.vol[p] *= j;
-        let mat = &self.materials[self.parts.mat[p] as usize];
-        let f = if self.parts.def_grad.is_empty() {
-            Mat::<D>::identity()
-        } else {
-            let f = inc * self.parts.def_grad[p];
-            self.parts.def_grad[p] = f;
-            f
-        };
-        mat.update_stress(&mut self.parts.stress[p], l, &f, dt);
-        j > 0.0 && self.parts.vol[p].is_finite()
-    }
-
+    /// Largest wave speed plus particle speed on this rank.
     fn compute_max_speed(&self) -> f64 {
         let mut m = 0.0f64;
         for p in 0..self.parts.len() {
-            m = m.max(self.particle_speed(p));
+            let j = self.parts.vol[p] / self.parts.vol0[p];
+            m = m.max(self.materials[self.parts.mat[p] as usize].wave_speed(j) + self.parts.v[p].norm());
         }
         m
-    }
-
-    #[inline]
-    fn particle_speed(&self, p: usize) -> f64 {
-        let j = self.parts.vol[p] / self.parts.vol0[p];
-        self.materials[self.parts.mat[p] as usize].wave_speed(j) + self.parts.v[p].norm()
     }
 
     /// Pick the step size: fixed, or the CFL number over the fastest signal anywhere.
@@ -604,8 +545,8 @@ impl<'c, const D: usize> Solver<'c, D> {
                     self.averaged_velocity_gradient(0);
                 }
                 ok &= self.update_stress_from(0, dt);
-                for p in 0..self.parts.len() {
-                    self.parts.x[p] += self.dx[p];
+                for (x, dx) in self.parts.x.iter_mut().zip(&self.dx) {
+                    *x += dx;
                 }
             }
         }
@@ -619,7 +560,6 @@ impl<'c, const D: usize> Solver<'c, D> {
             )));
         }
         self.relocate()?;
-        self.max_speed = self.compute_max_speed();
         if self.step % SORT_EVERY == 0 {
             self.sort();
         }
@@ -631,51 +571,30 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// position increments are kept in `dx` for later (MUSL).
     fn gather(&mut self, dt: f64, stress: bool, move_now: bool) -> bool {
         let n = self.parts.len();
-        if !move_now {
-            self.dx.resize(n, Vector::<D>::zeros());
-        }
-        let d2 = 2 * D;
-        let mut ok = true;
-        let mut work = 0.0;
-        for p in 0..n {
-            let (st, idx, alpha) = self.stencil(p);
-            let mut vn = Vector::<D>::zeros();
-            let mut dv = Vector::<D>::zeros();
-            for k in 0..st.count {
-                let v = &self.vel[idx[k] * d2..(idx[k] + 1) * d2];
-                for a in 0..D {
-                    vn[a] += st.s[k] * v[D + a];
-                    dv[a] += st.s[k] * (v[D + a] - v[a]);
-                }
-            }
-            let old = self.parts.v[p];
-            let new = (old + dv) * self.flip + vn * (1.0 - self.flip);
-            work += dt * self.parts.mass[p] * self.body_accel(p).dot(&(old + new)) * 0.5;
-            self.parts.v[p] = new;
-            if stress {
-                let l = self.velocity_gradient(&st, &idx, alpha, 1);
-                ok &= self.deform(p, &l, dt);
-            }
-            if move_now {
-                self.parts.x[p] += vn * dt;
-            } else {
-                self.dx[p] = vn * dt;
-            }
-            ok &= new.iter().all(|x| x.is_finite());
-        }
-        self.external_work += work;
-        ok
+        self.dx.resize(if move_now { 0 } else { n }, Vector::<D>::zeros());
+        let mode = kernel::GatherMode {
+            dt,
+            flip: self.flip,
+            stress,
+            move_now,
+            two_step: self.two_step(),
+        };
+        let ctx = ctx!(self);
+        let parts = slices!(self);
+        let t = by_nodes!(self.gradient == Gradient::Gimp, gather, &ctx, parts, &self.vel, &self.avg, mode);
+        self.external_work += t.work;
+        self.max_speed = t.max_speed;
+        t.ok
     }
 
     /// Stress update from grid velocity slot `slot` at the current positions.
     fn update_stress_from(&mut self, slot: usize, dt: f64) -> bool {
-        let mut ok = true;
-        for p in 0..self.parts.len() {
-            let (st, idx, alpha) = self.stencil(p);
-            let l = self.velocity_gradient(&st, &idx, alpha, slot);
-            ok &= self.deform(p, &l, dt);
-        }
-        ok
+        let two = self.two_step();
+        let ctx = ctx!(self);
+        let parts = slices!(self);
+        let t = by_nodes!(self.gradient == Gradient::Gimp, update_stress, &ctx, parts, &self.vel, &self.avg, slot, dt, two);
+        self.max_speed = t.max_speed;
+        t.ok
     }
 
     /// Wrap periodic coordinates, check bounded ones, and hand particles that left the

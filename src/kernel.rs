@@ -1,0 +1,531 @@
+//! The per-particle loops of a step, written for speed: particle→grid scatter,
+//! grid→particle gather and the stress update, monomorphised over the number of nodes
+//! a particle touches (`NA` per axis, `N = NA^D` in all) and run on rayon threads.
+//!
+//! Determinism: the scatter visits particles slab by slab (slabs of [`SLAB`] cells
+//! along the last axis, in two colours so that same-coloured slabs never share a node)
+//! and each slab in a fixed order, so every node receives its contributions in the
+//! same order whatever the thread count. Particle-local work splits the particle range
+//! by halving down to [`GRAIN`], independent of the thread count as well.
+
+use crate::benchmark::Benchmark;
+use crate::material::Material;
+use crate::shape::{self, Alpha, Geom};
+use crate::tensor::{det, Mat, Vector};
+
+/// Slab thickness in cells for the coloured scatter: a GIMP particle writes one node row
+/// beyond its cell on each side, so same-coloured slabs 2·SLAB apart stay disjoint
+/// for SLAB >= 3.
+pub const SLAB: usize = 4;
+/// Particles per task below which the particle loops stop splitting.
+const GRAIN: usize = 4096;
+
+/// What the particle loops read of the grid and the scene.
+pub struct Ctx<'a, const D: usize> {
+    pub geom: &'a Geom<D>,
+    pub node_lo: [i64; D],
+    pub strides: [usize; D],
+    pub gimp: bool,
+    pub alpha: Alpha,
+    pub materials: &'a [Material],
+    pub gravity: Vector<D>,
+    /// The benchmark, if it applies a body force.
+    pub body_force: Option<&'a Benchmark<D>>,
+    pub t: f64,
+}
+
+/// Interpolation data of one particle over its `N` nodes.
+pub struct Kern<const D: usize, const N: usize> {
+    pub idx: [usize; N],
+    pub s: [f64; N],
+    pub g: [[f64; D]; N],
+    pub alpha: f64,
+}
+
+impl<const D: usize> Ctx<'_, D> {
+    #[inline(always)]
+    pub fn kern<const NA: usize, const N: usize>(&self, x: &Vector<D>, half: Option<&[f64; D]>) -> Kern<D, N> {
+        let xa: [f64; D] = std::array::from_fn(|a| x[a]);
+        let w = match half {
+            Some(lp) if self.gimp => shape::gimp(self.geom, &xa, lp),
+            _ => shape::linear(self.geom, &xa),
+        };
+        let mut base = 0usize;
+        for a in 0..D {
+            base += (w.base[a] - self.node_lo[a]) as usize * self.strides[a];
+        }
+        let mut k = Kern {
+            idx: [0; N],
+            s: [0.0; N],
+            g: [[0.0; D]; N],
+            alpha: self.alpha.eval(&w.xi),
+        };
+        for n in 0..N {
+            let mut r = n;
+            let mut o = [0usize; D];
+            let mut i = base;
+            for a in 0..D {
+                o[a] = r % NA;
+                r /= NA;
+                i += o[a] * self.strides[a];
+            }
+            let mut s = 1.0;
+            for a in 0..D {
+                s *= w.w[a][o[a]];
+            }
+            for d in 0..D {
+                let mut p = w.dw[d][o[d]];
+                for e in 0..D {
+                    if e != d {
+                        p *= w.w[e][o[e]];
+                    }
+                }
+                k.g[n][d] = p;
+            }
+            k.idx[n] = i;
+            k.s[n] = s;
+        }
+        k
+    }
+
+    /// External force per unit mass on a particle with reference position `x0`.
+    #[inline(always)]
+    pub fn accel(&self, x0: &[Vector<D>], p: usize) -> Vector<D> {
+        match self.body_force {
+            Some(b) => self.gravity + b.body_force(&x0[p], self.t),
+            None => self.gravity,
+        }
+    }
+}
+
+/// Mutable and shared particle arrays over a contiguous range, splittable for threads.
+/// Optional arrays are empty when the particles do not carry them.
+pub struct Slices<'a, const D: usize> {
+    pub x: &'a mut [Vector<D>],
+    pub v: &'a mut [Vector<D>],
+    pub stress: &'a mut [Mat<D>],
+    pub vol: &'a mut [f64],
+    pub def_grad: &'a mut [Mat<D>],
+    pub dx: &'a mut [Vector<D>],
+    pub mass: &'a [f64],
+    pub vol0: &'a [f64],
+    pub mat: &'a [u16],
+    pub x0: &'a [Vector<D>],
+    pub half: &'a [[f64; D]],
+}
+
+fn split_mut<T>(s: &mut [T], mid: usize) -> (&mut [T], &mut [T]) {
+    if s.is_empty() {
+        (&mut [], &mut [])
+    } else {
+        s.split_at_mut(mid)
+    }
+}
+
+fn split<T>(s: &[T], mid: usize) -> (&[T], &[T]) {
+    if s.is_empty() {
+        (&[], &[])
+    } else {
+        s.split_at(mid)
+    }
+}
+
+impl<'a, const D: usize> Slices<'a, D> {
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    fn split_at(self, mid: usize) -> (Self, Self) {
+        let (x0, x1) = split_mut(self.x, mid);
+        let (v0, v1) = split_mut(self.v, mid);
+        let (s0, s1) = split_mut(self.stress, mid);
+        let (vo0, vo1) = split_mut(self.vol, mid);
+        let (f0, f1) = split_mut(self.def_grad, mid);
+        let (d0, d1) = split_mut(self.dx, mid);
+        let (m0, m1) = split(self.mass, mid);
+        let (r0, r1) = split(self.vol0, mid);
+        let (t0, t1) = split(self.mat, mid);
+        let (p0, p1) = split(self.x0, mid);
+        let (h0, h1) = split(self.half, mid);
+        (
+            Slices {
+                x: x0,
+                v: v0,
+                stress: s0,
+                vol: vo0,
+                def_grad: f0,
+                dx: d0,
+                mass: m0,
+                vol0: r0,
+                mat: t0,
+                x0: p0,
+                half: h0,
+            },
+            Slices {
+                x: x1,
+                v: v1,
+                stress: s1,
+                vol: vo1,
+                def_grad: f1,
+                dx: d1,
+                mass: m1,
+                vol0: r1,
+                mat: t1,
+                x0: p1,
+                half: h1,
+            },
+        )
+    }
+}
+
+/// Result of a particle loop: all states physical, external work done, fastest signal.
+#[derive(Clone, Copy, Debug)]
+pub struct Tally {
+    pub ok: bool,
+    pub work: f64,
+    pub max_speed: f64,
+}
+
+impl Tally {
+    const ZERO: Tally = Tally {
+        ok: true,
+        work: 0.0,
+        max_speed: 0.0,
+    };
+    fn join(a: Tally, b: Tally) -> Tally {
+        Tally {
+            ok: a.ok && b.ok,
+            work: a.work + b.work,
+            max_speed: a.max_speed.max(b.max_speed),
+        }
+    }
+}
+
+/// Split the particles by halving down to GRAIN and run `f` on the pieces in parallel.
+fn par<const D: usize>(s: Slices<'_, D>, f: &(impl Fn(Slices<'_, D>) -> Tally + Sync)) -> Tally {
+    if s.len() <= GRAIN {
+        return f(s);
+    }
+    let mid = s.len() / 2;
+    let (a, b) = s.split_at(mid);
+    let (ta, tb) = rayon::join(|| par(a, f), || par(b, f));
+    Tally::join(ta, tb)
+}
+
+/// What a gather does besides interpolating velocities.
+#[derive(Clone, Copy, Debug)]
+pub struct GatherMode {
+    pub dt: f64,
+    pub flip: f64,
+    /// Also update deformation and stress from velocity slot 1.
+    pub stress: bool,
+    /// Move particles now; otherwise store the increments in `dx` (MUSL).
+    pub move_now: bool,
+    /// The scheme uses grid-averaged gradients (`avg` holds L̄).
+    pub two_step: bool,
+}
+
+/// Velocity gradient at a particle from velocity slot `slot` and, for two-step
+/// schemes, the nodal `L̄` in `avg`.
+#[inline(always)]
+fn velocity_gradient<const D: usize, const N: usize>(k: &Kern<D, N>, vel: &[f64], avg: &[f64], slot: usize, two: bool) -> Mat<D> {
+    let mut l = Mat::<D>::zeros();
+    let d2 = 2 * D;
+    for n in 0..N {
+        let i = k.idx[n];
+        let v = &vel[i * d2 + slot * D..i * d2 + slot * D + D];
+        if k.alpha != 0.0 {
+            for b in 0..D {
+                let g = k.alpha * k.g[n][b];
+                for a in 0..D {
+                    l[(a, b)] += v[a] * g;
+                }
+            }
+        }
+        if two && k.alpha != 1.0 {
+            let c = (1.0 - k.alpha) * k.s[n];
+            let lb = &avg[i * D * D..(i + 1) * D * D];
+            for a in 0..D {
+                for b in 0..D {
+                    l[(a, b)] += c * lb[a * D + b];
+                }
+            }
+        }
+    }
+    l
+}
+
+/// Deform particle `p` of `s` by `l` over `dt`: volume, deformation gradient, stress.
+/// Returns whether the new state is physical.
+#[inline(always)]
+fn deform<const D: usize>(ctx: &Ctx<'_, D>, s: &mut Slices<'_, D>, p: usize, l: &Mat<D>, dt: f64) -> bool {
+    let inc = Mat::<D>::identity() + l * dt;
+    let j = det(&inc);
+    s.vol[p] *= j;
+    let mat = &ctx.materials[s.mat[p] as usize];
+    let f = if s.def_grad.is_empty() {
+        Mat::<D>::identity()
+    } else {
+        let f = inc * s.def_grad[p];
+        s.def_grad[p] = f;
+        f
+    };
+    mat.update_stress(&mut s.stress[p], l, &f, dt);
+    j > 0.0 && s.vol[p].is_finite() && s.stress[p].iter().all(|x| x.is_finite())
+}
+
+#[inline(always)]
+fn speed<const D: usize>(ctx: &Ctx<'_, D>, s: &Slices<'_, D>, p: usize) -> f64 {
+    let j = s.vol[p] / s.vol0[p];
+    ctx.materials[s.mat[p] as usize].wave_speed(j) + s.v[p].norm()
+}
+
+/// Grid → particle over all particles.
+pub fn gather<const D: usize, const NA: usize, const N: usize>(
+    ctx: &Ctx<'_, D>,
+    parts: Slices<'_, D>,
+    vel: &[f64],
+    avg: &[f64],
+    m: GatherMode,
+) -> Tally {
+    par(parts, &|mut s: Slices<'_, D>| {
+        let mut t = Tally::ZERO;
+        let d2 = 2 * D;
+        for p in 0..s.len() {
+            let half = if ctx.gimp { Some(&s.half[p]) } else { None };
+            let k = ctx.kern::<NA, N>(&s.x[p], half);
+            let mut vn = Vector::<D>::zeros();
+            let mut dv = Vector::<D>::zeros();
+            for n in 0..N {
+                let v = &vel[k.idx[n] * d2..k.idx[n] * d2 + d2];
+                for a in 0..D {
+                    vn[a] += k.s[n] * v[D + a];
+                    dv[a] += k.s[n] * (v[D + a] - v[a]);
+                }
+            }
+            let old = s.v[p];
+            let new = (old + dv) * m.flip + vn * (1.0 - m.flip);
+            t.work += m.dt * s.mass[p] * ctx.accel(s.x0, p).dot(&(old + new)) * 0.5;
+            s.v[p] = new;
+            t.ok &= new.iter().all(|x| x.is_finite());
+            if m.stress {
+                let l = velocity_gradient(&k, vel, avg, 1, m.two_step);
+                t.ok &= deform(ctx, &mut s, p, &l, m.dt);
+            }
+            if m.move_now {
+                s.x[p] += vn * m.dt;
+            } else {
+                s.dx[p] = vn * m.dt;
+            }
+            t.max_speed = t.max_speed.max(speed(ctx, &s, p));
+        }
+        t
+    })
+}
+
+/// Stress update from velocity slot `slot` at the current positions.
+pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
+    ctx: &Ctx<'_, D>,
+    parts: Slices<'_, D>,
+    vel: &[f64],
+    avg: &[f64],
+    slot: usize,
+    dt: f64,
+    two_step: bool,
+) -> Tally {
+    par(parts, &|mut s: Slices<'_, D>| {
+        let mut t = Tally::ZERO;
+        for p in 0..s.len() {
+            let half = if ctx.gimp { Some(&s.half[p]) } else { None };
+            let k = ctx.kern::<NA, N>(&s.x[p], half);
+            let l = velocity_gradient(&k, vel, avg, slot, two_step);
+            t.ok &= deform(ctx, &mut s, p, &l, dt);
+            t.max_speed = t.max_speed.max(speed(ctx, &s, p));
+        }
+        t
+    })
+}
+
+/// Read-only particle arrays for the scatter.
+pub struct ScatterParts<'a, const D: usize> {
+    pub x: &'a [Vector<D>],
+    pub v: &'a [Vector<D>],
+    pub stress: &'a [Mat<D>],
+    pub vol: &'a [f64],
+    pub mass: &'a [f64],
+    pub x0: &'a [Vector<D>],
+    pub half: &'a [[f64; D]],
+}
+
+/// The particle order of the coloured scatter: particle indices grouped by slab.
+#[derive(Default, Debug)]
+pub struct SlabOrder {
+    /// `start[s]..start[s + 1]` indexes `order` for slab `s`.
+    pub start: Vec<usize>,
+    pub order: Vec<u32>,
+    slab_of: Vec<u32>,
+}
+
+impl SlabOrder {
+    /// Group particles by slab along the last axis of the owned cells `[cell_lo, cell_hi)`.
+    /// Stable: within a slab, particles keep their array order.
+    pub fn build<const D: usize>(&mut self, geom: &Geom<D>, x: &[Vector<D>], cell_lo: usize, cell_hi: usize) {
+        let a = D - 1;
+        let nslab = (cell_hi - cell_lo).div_ceil(SLAB).max(1);
+        self.start.clear();
+        self.start.resize(nslab + 1, 0);
+        self.slab_of.clear();
+        for p in x {
+            let c = shape::floor_i64((p[a] - geom.lower[a]) * geom.inv_h[a]);
+            let c = c.clamp(cell_lo as i64, cell_hi as i64 - 1) as usize;
+            let s = (c - cell_lo) / SLAB;
+            self.slab_of.push(s as u32);
+            self.start[s + 1] += 1;
+        }
+        for s in 0..nslab {
+            self.start[s + 1] += self.start[s];
+        }
+        self.order.clear();
+        self.order.resize(x.len(), 0);
+        // Reuse the tail of `start` as insertion cursors, then restore.
+        let mut cursor = std::mem::take(&mut self.start);
+        for (p, &s) in self.slab_of.iter().enumerate() {
+            self.order[cursor[s as usize]] = p as u32;
+            cursor[s as usize] += 1;
+        }
+        // cursor[s] now equals the old start[s + 1]; shift back.
+        for s in (1..=nslab).rev() {
+            cursor[s] = cursor[s - 1];
+        }
+        cursor[0] = 0;
+        self.start = cursor;
+    }
+
+    pub fn slabs(&self) -> usize {
+        self.start.len() - 1
+    }
+}
+
+/// How the scatter lays out its node record.
+#[derive(Clone, Copy, Debug)]
+pub struct ScatterMode {
+    /// Record width per node.
+    pub sw: usize,
+    /// Scatter external and internal forces (else mass and momentum only).
+    pub forces: bool,
+    /// Also accumulate Σ(1−α) v σ S and the cell's particle count (two-step schemes).
+    pub two_step: bool,
+    /// Local node row (last axis) of the first owned cell's lower corner.
+    pub row0: usize,
+    /// Node rows in the local box along the last axis.
+    pub rows: usize,
+}
+
+/// Particle → grid over all particles into `scat` (cleared by the caller), in slab
+/// colours so that no two threads write the same node.
+pub fn scatter<const D: usize, const NA: usize, const N: usize>(
+    ctx: &Ctx<'_, D>,
+    parts: &ScatterParts<'_, D>,
+    slabs: &SlabOrder,
+    scat: &mut [f64],
+    m: ScatterMode,
+) {
+    let row_len = ctx.strides[D - 1] * m.sw;
+    // Node rows slab `s` may write, clamped to the box: GIMP reaches one row further.
+    let reach = if ctx.gimp { 1 } else { 0 };
+    let rows_of = |s: usize| {
+        let lo = (m.row0 + s * SLAB).saturating_sub(reach);
+        let hi = (m.row0 + (s + 1) * SLAB + 1 + reach).min(m.rows);
+        (lo, hi)
+    };
+    let ns = slabs.slabs();
+    for colour in 0..2 {
+        let first = colour;
+        if first >= ns {
+            continue;
+        }
+        let count = (ns - first).div_ceil(2);
+        let lo = rows_of(first).0;
+        let hi = rows_of(first + 2 * (count - 1)).1;
+        let window = &mut scat[lo * row_len..hi * row_len];
+        scatter_slabs::<D, NA, N>(ctx, parts, slabs, window, lo * row_len, first, count, &rows_of, row_len, m);
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
+    ctx: &Ctx<'_, D>,
+    parts: &ScatterParts<'_, D>,
+    slabs: &SlabOrder,
+    window: &mut [f64],
+    offset: usize,
+    first: usize,
+    count: usize,
+    rows_of: &(impl Fn(usize) -> (usize, usize) + Sync),
+    row_len: usize,
+    m: ScatterMode,
+) {
+    if count > 1 {
+        // Split between same-coloured slabs: everything from the later one's first row
+        // goes right; the slab between them (other colour) is not written now.
+        let half = count / 2;
+        let split_slab = first + 2 * half;
+        let cut = rows_of(split_slab).0 * row_len - offset;
+        let (a, b) = window.split_at_mut(cut);
+        rayon::join(
+            || scatter_slabs::<D, NA, N>(ctx, parts, slabs, a, offset, first, half, rows_of, row_len, m),
+            || scatter_slabs::<D, NA, N>(ctx, parts, slabs, b, offset + cut, split_slab, count - half, rows_of, row_len, m),
+        );
+        return;
+    }
+    let sw = m.sw;
+    let t0 = 1 + 2 * D;
+    for &p in &slabs.order[slabs.start[first]..slabs.start[first + 1]] {
+        let p = p as usize;
+        let half = if ctx.gimp { Some(&parts.half[p]) } else { None };
+        let k = ctx.kern::<NA, N>(&parts.x[p], half);
+        let mass = parts.mass[p];
+        let mv = parts.v[p] * mass;
+        let vs = parts.stress[p] * parts.vol[p];
+        let fe = if m.forces {
+            ctx.accel(parts.x0, p) * mass
+        } else {
+            Vector::<D>::zeros()
+        };
+        if m.two_step {
+            // The linear stencil's first node is the cell's lower corner.
+            window[k.idx[0] * sw - offset + sw - 1] += 1.0;
+        }
+        for n in 0..N {
+            let at = k.idx[n] * sw - offset;
+            let rec = &mut window[at..at + sw];
+            let s = k.s[n];
+            rec[0] += mass * s;
+            for a in 0..D {
+                rec[1 + a] += mv[a] * s;
+            }
+            if m.forces {
+                let g = &k.g[n];
+                for a in 0..D {
+                    let mut sg = 0.0;
+                    for b in 0..D {
+                        sg += vs[(a, b)] * g[b];
+                    }
+                    rec[1 + D + a] += fe[a] * s - k.alpha * sg;
+                }
+                if m.two_step {
+                    let c = (1.0 - k.alpha) * s;
+                    for a in 0..D {
+                        for b in 0..D {
+                            rec[t0 + a * D + b] += c * vs[(a, b)];
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
