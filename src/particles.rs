@@ -47,13 +47,6 @@ impl<const D: usize> Particles<D> {
         self.x.is_empty()
     }
 
-    pub fn carries(&self) -> Carries {
-        Carries {
-            def_grad: !self.def_grad.is_empty() || self.is_empty(),
-            x0: !self.x0.is_empty(),
-            half: !self.half.is_empty(),
-        }
-    }
 
     /// Apply the permutation `perm` (new position k holds old particle `perm[k]`) to
     /// every array, using `scratch` so no allocation happens once it has grown.
@@ -94,6 +87,91 @@ impl<const D: usize> Particles<D> {
         for (k, m) in self.mat.iter_mut().enumerate() {
             *m = scratch[k] as u16;
         }
+    }
+
+    /// Values per particle in a migration record for what these particles carry.
+    pub fn record_width(c: Carries) -> usize {
+        let d = D;
+        2 * d + 3 + d * d + 2 + if c.def_grad { d * d } else { 0 } + if c.x0 { d } else { 0 } + if c.half { d } else { 0 }
+    }
+
+    /// Append particle `p` as a flat record (ids and material indices are exact in f64).
+    pub fn pack(&self, p: usize, c: Carries, out: &mut Vec<f64>) {
+        out.clear();
+        out.extend_from_slice(self.x[p].as_slice());
+        out.extend_from_slice(self.v[p].as_slice());
+        out.extend_from_slice(&[self.mass[p], self.vol[p], self.vol0[p]]);
+        out.extend_from_slice(self.stress[p].as_slice());
+        out.push(f64::from(self.mat[p]));
+        out.push(self.id[p] as f64);
+        if c.def_grad {
+            out.extend_from_slice(self.def_grad[p].as_slice());
+        }
+        if c.x0 {
+            out.extend_from_slice(self.x0[p].as_slice());
+        }
+        if c.half {
+            out.extend_from_slice(&self.half[p]);
+        }
+    }
+
+    /// Append a particle from a record made by [`Particles::pack`].
+    pub fn unpack(&mut self, r: &[f64], c: Carries) {
+        let d = D;
+        let mut at = 0;
+        let mut take = |n: usize| {
+            let s = &r[at..at + n];
+            at += n;
+            s
+        };
+        self.x.push(Vector::<D>::from_column_slice(take(d)));
+        self.v.push(Vector::<D>::from_column_slice(take(d)));
+        let m = take(3);
+        self.mass.push(m[0]);
+        self.vol.push(m[1]);
+        self.vol0.push(m[2]);
+        self.stress.push(Mat::<D>::from_column_slice(take(d * d)));
+        let ids = take(2);
+        self.mat.push(ids[0] as u16);
+        self.id.push(ids[1] as u64);
+        if c.def_grad {
+            self.def_grad.push(Mat::<D>::from_column_slice(take(d * d)));
+        }
+        if c.x0 {
+            self.x0.push(Vector::<D>::from_column_slice(take(d)));
+        }
+        if c.half {
+            let h = take(d);
+            self.half.push(std::array::from_fn(|a| h[a]));
+        }
+    }
+
+    /// Keep the particles whose `keep` flag is set, in order.
+    pub fn retain(&mut self, keep: &[bool]) {
+        fn ret<T: Copy>(v: &mut Vec<T>, keep: &[bool]) {
+            if v.is_empty() {
+                return;
+            }
+            let mut w = 0;
+            for r in 0..v.len() {
+                if keep[r] {
+                    v[w] = v[r];
+                    w += 1;
+                }
+            }
+            v.truncate(w);
+        }
+        ret(&mut self.x, keep);
+        ret(&mut self.v, keep);
+        ret(&mut self.mass, keep);
+        ret(&mut self.vol, keep);
+        ret(&mut self.vol0, keep);
+        ret(&mut self.stress, keep);
+        ret(&mut self.def_grad, keep);
+        ret(&mut self.mat, keep);
+        ret(&mut self.id, keep);
+        ret(&mut self.x0, keep);
+        ret(&mut self.half, keep);
     }
 
     /// Seed the particles of every body whose current position falls in the owned

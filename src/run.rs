@@ -68,6 +68,14 @@ pub struct ErrorSummary {
     pub final_velocity_l2: f64,
 }
 
+/// Particles per rank at the end of the run (load balance).
+#[derive(Serialize, Debug, Clone)]
+pub struct RankLoad {
+    pub min: u64,
+    pub mean: f64,
+    pub max: u64,
+}
+
 #[derive(Serialize, Debug, Clone)]
 pub struct Summary {
     pub scene: String,
@@ -80,6 +88,7 @@ pub struct Summary {
     pub ranks: usize,
     pub threads: usize,
     pub blocks: Vec<usize>,
+    pub particles_per_rank: RankLoad,
     pub particles: u64,
     pub cells: Vec<usize>,
     pub steps: u64,
@@ -211,9 +220,22 @@ fn run_dim<const D: usize>(scene: &Scene, comm: &dyn Communicator, opts: &RunOpt
     }
     if failure.is_some() {
         last = solver.totals();
+        // Report the failing rank's own reason on rank 0, not "failed elsewhere".
+        let mine = match &failure {
+            Some(Failure::Elsewhere(_)) | None => String::new(),
+            Some(f) => format!("rank {}: {f}", comm.rank()),
+        };
+        let all = comm.gather_bytes(mine.as_bytes());
+        if let Some(m) = all.iter().find(|m| !m.is_empty()) {
+            failure = Some(Failure::Elsewhere(String::from_utf8_lossy(m).into_owned()));
+        }
     }
     progress.finish();
     let wall = start.elapsed().as_secs_f64();
+    let mut lo = [solver.parts.len() as f64];
+    let mut hi = lo;
+    comm.min_f64(&mut lo);
+    comm.max_f64(&mut hi);
     if let Some(f) = &mut history.file {
         f.flush().map_err(|e| io_err(&opts.out, e))?;
     }
@@ -228,6 +250,11 @@ fn run_dim<const D: usize>(scene: &Scene, comm: &dyn Communicator, opts: &RunOpt
         ranks: comm.size(),
         threads: opts.threads,
         blocks: layout.procs.to_vec(),
+        particles_per_rank: RankLoad {
+            min: lo[0] as u64,
+            mean: last.particles as f64 / comm.size() as f64,
+            max: hi[0] as u64,
+        },
         particles: tot0.particles,
         cells: scene.grid.cells.clone(),
         steps: solver.step,

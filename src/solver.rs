@@ -5,12 +5,12 @@
 
 use crate::benchmark::Benchmark;
 use crate::material::Material;
-use crate::particles::Particles;
+use crate::particles::{Carries, Particles};
 use crate::scene::{Face, Gradient, Scene, Update};
 use crate::kernel::{self, SlabOrder};
 use crate::shape::{Alpha, Geom};
 use crate::tensor::{vector, Mat, Vector};
-use decomposition::{Block, Communicator, Layout};
+use decomposition::{Block, Communicator, Layout, Migrator};
 
 /// The read-only context of the particle loops, borrowed field by field from a solver.
 macro_rules! ctx {
@@ -70,6 +70,8 @@ pub enum Failure {
     Unstable(String),
     /// A particle left a bounded grid.
     LeftGrid(String),
+    /// Another rank failed; its own message says why.
+    Elsewhere(String),
 }
 
 impl std::fmt::Display for Failure {
@@ -77,6 +79,7 @@ impl std::fmt::Display for Failure {
         match self {
             Failure::Unstable(m) => write!(f, "numerically unstable: {m}"),
             Failure::LeftGrid(m) => write!(f, "material left the grid: {m}"),
+            Failure::Elsewhere(m) => write!(f, "{m}"),
         }
     }
 }
@@ -149,6 +152,10 @@ pub struct Solver<'c, const D: usize> {
     mass_floor: f64,
     // Scratch reused every step (no allocation in the loop once grown).
     slabs: SlabOrder,
+    migrator: Migrator<D>,
+    carries: Carries,
+    keep: Vec<bool>,
+    record: Vec<f64>,
     dx: Vec<Vector<D>>,
     perm: Vec<usize>,
     scratch: Vec<f64>,
@@ -179,6 +186,12 @@ impl<'c, const D: usize> Solver<'c, D> {
             block.cell_lo,
             block.cell_hi,
         );
+        let carries = Carries {
+            def_grad: materials.iter().any(Material::needs_def_grad),
+            x0: benchmark.is_some(),
+            half: scene.method.gradient == Gradient::Gimp,
+        };
+        let migrator = Migrator::new(&layout, &block, Particles::<D>::record_width(carries));
         let gradient = scene.method.gradient;
         let alpha = match gradient {
             Gradient::Mpm | Gradient::Gimp => Alpha::Constant(1.0),
@@ -224,6 +237,10 @@ impl<'c, const D: usize> Solver<'c, D> {
             corner_delta: [0; CORNERS],
             mass_floor: 0.0,
             slabs: SlabOrder::default(),
+            migrator,
+            carries,
+            keep: Vec::new(),
+            record: Vec::new(),
             dx: Vec::new(),
             perm: Vec::new(),
             scratch: Vec::new(),
@@ -601,16 +618,20 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// block to their new owner.
     fn relocate(&mut self) -> Result<(), Failure> {
         let mut left = None;
-        for p in 0..self.parts.len() {
+        let me = self.comm.rank();
+        let n = self.parts.len();
+        self.keep.clear();
+        self.keep.resize(n, true);
+        let mut leaving = 0usize;
+        for p in 0..n {
             let x = &mut self.parts.x[p];
             for a in 0..D {
                 let (lo, hi) = (self.geom.lower[a], self.geom.upper[a]);
                 if self.geom.periodic[a] {
-                    let len = hi - lo;
                     if x[a] < lo || x[a] >= hi {
-                        x[a] = lo + (x[a] - lo).rem_euclid(len);
+                        x[a] = lo + (x[a] - lo).rem_euclid(hi - lo);
                         if x[a] >= hi {
-                            x[a] = lo; // rem_euclid can round up to len
+                            x[a] = lo; // rem_euclid can round up to the period
                         }
                     }
                 } else if !(x[a] >= lo && x[a] <= hi) && left.is_none() {
@@ -623,14 +644,47 @@ impl<'c, const D: usize> Solver<'c, D> {
                     ));
                 }
             }
+            if left.is_some() {
+                continue;
+            }
+            let (cell, _) = self.geom.locate(&std::array::from_fn(|a| x[a]));
+            match self.migrator.destination(cell) {
+                Ok(d) if d.rank == me => {}
+                Ok(d) => {
+                    self.parts.pack(p, self.carries, &mut self.record);
+                    self.migrator.push(d.rank, &self.record);
+                    self.keep[p] = false;
+                    leaving += 1;
+                }
+                Err(e) => self.migrator.fail(e),
+            }
         }
-        let any = self.comm.any(left.is_some());
-        if any {
-            return Err(Failure::LeftGrid(left.unwrap_or_else(|| {
-                "a particle left the grid on another rank".to_string()
-            })));
+        // Every rank takes part in the exchange, so an error anywhere reaches all.
+        if left.is_some() {
+            self.migrator.fail(decomposition::Error::OutsideGrid {
+                rank: me,
+                cell: vec![],
+                cells: self.geom.cells.to_vec(),
+            });
         }
-        Ok(())
+        if leaving > 0 {
+            self.parts.retain(&self.keep);
+        }
+        let carries = self.carries;
+        let parts = &mut self.parts;
+        match self.migrator.exchange(self.comm) {
+            Ok(recs) => {
+                for r in recs.iter() {
+                    parts.unpack(r, carries);
+                }
+                Ok(())
+            }
+            Err(e) => Err(match (left, e) {
+                (Some(m), _) => Failure::LeftGrid(m),
+                (None, e @ decomposition::Error::ParticleTooFast { .. }) => Failure::Unstable(e.to_string()),
+                (None, e) => Failure::Elsewhere(e.to_string()),
+            }),
+        }
     }
 
     /// Reorder particles by cell (then id, for determinism) for cache locality.
