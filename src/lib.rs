@@ -4,6 +4,7 @@
 
 pub mod benchmark;
 pub mod cli;
+pub mod io;
 pub mod kernel;
 pub mod material;
 pub mod particles;

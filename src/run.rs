@@ -1,6 +1,7 @@
 //! A whole run: set-up, the step loop with progress and diagnostics, and the files it
 //! leaves in the output folder (`summary.json`, `history.csv`).
 
+use crate::io::Snapshots;
 use crate::scene::{Face, Scene};
 use crate::solver::{Failure, Solver, Totals};
 use decomposition::{Communicator, Layout};
@@ -183,6 +184,12 @@ fn run_dim<const D: usize>(scene: &Scene, comm: &dyn Communicator, opts: &RunOpt
         writeln!(w, "{head}").map_err(|e| io_err(&path, e))?;
         history.file = Some(w);
     }
+    let mut snaps = scene.output.as_ref().map(|o| (Snapshots::new(&opts.out, &o.fields), o.every));
+    let mut next_out = f64::INFINITY;
+    if let Some((sn, every)) = &mut snaps {
+        sn.write(comm, &solver.parts, 0, 0.0).map_err(|e| RunError::Io(e.to_string()))?;
+        next_out = *every;
+    }
     let tot0 = solver.totals();
     let err0 = solver.errors();
     history.row(&solver, &tot0, err0).map_err(|e| io_err(&opts.out, e))?;
@@ -215,6 +222,15 @@ fn run_dim<const D: usize>(scene: &Scene, comm: &dyn Communicator, opts: &RunOpt
             scale = scale.max(last.kinetic + last.strain);
             max_dev = max_dev.max((last.total_energy() - e0).abs());
             history.row(&solver, &last, last_err).map_err(|e| io_err(&opts.out, e))?;
+        }
+        if let Some((sn, every)) = &mut snaps {
+            // Write when an output time is reached (to within a thousandth of a step).
+            if solver.t >= next_out - 1e-3 * solver.dt || solver.done() {
+                sn.write(comm, &solver.parts, solver.step, solver.t).map_err(|e| RunError::Io(e.to_string()))?;
+                while next_out <= solver.t + 1e-3 * solver.dt {
+                    next_out += *every;
+                }
+            }
         }
         progress.tick(&solver, start);
     }

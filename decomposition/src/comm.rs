@@ -41,6 +41,10 @@ pub trait Communicator {
     fn gather_bytes(&self, data: &[u8]) -> Vec<Vec<u8>>;
     /// Broadcast bytes from rank 0 to all (the argument is ignored on other ranks).
     fn broadcast_bytes(&self, data: &[u8]) -> Vec<u8>;
+    /// The underlying MPI communicator, for libraries that need one (parallel HDF5).
+    fn raw_mpi(&self) -> Option<mpi::ffi::MPI_Comm> {
+        None
+    }
 }
 
 /// A single process: collectives are identities and exchanges loop back to itself.
@@ -92,6 +96,10 @@ impl MpiComm {
 }
 
 impl Communicator for MpiComm {
+    fn raw_mpi(&self) -> Option<mpi::ffi::MPI_Comm> {
+        use mpi::raw::AsRaw;
+        Some(self.world.as_raw())
+    }
     fn rank(&self) -> usize {
         self.world.rank() as usize
     }

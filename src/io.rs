@@ -1,0 +1,312 @@
+//! Particle snapshots: one HDF5 file per output time written by all ranks together
+//! (parallel HDF5, collective hyperslab writes of flat arrays at offsets from an
+//! exclusive scan of the local counts), and an XDMF file describing the time series
+//! so that ParaView opens it directly.
+//!
+//! Every snapshot holds `id`, `rank` and `material` of each particle and its
+//! `position` (N × 3, padded with zeros below 3D, as ParaView expects), plus the
+//! fields the scene lists (`velocity` N × 3, `displacement` N × 3, `stress` N × 9).
+
+use crate::particles::Particles;
+use crate::scene::Field;
+use decomposition::Communicator;
+use hdf5_sys::{h5d, h5p, h5s, h5t};
+use std::path::{Path, PathBuf};
+
+/// What a snapshot could not do.
+#[derive(Debug)]
+pub struct IoError(pub String);
+
+impl std::fmt::Display for IoError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+fn h5err(path: &Path, e: hdf5::Error) -> IoError {
+    IoError(format!("{}: {e}", path.display()))
+}
+
+/// One entry of the time series.
+#[derive(Clone, Debug)]
+struct Entry {
+    file: String,
+    time: f64,
+    particles: u64,
+}
+
+/// Writes snapshots and keeps the XDMF index of those written.
+pub struct Snapshots {
+    out: PathBuf,
+    fields: Vec<Field>,
+    entries: Vec<Entry>,
+    /// Flat staging buffer, reused between fields and snapshots.
+    buf: Vec<f64>,
+    ibuf: Vec<i64>,
+}
+
+impl Snapshots {
+    pub fn new(out: &Path, fields: &[Field]) -> Self {
+        let mut f = fields.to_vec();
+        f.dedup();
+        Self {
+            out: out.to_path_buf(),
+            fields: f,
+            entries: Vec::new(),
+            buf: Vec::new(),
+            ibuf: Vec::new(),
+        }
+    }
+
+    /// Collective: write the particles of every rank at `step`, time `t`, then (rank 0)
+    /// rewrite the XDMF index.
+    pub fn write<const D: usize>(
+        &mut self,
+        comm: &dyn Communicator,
+        parts: &Particles<D>,
+        step: u64,
+        t: f64,
+    ) -> Result<(), IoError> {
+        let name = format!("particles_{step:06}.h5");
+        let path = self.out.join(&name);
+        let n = parts.len() as u64;
+        let offset = comm.exclusive_scan_u64(n);
+        let mut tot = [n];
+        comm.sum_u64(&mut tot);
+        let total = tot[0];
+        let file = create(comm, &path)?;
+        let a = file
+            .new_attr::<f64>()
+            .create("time")
+            .and_then(|a| a.write_scalar(&t))
+            .and_then(|_| file.new_attr::<u64>().create("step"))
+            .and_then(|a| a.write_scalar(&step))
+            .and_then(|_| file.new_attr::<u64>().create("dim"))
+            .and_then(|a| a.write_scalar(&(D as u64)));
+        a.map_err(|e| h5err(&path, e))?;
+
+        let w = Writer {
+            file: &file,
+            path: &path,
+            offset,
+            count: n,
+            total,
+        };
+        self.ibuf.clear();
+        self.ibuf.extend(parts.id.iter().map(|&i| i as i64));
+        w.ints("id", &self.ibuf)?;
+        self.ibuf.clear();
+        self.ibuf.resize(parts.len(), comm.rank() as i64);
+        w.ints("rank", &self.ibuf)?;
+        self.ibuf.clear();
+        self.ibuf.extend(parts.mat.iter().map(|&m| i64::from(m)));
+        w.ints("material", &self.ibuf)?;
+        pad3(&mut self.buf, parts.x.iter().map(|x| x.as_slice()), D);
+        w.floats("position", &self.buf, 3)?;
+        for f in self.fields.clone() {
+            match f {
+                Field::Velocity => {
+                    pad3(&mut self.buf, parts.v.iter().map(|x| x.as_slice()), D);
+                    w.floats("velocity", &self.buf, 3)?;
+                }
+                Field::Displacement => {
+                    self.buf.clear();
+                    for p in 0..parts.len() {
+                        let u = if parts.x0.is_empty() {
+                            nalgebra::SVector::<f64, D>::zeros()
+                        } else {
+                            parts.x[p] - parts.x0[p]
+                        };
+                        for a in 0..3 {
+                            self.buf.push(if a < D { u[a] } else { 0.0 });
+                        }
+                    }
+                    w.floats("displacement", &self.buf, 3)?;
+                }
+                Field::Stress => {
+                    self.buf.clear();
+                    for s in &parts.stress {
+                        for i in 0..3 {
+                            for j in 0..3 {
+                                self.buf.push(if i < D && j < D { s[(i, j)] } else { 0.0 });
+                            }
+                        }
+                    }
+                    w.floats("stress", &self.buf, 9)?;
+                }
+            }
+        }
+        drop(file);
+        self.entries.push(Entry {
+            file: name,
+            time: t,
+            particles: total,
+        });
+        if comm.rank() == 0 {
+            self.write_xdmf()?;
+        }
+        Ok(())
+    }
+
+    /// Rewrite `particles.xmf` (via a temporary file and a rename, so a reader never
+    /// sees half of it).
+    fn write_xdmf(&self) -> Result<(), IoError> {
+        let mut x = String::from(
+            "<?xml version=\"1.0\" ?>\n<!DOCTYPE Xdmf SYSTEM \"Xdmf.dtd\" []>\n<Xdmf Version=\"3.0\">\n <Domain>\n  <Grid Name=\"particles\" GridType=\"Collection\" CollectionType=\"Temporal\">\n",
+        );
+        for e in &self.entries {
+            let n = e.particles;
+            let item = |path: &str, cols: usize| {
+                format!(
+                    "<DataItem Dimensions=\"{n} {cols}\" NumberType=\"Float\" Precision=\"8\" Format=\"HDF\">{}:/{path}</DataItem>",
+                    e.file
+                )
+            };
+            x += &format!(
+                "   <Grid Name=\"{}\" GridType=\"Uniform\">\n    <Time Value=\"{:.17e}\"/>\n    <Topology TopologyType=\"Polyvertex\" NumberOfElements=\"{n}\" NodesPerElement=\"1\"/>\n    <Geometry GeometryType=\"XYZ\">{}</Geometry>\n",
+                e.file,
+                e.time,
+                item("position", 3)
+            );
+            for (name, ty) in [("id", "Int"), ("rank", "Int"), ("material", "Int")] {
+                x += &format!(
+                    "    <Attribute Name=\"{name}\" AttributeType=\"Scalar\" Center=\"Node\"><DataItem Dimensions=\"{n}\" NumberType=\"{ty}\" Precision=\"8\" Format=\"HDF\">{}:/{name}</DataItem></Attribute>\n",
+                    e.file
+                );
+            }
+            for f in &self.fields {
+                let (name, ty, cols) = match f {
+                    Field::Velocity => ("velocity", "Vector", 3),
+                    Field::Displacement => ("displacement", "Vector", 3),
+                    Field::Stress => ("stress", "Tensor", 9),
+                };
+                x += &format!(
+                    "    <Attribute Name=\"{name}\" AttributeType=\"{ty}\" Center=\"Node\">{}</Attribute>\n",
+                    item(name, cols)
+                );
+            }
+            x += "   </Grid>\n";
+        }
+        x += "  </Grid>\n </Domain>\n</Xdmf>\n";
+        let path = self.out.join("particles.xmf");
+        let tmp = self.out.join(".particles.xmf.tmp");
+        std::fs::write(&tmp, x)
+            .and_then(|_| std::fs::rename(&tmp, &path))
+            .map_err(|e| IoError(format!("{}: {e}", path.display())))
+    }
+}
+
+fn pad3<'a>(buf: &mut Vec<f64>, rows: impl Iterator<Item = &'a [f64]>, d: usize) {
+    buf.clear();
+    for r in rows {
+        for a in 0..3 {
+            buf.push(if a < d { r[a] } else { 0.0 });
+        }
+    }
+}
+
+/// Create a file: with the MPI-IO driver on an MPI communicator, plainly on one process.
+fn create(comm: &dyn Communicator, path: &Path) -> Result<hdf5::File, IoError> {
+    let r = match comm.raw_mpi() {
+        Some(raw) => hdf5::File::with_options()
+            .with_fapl(|p| p.mpio(raw, None))
+            .create(path),
+        None if comm.size() == 1 => hdf5::File::create(path),
+        None => {
+            return Err(IoError(format!(
+                "{}: parallel output needs an MPI communicator",
+                path.display()
+            )))
+        }
+    };
+    r.map_err(|e| h5err(path, e))
+}
+
+struct Writer<'a> {
+    file: &'a hdf5::File,
+    path: &'a Path,
+    offset: u64,
+    count: u64,
+    total: u64,
+}
+
+impl Writer<'_> {
+    fn floats(&self, name: &str, data: &[f64], cols: usize) -> Result<(), IoError> {
+        let ds = self
+            .file
+            .new_dataset::<f64>()
+            .shape([self.total as usize, cols])
+            .create(name)
+            .map_err(|e| h5err(self.path, e))?;
+        // SAFETY: `data` holds `count × cols` f64 (asserted), the selection below covers
+        // exactly that many elements, and H5T_NATIVE_DOUBLE matches f64.
+        assert_eq!(data.len() as u64, self.count * cols as u64);
+        self.raw_write(&ds, data.as_ptr().cast(), cols, *h5t::H5T_NATIVE_DOUBLE)
+            .map_err(|m| IoError(format!("{}: writing {name}: {m}", self.path.display())))
+    }
+
+    fn ints(&self, name: &str, data: &[i64]) -> Result<(), IoError> {
+        let ds = self
+            .file
+            .new_dataset::<i64>()
+            .shape([self.total as usize])
+            .create(name)
+            .map_err(|e| h5err(self.path, e))?;
+        assert_eq!(data.len() as u64, self.count);
+        self.raw_write(&ds, data.as_ptr().cast(), 0, *h5t::H5T_NATIVE_INT64)
+            .map_err(|m| IoError(format!("{}: writing {name}: {m}", self.path.display())))
+    }
+
+    /// Collective (with MPI-IO) write of this rank's rows `[offset, offset + count)`;
+    /// `cols == 0` means a 1-D dataset. A rank without rows takes part with an empty
+    /// selection.
+    fn raw_write(&self, ds: &hdf5::Dataset, ptr: *const std::ffi::c_void, cols: usize, ty: hdf5_sys::h5i::hid_t) -> Result<(), String> {
+        let (start, count): (Vec<u64>, Vec<u64>) = if cols == 0 {
+            (vec![self.offset], vec![self.count])
+        } else {
+            (vec![self.offset, 0], vec![self.count, cols as u64])
+        };
+        let id = ds.id();
+        let parallel = matches!(
+            self.file.access_plist().map(|p| p.driver()),
+            Ok(hdf5::plist::file_access::FileDriver::Mpio(_))
+        );
+        hdf5::sync::sync(|| {
+            // SAFETY: every id is created here and closed before returning; the memory
+            // space has exactly `count` rows of `cols` values, matching the caller's buffer.
+            unsafe {
+                let fspace = h5d::H5Dget_space(id);
+                if fspace < 0 {
+                    return Err("no dataspace".to_string());
+                }
+                let dxpl = h5p::H5Pcreate(*h5p::H5P_CLS_DATASET_XFER);
+                if parallel {
+                    h5p::H5Pset_dxpl_mpio(dxpl, h5p::H5FD_mpio_xfer_t::H5FD_MPIO_COLLECTIVE);
+                }
+                let mspace = h5s::H5Screate_simple(count.len() as i32, count.as_ptr(), std::ptr::null());
+                if self.count == 0 {
+                    h5s::H5Sselect_none(fspace);
+                    h5s::H5Sselect_none(mspace);
+                } else {
+                    h5s::H5Sselect_hyperslab(
+                        fspace,
+                        h5s::H5S_seloper_t::H5S_SELECT_SET,
+                        start.as_ptr(),
+                        std::ptr::null(),
+                        count.as_ptr(),
+                        std::ptr::null(),
+                    );
+                }
+                let r = h5d::H5Dwrite(id, ty, mspace, fspace, dxpl, ptr);
+                h5s::H5Sclose(mspace);
+                h5s::H5Sclose(fspace);
+                h5p::H5Pclose(dxpl);
+                if r < 0 {
+                    Err("H5Dwrite failed".to_string())
+                } else {
+                    Ok(())
+                }
+            }
+        })
+    }
+}
