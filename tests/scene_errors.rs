@@ -823,3 +823,14 @@ fn other_validation() {
         .key("materials[1].name")
         .says("duplicate material name");
 }
+
+#[test]
+fn deeply_nested_values_do_not_overflow_the_stack() {
+    let n = 100_000;
+    let arrays = format!("{}a = {}{}\n", BAR, "[".repeat(n), "]".repeat(n));
+    check("deep_arrays", arrays).no_key().says("not valid TOML");
+    let tables = format!("{}b = {}1{}\n", BAR, "{ c = ".repeat(n), " }".repeat(n));
+    check("deep_tables", tables).no_key().says("not valid TOML");
+    let dotted = format!("{}{} = 1\n", BAR, vec!["d"; n].join("."));
+    check("deep_dotted", dotted).no_key().says("not valid TOML");
+}
