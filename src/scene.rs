@@ -138,6 +138,17 @@ pub struct Boundary {
     pub z_upper: Option<Face>,
 }
 
+impl Face {
+    pub fn name(self) -> &'static str {
+        match self {
+            Face::Fixed => "fixed",
+            Face::Slip => "slip",
+            Face::Free => "free",
+            Face::Periodic => "periodic",
+        }
+    }
+}
+
 impl Boundary {
     const KEYS: [&'static str; 6] = [
         "x_lower", "x_upper", "y_lower", "y_upper", "z_lower", "z_upper",
@@ -188,9 +199,15 @@ pub struct MaterialSpec {
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(rename_all = "snake_case", deny_unknown_fields)]
 pub enum Shape {
-    Box { lower: Vec<f64>, upper: Vec<f64> },
+    Box {
+        lower: Vec<f64>,
+        upper: Vec<f64>,
+    },
     /// A disk in 2D, an interval in 1D.
-    Sphere { center: Vec<f64>, radius: f64 },
+    Sphere {
+        center: Vec<f64>,
+        radius: f64,
+    },
     /// The ring `inner <= |x - center| <= outer` (2D).
     Annulus {
         center: Vec<f64>,
@@ -279,51 +296,313 @@ impl fmt::Display for SceneError {
 
 impl std::error::Error for SceneError {}
 
-/// 1-based line and column of a byte offset.
+/// 1-based line and column (in characters) of a byte offset.
 fn line_col(text: &str, offset: usize) -> (usize, usize) {
-    let offset = offset.min(text.len());
+    let mut offset = offset.min(text.len());
+    while !text.is_char_boundary(offset) {
+        offset -= 1;
+    }
     let before = &text[..offset];
     let line = before.matches('\n').count() + 1;
     let col = before.rsplit('\n').next().map_or(0, |s| s.chars().count()) + 1;
     (line, col)
 }
 
-/// Byte offset of the value at a dotted key path like `materials[0].density`.
-fn locate(text: &str, key: &str) -> Option<usize> {
-    use toml::de::{DeTable, DeValue};
-    fn walk(t: &DeTable, parts: &[&str]) -> Option<usize> {
-        let (part, rest) = parts.split_first()?;
-        let (name, idx) = match part.find('[') {
-            Some(i) => (&part[..i], part[i + 1..part.len() - 1].parse::<usize>().ok()),
-            None => (*part, None),
-        };
-        let mut v = t.iter().find(|(k, _)| k.get_ref() == name)?.1;
-        if let Some(i) = idx {
-            match v.get_ref() {
-                DeValue::Array(a) => v = a.get(i)?,
-                _ => return None,
-            }
-        }
-        if rest.is_empty() {
-            return Some(v.span().start);
-        }
-        match v.get_ref() {
-            DeValue::Table(inner) => walk(inner, rest).or(Some(v.span().start)),
-            _ => Some(v.span().start),
+/// Escapes control characters (newlines included) so that a message stays on one line.
+fn one_line(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        if c.is_control() {
+            out.extend(c.escape_default());
+        } else {
+            out.push(c);
         }
     }
-    let doc = DeTable::parse(text).ok()?;
+    out
+}
+
+/// The value at a dotted key path like `materials[0].density`, and whether the whole
+/// path was found (`false`: the value is the deepest enclosing one that exists).
+fn find<'a>(
+    t: &'a toml::de::DeTable<'a>,
+    parts: &[&str],
+) -> Option<(&'a toml::Spanned<toml::de::DeValue<'a>>, bool)> {
+    use toml::de::DeValue;
+    let (part, rest) = parts.split_first()?;
+    let (name, idx) = match part.find('[') {
+        Some(i) => (
+            &part[..i],
+            part[i + 1..]
+                .strip_suffix(']')
+                .and_then(|n| n.parse::<usize>().ok()),
+        ),
+        None => (*part, None),
+    };
+    let mut v = t.iter().find(|(k, _)| k.get_ref() == name)?.1;
+    if let Some(i) = idx {
+        match v.get_ref() {
+            DeValue::Array(a) => match a.get(i) {
+                Some(x) => v = x,
+                None => return Some((v, false)),
+            },
+            _ => return Some((v, false)),
+        }
+    }
+    if rest.is_empty() {
+        return Some((v, true));
+    }
+    match v.get_ref() {
+        DeValue::Table(inner) => find(inner, rest).or(Some((v, false))),
+        _ => Some((v, false)),
+    }
+}
+
+/// Calls `f` with the value at `key` and its source text, if the key is in the file.
+fn with_value<R>(
+    text: &str,
+    key: &str,
+    exact: bool,
+    f: impl FnOnce(&toml::de::DeValue<'_>, std::ops::Range<usize>) -> R,
+) -> Option<R> {
+    let doc = toml::de::DeTable::parse(text).ok()?;
     let parts: Vec<&str> = key.split('.').collect();
-    walk(doc.get_ref(), &parts)
+    let (v, found) = find(doc.get_ref(), &parts)?;
+    (found || !exact).then(|| f(v.get_ref(), v.span()))
+}
+
+/// Byte offset of the value at a dotted key path like `materials[0].density`, or of
+/// the deepest enclosing value that exists.
+fn locate(text: &str, key: &str) -> Option<usize> {
+    with_value(text, key, false, |_, span| span.start)
+}
+
+/// What the file holds at `key`, for messages: "the string \"heavy\"", "a table".
+fn describe(text: &str, key: &str) -> Option<String> {
+    use toml::de::DeValue;
+    with_value(text, key, true, |v, span| {
+        let raw = text.get(span).unwrap_or("").trim();
+        let raw = if raw.chars().count() > 40 {
+            format!("{}...", raw.chars().take(40).collect::<String>())
+        } else {
+            raw.to_string()
+        };
+        match v {
+            DeValue::Table(t) if t.is_empty() => "an empty table".to_string(),
+            DeValue::Table(t) => {
+                let keys: Vec<String> = t
+                    .iter()
+                    .map(|(k, _)| format!("`{}`", k.get_ref()))
+                    .collect();
+                format!("a table with keys {}", keys.join(", "))
+            }
+            DeValue::Array(_) => "an array".to_string(),
+            other => format!("the {} {raw}", other.type_str()),
+        }
+    })
+}
+
+/// The variant names of a unit-variant enum, as serde spells them.
+fn variants<T: serde::de::DeserializeOwned>() -> &'static [&'static str] {
+    use serde::de::{Error, Visitor};
+    use std::cell::Cell;
+    struct Probe<'a>(&'a Cell<&'static [&'static str]>);
+    impl<'de> serde::Deserializer<'de> for Probe<'_> {
+        type Error = serde::de::value::Error;
+        fn deserialize_any<V: Visitor<'de>>(self, _: V) -> Result<V::Value, Self::Error> {
+            Err(Self::Error::custom("not an enum"))
+        }
+        fn deserialize_enum<V: Visitor<'de>>(
+            self,
+            _: &'static str,
+            variants: &'static [&'static str],
+            _: V,
+        ) -> Result<V::Value, Self::Error> {
+            self.0.set(variants);
+            Err(Self::Error::custom("probe"))
+        }
+        serde::forward_to_deserialize_any! {
+            bool i8 i16 i32 i64 i128 u8 u16 u32 u64 u128 f32 f64 char str string bytes
+            byte_buf option unit unit_struct newtype_struct seq tuple tuple_struct map
+            struct identifier ignored_any
+        }
+    }
+    let cell = Cell::new(&[][..]);
+    let _ = T::deserialize(Probe(&cell));
+    cell.get()
+}
+
+/// The variants allowed at a key path whose value is an enum (indices written `[]`).
+fn choices(key: &str) -> Option<&'static [&'static str]> {
+    Some(match key {
+        "method.gradient" => variants::<Gradient>(),
+        "method.update" => variants::<Update>(),
+        "materials[].model" => variants::<Model>(),
+        "bodies[].shape" => variants::<Shape>(),
+        "benchmark.kind" => variants::<BenchmarkKind>(),
+        "output.fields[]" => variants::<Field>(),
+        _ => match key.strip_prefix("grid.boundary.") {
+            Some(face) if Boundary::KEYS.contains(&face) => variants::<Face>(),
+            _ => return None,
+        },
+    })
+}
+
+fn one_of(names: &[&str]) -> String {
+    let names: Vec<String> = names.iter().map(|n| format!("`{n}`")).collect();
+    format!("one of {}", names.join(", "))
+}
+
+/// Serde's name for an expected type, in TOML words.
+fn toml_words(expected: &str) -> String {
+    match expected {
+        "f64" | "f32" => "a number".into(),
+        "usize" | "u64" | "u32" | "u16" | "u8" => "a non-negative integer".into(),
+        "a sequence" => "an array".into(),
+        "a boolean" | "a string" => expected.into(),
+        e if e.starts_with("struct") => "a table".into(),
+        e if e.starts_with("enum ") => "a string".into(),
+        e => e.into(),
+    }
+}
+
+/// Turns a deserialisation error into (key, byte offset, message) with the full key
+/// path and what the key expects.
+fn explain(
+    text: &str,
+    path: &serde_path_to_error::Path,
+    inner: &toml::de::Error,
+) -> (Option<String>, Option<usize>, String) {
+    use serde_path_to_error::Segment;
+    let mut parts: Vec<String> = Vec::new();
+    for seg in path.iter() {
+        match seg {
+            Segment::Seq { index } => match parts.last_mut() {
+                Some(last) => last.push_str(&format!("[{index}]")),
+                None => parts.push(format!("[{index}]")),
+            },
+            Segment::Map { key } => parts.push(key.clone()),
+            Segment::Enum { variant } => parts.push(variant.clone()),
+            Segment::Unknown => parts.push("?".into()),
+        }
+    }
+    let join = |p: &[String]| (!p.is_empty()).then(|| p.join("."));
+    let generic = |p: &[String]| {
+        p.iter()
+            .map(|s| match s.find('[') {
+                Some(i) => format!("{}[]", &s[..i]),
+                None => s.clone(),
+            })
+            .collect::<Vec<_>>()
+            .join(".")
+    };
+    let key = join(&parts);
+    let mut pos = inner.span().map(|s| s.start);
+    let msg = inner.message();
+
+    // A required key is absent: name it, not the table that lacks it.
+    if let Some(field) = msg
+        .strip_prefix("missing field `")
+        .and_then(|m| m.strip_suffix('`'))
+    {
+        let message = if parts.is_empty() {
+            // The span is the whole file; a position would only mislead.
+            pos = None;
+            match field {
+                "time" | "grid" => format!("the required table [{field}] is missing"),
+                "materials" | "bodies" => {
+                    format!("missing; at least one [[{field}]] entry is required")
+                }
+                _ => "this required key is missing".to_string(),
+            }
+        } else {
+            "this required key is missing".to_string()
+        };
+        parts.push(field.to_string());
+        return (join(&parts), pos, message);
+    }
+    // Unknown keys in an enum variant's table (the toml crate checks those itself).
+    if let Some((extra, available)) = msg
+        .strip_prefix("unexpected keys in table: ")
+        .and_then(|m| m.split_once(", available keys: "))
+    {
+        let extra: Vec<&str> = extra.split(", ").collect();
+        let available: Vec<&str> = available.split(", ").collect();
+        let mut message = format!(
+            "unknown key `{}`, expected {}",
+            extra[0],
+            one_of(&available)
+        );
+        if extra.len() > 1 {
+            let more: Vec<String> = extra[1..].iter().map(|k| format!("`{k}`")).collect();
+            message.push_str(&format!(" (also unknown: {})", more.join(", ")));
+        }
+        parts.push(extra[0].to_string());
+        return (join(&parts), pos, message);
+    }
+    if let Some(rest) = msg.strip_prefix("unknown field ") {
+        return (key, pos, format!("unknown key {rest}"));
+    }
+    // Errors about an enum's form rather than about a variant's contents: the toml
+    // crate may have stepped into the variant (`gradient = { mpm = 1 }`) or reported
+    // a string where a table variant was expected (`shape = "box"`).
+    let enum_at = if choices(&generic(&parts)).is_some() {
+        Some(parts.len())
+    } else if parts.len() > 1 && choices(&generic(&parts[..parts.len() - 1])).is_some() {
+        let shape = generic(&parts[..parts.len() - 1]) == "bodies[].shape";
+        (!shape || msg.contains("unit variant")).then(|| parts.len() - 1)
+    } else {
+        None
+    };
+    if let Some(n) = enum_at {
+        if msg.starts_with("unknown variant") {
+            return (join(&parts[..n]), pos, msg.to_string());
+        }
+        let k = join(&parts[..n]).unwrap_or_default();
+        let names = choices(&generic(&parts[..n])).unwrap_or(&[]);
+        let expected = if generic(&parts[..n]) == "bodies[].shape" {
+            format!(
+                "a table with exactly one of the keys {}, e.g. `shape = {{ box = {{ lower = [...], upper = [...] }} }}`",
+                names.iter().map(|n| format!("`{n}`")).collect::<Vec<_>>().join(", ")
+            )
+        } else {
+            format!("a string, {}", one_of(names))
+        };
+        let got = describe(text, &k).map_or(String::new(), |g| format!(", got {g}"));
+        pos = locate(text, &k).or(pos);
+        return (Some(k), pos, format!("expected {expected}{got}"));
+    }
+    // "invalid type: string \"heavy\", expected f64" and the like.
+    for prefix in ["invalid type: ", "invalid value: "] {
+        if let Some((unexpected, expected)) = msg
+            .strip_prefix(prefix)
+            .and_then(|m| m.rsplit_once(", expected "))
+        {
+            let got = match unexpected.strip_suffix(" as i128") {
+                Some(n) => format!("{n}, which is out of range"),
+                None => key
+                    .as_deref()
+                    .and_then(|k| describe(text, k))
+                    .unwrap_or_else(|| unexpected.to_string()),
+            };
+            let expected = match key.as_deref() {
+                Some(k @ ("materials" | "bodies")) if expected == "a sequence" => {
+                    format!("[[{k}]] entries (an array of tables)")
+                }
+                _ => toml_words(expected),
+            };
+            return (key, pos, format!("expected {expected}, got {got}"));
+        }
+    }
+    (key, pos, msg.to_string())
 }
 
 /// Parse and validate a scene. `file` is used in messages only.
 pub fn parse(text: &str, file: &str) -> Result<Scene, SceneError> {
     let err = |key: Option<String>, pos: Option<usize>, message: String| SceneError {
         file: file.to_string(),
-        key,
+        key: key.map(|k| one_line(&k)),
         line_col: pos.map(|p| line_col(text, p)),
-        message,
+        message: one_line(&message),
     };
     if text.trim().is_empty() {
         return Err(err(
@@ -333,22 +612,22 @@ pub fn parse(text: &str, file: &str) -> Result<Scene, SceneError> {
         ));
     }
     let de = toml::Deserializer::parse(text).map_err(|e| {
-        err(
-            None,
-            e.span().map(|s| s.start),
-            format!("not valid TOML: {}", e.message()),
-        )
+        let span = e.span();
+        let mut message = format!("not valid TOML: {}", e.message());
+        // The parser names neither the key nor the table of a duplicate; its span
+        // covers the repeated key, so quote that.
+        if let Some(k) = span
+            .clone()
+            .and_then(|s| text.get(s))
+            .filter(|k| e.message().starts_with("duplicate key") && !k.trim().is_empty())
+        {
+            message = format!("{message} `{}`", k.trim());
+        }
+        err(None, span.map(|s| s.start), message)
     })?;
     let scene: Scene = serde_path_to_error::deserialize(de).map_err(|e| {
-        let path = e.path().to_string();
-        let inner = e.inner();
-        let key = if path == "." || path.is_empty() {
-            None
-        } else {
-            Some(path)
-        };
-        let pos = inner.span().map(|s| s.start);
-        err(key, pos, inner.message().to_string())
+        let (key, pos, message) = explain(text, e.path(), e.inner());
+        err(key, pos, message)
     })?;
     validate(&scene).map_err(|(key, message)| {
         let pos = locate(text, &key);
@@ -366,14 +645,17 @@ pub fn load(path: &Path) -> Result<(Scene, String), SceneError> {
         line_col: None,
         message: format!("cannot read the scene file: {e}"),
     })?;
-    let text = String::from_utf8(bytes).map_err(|e| SceneError {
-        file: file.clone(),
-        key: None,
-        line_col: None,
-        message: format!(
-            "not a text file (invalid UTF-8 at byte {}); a scene is a TOML file",
-            e.utf8_error().valid_up_to()
-        ),
+    let text = String::from_utf8(bytes).map_err(|e| {
+        let n = e.utf8_error().valid_up_to();
+        let valid = std::str::from_utf8(&e.as_bytes()[..n]).unwrap_or_default();
+        SceneError {
+            file: file.clone(),
+            key: None,
+            line_col: Some(line_col(valid, n)),
+            message: format!(
+                "not a text file (invalid UTF-8 at byte {n}); a scene is a UTF-8 TOML file"
+            ),
+        }
     })?;
     let scene = parse(&text, &file)?;
     Ok((scene, text))
@@ -402,10 +684,7 @@ fn vector(key: &str, v: &[f64], dim: usize) -> Result<(), Invalid> {
     if v.len() != dim {
         return Err((
             key.into(),
-            format!(
-                "must have dim = {dim} components, got {} ({v:?})",
-                v.len()
-            ),
+            format!("must have dim = {dim} components, got {} ({v:?})", v.len()),
         ));
     }
     for (i, &x) in v.iter().enumerate() {
@@ -420,8 +699,7 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
         return Err(("dim".into(), format!("must be 1, 2 or 3, got {d}")));
     }
     if s.name.trim().is_empty()
-        || s
-            .name
+        || s.name
             .chars()
             .any(|c| !(c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '.'))
     {
@@ -454,7 +732,10 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
     if !(0.0..=1.0).contains(&s.method.flip) {
         return Err((
             "method.flip".into(),
-            format!("must be in [0, 1] (1 = FLIP, 0 = PIC), got {}", s.method.flip),
+            format!(
+                "must be in [0, 1] (1 = FLIP, 0 = PIC), got {}",
+                s.method.flip
+            ),
         ));
     }
     let g = &s.grid;
@@ -482,9 +763,23 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
         let lo = g.boundary.face(a, false);
         let hi = g.boundary.face(a, true);
         if (lo == Face::Periodic) != (hi == Face::Periodic) {
+            let (p, other, face) = if lo == Face::Periodic {
+                (2 * a, 2 * a + 1, hi)
+            } else {
+                (2 * a + 1, 2 * a, lo)
+            };
+            let given = if g.boundary.get(other).is_some() {
+                ""
+            } else {
+                " (the default)"
+            };
             return Err((
-                format!("grid.boundary.{}", Boundary::KEYS[2 * a]),
-                "periodic faces come in pairs: set both faces of the axis to `periodic`".into(),
+                format!("grid.boundary.{}", Boundary::KEYS[p]),
+                format!(
+                    "periodic faces come in pairs, but `{}` is `{}`{given}: set both to `periodic`",
+                    Boundary::KEYS[other],
+                    face.name()
+                ),
             ));
         }
         if lo == Face::Periodic && g.cells[a] < 2 {
@@ -564,7 +859,10 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
                     if lower[a] >= upper[a] {
                         return Err((
                             k("shape.box.upper"),
-                            format!("must be greater than lower on every axis; axis {a}: {} >= {}", lower[a], upper[a]),
+                            format!(
+                                "must be greater than lower on every axis; axis {a}: {} >= {}",
+                                lower[a], upper[a]
+                            ),
                         ));
                     }
                 }
@@ -592,7 +890,9 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
                 if !(0.0 <= *inner && inner < outer) {
                     return Err((
                         k("shape.annulus.inner"),
-                        format!("must satisfy 0 <= inner < outer, got inner {inner}, outer {outer}"),
+                        format!(
+                            "must satisfy 0 <= inner < outer, got inner {inner}, outer {outer}"
+                        ),
                     ));
                 }
                 (

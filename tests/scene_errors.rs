@@ -1,0 +1,836 @@
+//! A catalogue of malformed scenes, each run through the real binary: `mpmcg check`
+//! (and for a few `mpmcg run --out`) must exit with status 2 and print one line,
+//! `error: FILE:LINE:COL: key `K`: message`, naming the file, the offending key and,
+//! where the TOML parser knows it, the position. Nothing may panic.
+//!
+//! Each scene is a valid one from `inputs/` with one defect.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// 1D, `cfl`, `boundary = { x_lower = "fixed", x_upper = "free" }`, a `box` body.
+const BAR: &str = include_str!("../inputs/vibrating_bar.toml");
+/// 2D, `dt`, two `sphere` bodies with velocities.
+const DISKS: &str = include_str!("../inputs/default.toml");
+
+/// `base` with the first `from` replaced by `to`; `from` must be there, so that a
+/// changed input file fails here instead of silently testing a valid scene.
+fn edit(base: &str, from: &str, to: &str) -> String {
+    assert!(base.contains(from), "the base scene has no {from:?}");
+    base.replacen(from, to, 1)
+}
+
+/// A scratch directory removed when dropped.
+struct Scratch(PathBuf);
+
+impl Scratch {
+    fn new(name: &str) -> Self {
+        let dir =
+            std::env::temp_dir().join(format!("mpmcg-scene-errors-{}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("create a scratch directory");
+        Scratch(dir)
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn mpmcg(args: &[&std::ffi::OsStr]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_mpmcg"))
+        .args(args)
+        .output()
+        .expect("run mpmcg")
+}
+
+/// The outcome of a rejected scene, with the common assertions already made.
+struct Rejected {
+    file: String,
+    text: String,
+    stderr: String,
+}
+
+impl Rejected {
+    fn new(file: &Path, contents: &[u8], out: Output) -> Self {
+        let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+        let file = file.display().to_string();
+        assert!(
+            !stderr.contains("panicked"),
+            "{file}: mpmcg panicked:\n{stderr}"
+        );
+        assert_eq!(
+            out.status.code(),
+            Some(2),
+            "{file}: expected exit status 2, got {:?}; stderr:\n{stderr}",
+            out.status
+        );
+        assert!(
+            stderr.starts_with(&format!("error: {file}")),
+            "the error does not start with `error: {file}`:\n{stderr}"
+        );
+        assert_eq!(
+            stderr.trim_end().lines().count(),
+            1,
+            "the error is not one line:\n{stderr}"
+        );
+        Rejected {
+            file,
+            text: String::from_utf8_lossy(contents).into_owned(),
+            stderr,
+        }
+    }
+
+    /// The error names this key.
+    fn key(&self, key: &str) -> &Self {
+        assert!(
+            self.stderr.contains(&format!(": key `{key}`: ")),
+            "the error does not name key `{key}`:\n{}",
+            self.stderr
+        );
+        self
+    }
+
+    /// The error names no key (the defect is not in a key).
+    fn no_key(&self) -> &Self {
+        assert!(
+            !self.stderr.contains(": key `"),
+            "unexpected key in:\n{}",
+            self.stderr
+        );
+        self
+    }
+
+    /// The error points at `needle`, which occurs once in the scene text.
+    fn at(&self, needle: &str) -> &Self {
+        self.at_in(needle, needle)
+    }
+
+    /// The error points at `needle` inside `context`, which occurs once in the scene.
+    fn at_in(&self, context: &str, needle: &str) -> &Self {
+        let start = self
+            .text
+            .find(context)
+            .unwrap_or_else(|| panic!("{context:?} is not in the scene"));
+        assert_eq!(
+            self.text.rfind(context),
+            Some(start),
+            "{context:?} occurs more than once in the scene"
+        );
+        let offset = start
+            + context
+                .find(needle)
+                .unwrap_or_else(|| panic!("{needle:?} is not in {context:?}"));
+        let before = &self.text[..offset];
+        let line = before.matches('\n').count() + 1;
+        let col = before.rsplit('\n').next().map_or(0, |s| s.chars().count()) + 1;
+        self.at_line_col(line, col)
+    }
+
+    fn at_line_col(&self, line: usize, col: usize) -> &Self {
+        let prefix = format!("error: {}:{line}:{col}: ", self.file);
+        assert!(
+            self.stderr.starts_with(&prefix),
+            "expected the error at {line}:{col} (`{prefix}`), got:\n{}",
+            self.stderr
+        );
+        self
+    }
+
+    /// The error has no line and column (the parser cannot know them).
+    fn no_position(&self) -> &Self {
+        let prefix = format!("error: {}: ", self.file);
+        assert!(
+            self.stderr.starts_with(&prefix),
+            "expected no position (`{prefix}`), got:\n{}",
+            self.stderr
+        );
+        self
+    }
+
+    /// The message says this.
+    fn says(&self, words: &str) -> &Self {
+        assert!(
+            self.stderr.contains(words),
+            "the error does not say {words:?}:\n{}",
+            self.stderr
+        );
+        self
+    }
+}
+
+/// `mpmcg check` on a scene file with these contents.
+fn check(name: &str, contents: impl AsRef<[u8]>) -> Rejected {
+    let dir = Scratch::new(name);
+    let file = dir.0.join(format!("{name}.toml"));
+    std::fs::write(&file, contents.as_ref()).expect("write the scene");
+    let out = mpmcg(&["check".as_ref(), file.as_os_str()]);
+    Rejected::new(&file, contents.as_ref(), out)
+}
+
+/// `mpmcg run --out DIR` on a scene file with these contents: rejected before any
+/// output is written.
+fn run(name: &str, contents: impl AsRef<[u8]>) -> Rejected {
+    let dir = Scratch::new(&format!("run-{name}"));
+    let file = dir.0.join(format!("{name}.toml"));
+    let out_dir = dir.0.join("out");
+    std::fs::write(&file, contents.as_ref()).expect("write the scene");
+    let out = mpmcg(&[
+        "run".as_ref(),
+        file.as_os_str(),
+        "--out".as_ref(),
+        out_dir.as_os_str(),
+        "--quiet".as_ref(),
+    ]);
+    let r = Rejected::new(&file, contents.as_ref(), out);
+    assert!(
+        !out_dir.exists(),
+        "a rejected scene created its output folder"
+    );
+    r
+}
+
+/// Deterministic bytes that are not UTF-8 (the first is 0xff).
+fn garbage(n: usize) -> Vec<u8> {
+    let mut x: u64 = 0x9e37_79b9_7f4a_7c15;
+    let mut bytes: Vec<u8> = (0..n)
+        .map(|_| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 56) as u8
+        })
+        .collect();
+    bytes[0] = 0xff;
+    bytes
+}
+
+#[test]
+fn every_input_scene_passes_check() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("inputs");
+    let mut scenes: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .expect("read inputs/")
+        .map(|e| e.expect("read inputs/").path())
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .collect();
+    scenes.sort();
+    assert!(scenes.len() >= 2, "too few scenes in {}", dir.display());
+    for scene in scenes {
+        let out = mpmcg(&["check".as_ref(), scene.as_os_str()]);
+        assert_eq!(
+            out.status.code(),
+            Some(0),
+            "{} fails `mpmcg check`:\n{}",
+            scene.display(),
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+}
+
+// --- Not a scene at all -------------------------------------------------------------
+
+#[test]
+fn empty_file() {
+    check("empty", "").no_key().no_position().says("empty");
+    check("blank", "  \n\t\n")
+        .no_key()
+        .no_position()
+        .says("empty");
+}
+
+#[test]
+fn binary_garbage() {
+    check("garbage", garbage(512))
+        .no_key()
+        .at_line_col(1, 1)
+        .says("not a text file");
+    run("garbage", garbage(64)).no_key().says("not a text file");
+}
+
+#[test]
+fn invalid_utf8_after_valid_text() {
+    let mut bytes = BAR.as_bytes().to_vec();
+    bytes.extend_from_slice(b"flip = \xc3\x28\n");
+    let line = BAR.lines().count() + 1;
+    check("late_garbage", bytes)
+        .no_key()
+        .at_line_col(line, 8)
+        .says("invalid UTF-8");
+}
+
+#[test]
+fn nonexistent_file() {
+    let dir = Scratch::new("nonexistent");
+    let file = dir.0.join("no_such_scene.toml");
+    let out = mpmcg(&["check".as_ref(), file.as_os_str()]);
+    Rejected::new(&file, b"", out)
+        .no_key()
+        .no_position()
+        .says("cannot read");
+    let out = mpmcg(&[
+        "run".as_ref(),
+        file.as_os_str(),
+        "--out".as_ref(),
+        dir.0.join("out").as_os_str(),
+    ]);
+    Rejected::new(&file, b"", out).no_key().says("cannot read");
+    assert!(!dir.0.join("out").exists());
+}
+
+#[test]
+fn directory_instead_of_file() {
+    let dir = Scratch::new("directory");
+    let out = mpmcg(&["check".as_ref(), dir.0.as_os_str()]);
+    Rejected::new(&dir.0, b"", out).no_key().says("cannot read");
+}
+
+#[test]
+fn toml_syntax_error() {
+    check("syntax", edit(BAR, "dim = 1", "dim = = 1"))
+        .no_key()
+        .at_in("dim = = 1", "= 1")
+        .says("not valid TOML");
+    check(
+        "unterminated",
+        edit(BAR, "name = \"vibrating_bar\"", "name = \"vibrating_bar"),
+    )
+    .no_key()
+    .says("not valid TOML");
+}
+
+#[test]
+fn duplicate_key() {
+    let text = edit(BAR, "cfl = 0.1", "cfl = 0.1\nend = 3.0");
+    let second = text.rfind("end = 3.0").unwrap();
+    let line = text[..second].matches('\n').count() + 1;
+    check("duplicate", &text)
+        .at_line_col(line, 1)
+        .says("duplicate key `end`");
+}
+
+// --- Missing keys and tables --------------------------------------------------------
+
+#[test]
+fn missing_grid_table() {
+    let grid = &BAR[BAR.find("[grid]").unwrap()..BAR.find("[[materials]]").unwrap()];
+    check("no_grid", edit(BAR, grid, ""))
+        .key("grid")
+        .no_position()
+        .says("[grid]");
+}
+
+#[test]
+fn missing_materials() {
+    let mats = &BAR[BAR.find("[[materials]]").unwrap()..BAR.find("[[bodies]]").unwrap()];
+    check("no_materials", edit(BAR, mats, ""))
+        .key("materials")
+        .says("[[materials]]");
+}
+
+#[test]
+fn missing_name() {
+    check("no_name", edit(BAR, "name = \"vibrating_bar\"", ""))
+        .key("name")
+        .says("missing");
+}
+
+#[test]
+fn missing_key_in_table() {
+    check("no_density", edit(BAR, "density = 1.0", ""))
+        .key("materials[0].density")
+        .at("[[materials]]")
+        .says("missing");
+    check(
+        "no_box_upper",
+        edit(BAR, "lower = [0.0], upper = [25.0] }", "lower = [0.0] }"),
+    )
+    .key("bodies[0].shape.box.upper")
+    .says("missing");
+}
+
+// --- Wrong types --------------------------------------------------------------------
+
+#[test]
+fn string_where_number_expected() {
+    check(
+        "string_density",
+        edit(BAR, "density = 1.0", "density = \"heavy\""),
+    )
+    .key("materials[0].density")
+    .at("\"heavy\"")
+    .says("expected a number, got the string \"heavy\"");
+    run(
+        "string_density",
+        edit(BAR, "density = 1.0", "density = \"heavy\""),
+    )
+    .key("materials[0].density")
+    .at("\"heavy\"");
+}
+
+#[test]
+fn other_wrong_types() {
+    check("float_cells", edit(BAR, "cells = [16]", "cells = [1.5]"))
+        .key("grid.cells[0]")
+        .at("1.5")
+        .says("expected a non-negative integer");
+    check("negative_cells", edit(BAR, "cells = [16]", "cells = [-3]"))
+        .key("grid.cells[0]")
+        .at("-3")
+        .says("non-negative integer");
+    check("scalar_lower", edit(BAR, "lower = [0.0]", "lower = 0.0"))
+        .key("grid.lower")
+        .says("expected an array");
+    check("bool_flip", edit(BAR, "flip = 1.0", "flip = true"))
+        .key("method.flip")
+        .at("true")
+        .says("expected a number");
+    check("date_end", edit(BAR, "end = 40.0", "end = 1979-05-27"))
+        .key("time.end")
+        .at("1979-05-27")
+        .says("datetime");
+    check(
+        "time_number",
+        edit(BAR, "[time]\nend = 40.0\ncfl = 0.1", "time = 5"),
+    )
+    .key("time")
+    .says("expected a table");
+    check("materials_table", edit(BAR, "[[materials]]", "[materials]"))
+        .key("materials")
+        .says("[[materials]]");
+    check(
+        "huge_cells",
+        edit(BAR, "cells = [16]", "cells = [99999999999999999999]"),
+    )
+    .key("grid.cells[0]")
+    .says("out of range");
+    check(
+        "string_velocity",
+        edit(
+            BAR,
+            "particles_per_cell = 2",
+            "particles_per_cell = 2\nvelocity = \"fast\"",
+        ),
+    )
+    .key("bodies[0].velocity")
+    .at("\"fast\"")
+    .says("expected an array");
+}
+
+// --- Unknown keys -------------------------------------------------------------------
+
+#[test]
+fn unknown_top_level_key() {
+    check(
+        "unknown_top",
+        edit(BAR, "dim = 1", "dim = 1\ncolour = \"red\""),
+    )
+    .key("colour")
+    .at("colour")
+    .says("expected one of `name`, `dim`");
+    run(
+        "unknown_top",
+        edit(BAR, "dim = 1", "dim = 1\ncolour = \"red\""),
+    )
+    .key("colour");
+}
+
+#[test]
+fn unknown_nested_key() {
+    check(
+        "unknown_time",
+        edit(BAR, "cfl = 0.1", "cfl = 0.1\nstop = 3.0"),
+    )
+    .key("time.stop")
+    .at("stop")
+    .says("expected one of `end`, `cfl`, `dt`");
+    check(
+        "unknown_material",
+        edit(BAR, "density = 1.0", "density = 1.0\ncolor = 1"),
+    )
+    .key("materials[0].color")
+    .at("color");
+    check(
+        "unknown_in_shape",
+        edit(BAR, "upper = [25.0] }", "upper = [25.0], radius = 3.0 }"),
+    )
+    .key("bodies[0].shape.box.radius")
+    .at("radius")
+    .says("expected one of `lower`, `upper`");
+    check("unknown_table", edit(BAR, "[grid]", "[grids]"))
+        .key("grids")
+        .at("grids");
+}
+
+#[test]
+fn unknown_boundary_key() {
+    check(
+        "w_lower",
+        edit(BAR, "x_upper = \"free\"", "w_lower = \"free\""),
+    )
+    .key("grid.boundary.w_lower")
+    .at("w_lower")
+    .says("`x_lower`, `x_upper`, `y_lower`, `y_upper`, `z_lower`, `z_upper`");
+}
+
+// --- Unknown names ------------------------------------------------------------------
+
+#[test]
+fn unknown_gradient() {
+    check(
+        "gradient_name",
+        edit(BAR, "gradient = \"mpm\"", "gradient = \"flip\""),
+    )
+    .key("method.gradient")
+    .at("\"flip\"")
+    .says("expected one of `mpm`, `gimp`, `averaged`, `mpmcg`");
+    check(
+        "gradient_number",
+        edit(BAR, "gradient = \"mpm\"", "gradient = 3"),
+    )
+    .key("method.gradient")
+    .at_in("gradient = 3", "3")
+    .says("one of `mpm`, `gimp`, `averaged`, `mpmcg`");
+    check(
+        "gradient_table",
+        edit(BAR, "gradient = \"mpm\"", "gradient = { mpm = 1 }"),
+    )
+    .key("method.gradient")
+    .at("{ mpm")
+    .says("one of `mpm`, `gimp`, `averaged`, `mpmcg`");
+}
+
+#[test]
+fn unknown_names_elsewhere() {
+    check("update", edit(BAR, "update = \"usl\"", "update = \"rk4\""))
+        .key("method.update")
+        .says("`usl`, `usf`");
+    check(
+        "model",
+        edit(BAR, "model = \"linear_elastic\"", "model = \"rubber\""),
+    )
+    .key("materials[0].model")
+    .says("`linear_elastic` or `neo_hookean`");
+    check(
+        "kind",
+        edit(BAR, "kind = \"vibrating_bar\"", "kind = \"vortex\""),
+    )
+    .key("benchmark.kind")
+    .says("`generalized_vortex`");
+    check("shape_name", edit(BAR, "shape = { box", "shape = { cube"))
+        .key("bodies[0].shape")
+        .at("cube")
+        .says("`box`, `sphere`, `annulus`");
+    check(
+        "shape_string",
+        edit(
+            BAR,
+            "shape = { box = { lower = [0.0], upper = [25.0] } }",
+            "shape = \"box\"",
+        ),
+    )
+    .key("bodies[0].shape")
+    .at("\"box\"")
+    .says("`box`, `sphere`, `annulus`");
+    check(
+        "shape_empty",
+        edit(
+            BAR,
+            "shape = { box = { lower = [0.0], upper = [25.0] } }",
+            "shape = {}",
+        ),
+    )
+    .key("bodies[0].shape")
+    .says("empty table");
+}
+
+#[test]
+fn unknown_boundary_face() {
+    check(
+        "sticky",
+        edit(BAR, "x_upper = \"free\"", "x_upper = \"sticky\""),
+    )
+    .key("grid.boundary.x_upper")
+    .at("\"sticky\"")
+    .says("`fixed`, `slip`, `free`, `periodic`");
+}
+
+#[test]
+fn unknown_material_in_body() {
+    check(
+        "body_material",
+        edit(BAR, "material = \"bar\"", "material = \"steel\""),
+    )
+    .key("bodies[0].material")
+    .at("\"steel\"")
+    .says("\"steel\"");
+}
+
+#[test]
+fn control_characters_stay_on_one_line() {
+    check(
+        "newline_gradient",
+        edit(BAR, "gradient = \"mpm\"", "gradient = \"mp\\nm\""),
+    )
+    .key("method.gradient");
+    check(
+        "newline_name",
+        edit(BAR, "name = \"vibrating_bar\"", "name = \"a\\nb\""),
+    )
+    .key("name");
+}
+
+// --- Values out of range ------------------------------------------------------------
+
+#[test]
+fn negative_and_zero_density() {
+    check(
+        "negative_density",
+        edit(BAR, "density = 1.0", "density = -1.0"),
+    )
+    .key("materials[0].density")
+    .at("-1.0")
+    .says("must be > 0");
+    check("zero_density", edit(BAR, "density = 1.0", "density = 0.0"))
+        .key("materials[0].density")
+        .at_in("density = 0.0", "0.0")
+        .says("must be > 0");
+}
+
+#[test]
+fn zero_cells() {
+    check("zero_cells", edit(BAR, "cells = [16]", "cells = [0]"))
+        .key("grid.cells[0]")
+        .at_in("cells = [0]", "0]")
+        .says(">= 1");
+    check(
+        "zero_cells_2d",
+        edit(DISKS, "cells = [24, 24]", "cells = [24, 0]"),
+    )
+    .key("grid.cells[1]")
+    .at_in("cells = [24, 0]", "0]")
+    .says(">= 1");
+}
+
+#[test]
+fn lower_not_below_upper() {
+    check(
+        "lower_eq_upper",
+        edit(BAR, "upper = [25.0]", "upper = [0.0]"),
+    )
+    .key("grid.upper")
+    .at_in("upper = [0.0]", "[0.0]")
+    .says("greater than grid.lower");
+    check(
+        "lower_gt_upper_2d",
+        edit(DISKS, "upper = [1.1, 1.1]", "upper = [1.1, -0.5]"),
+    )
+    .key("grid.upper")
+    .says("axis 1");
+}
+
+#[test]
+fn vector_length_not_dim() {
+    check(
+        "long_upper",
+        edit(BAR, "upper = [25.0]", "upper = [25.0, 1.0]"),
+    )
+    .key("grid.upper")
+    .at("[25.0, 1.0]")
+    .says("dim = 1");
+    check(
+        "short_velocity",
+        edit(DISKS, "velocity = [0.1, 0.1]", "velocity = [0.1]"),
+    )
+    .key("bodies[0].velocity")
+    .at("[0.1]")
+    .says("dim = 2");
+    check(
+        "short_center",
+        edit(DISKS, "center = [0.8, 0.8]", "center = [0.8]"),
+    )
+    .key("bodies[1].shape.sphere.center")
+    .at("[0.8]")
+    .says("dim = 2");
+    check(
+        "short_cells",
+        edit(DISKS, "cells = [24, 24]", "cells = [24]"),
+    )
+    .key("grid.cells")
+    .says("dim = 2");
+}
+
+#[test]
+fn dim_out_of_range() {
+    check("dim4", edit(BAR, "dim = 1", "dim = 4"))
+        .key("dim")
+        .at_in("dim = 4", "4")
+        .says("must be 1, 2 or 3");
+    check("dim0", edit(BAR, "dim = 1", "dim = 0"))
+        .key("dim")
+        .says("must be 1, 2 or 3");
+    check("dim_negative", edit(BAR, "dim = 1", "dim = -1"))
+        .key("dim")
+        .says("non-negative integer");
+}
+
+#[test]
+fn body_outside_grid() {
+    check(
+        "outside",
+        edit(
+            BAR,
+            "lower = [0.0], upper = [25.0] }",
+            "lower = [30.0], upper = [40.0] }",
+        ),
+    )
+    .key("bodies[0].shape")
+    .says("entirely outside the grid");
+    check(
+        "outside_2d",
+        edit(DISKS, "center = [0.8, 0.8]", "center = [5.0, 0.8]"),
+    )
+    .key("bodies[1].shape")
+    .says("entirely outside the grid on axis 0");
+}
+
+#[test]
+fn zero_particles_per_cell() {
+    check(
+        "ppc0",
+        edit(BAR, "particles_per_cell = 2", "particles_per_cell = 0"),
+    )
+    .key("bodies[0].particles_per_cell")
+    .at_in("particles_per_cell = 0", "0")
+    .says(">= 1");
+}
+
+#[test]
+fn nan_and_inf() {
+    check("nan_density", edit(BAR, "density = 1.0", "density = nan"))
+        .key("materials[0].density")
+        .at("nan")
+        .says("finite");
+    check(
+        "inf_modulus",
+        edit(BAR, "youngs_modulus = 100.0", "youngs_modulus = inf"),
+    )
+    .key("materials[0].youngs_modulus")
+    .at("inf")
+    .says("finite");
+    check(
+        "minus_inf_lower",
+        edit(BAR, "lower = [0.0]", "lower = [-inf]"),
+    )
+    .key("grid.lower[0]")
+    .at("-inf")
+    .says("finite");
+    check(
+        "nan_velocity",
+        edit(DISKS, "velocity = [-0.1, -0.1]", "velocity = [-0.1, nan]"),
+    )
+    .key("bodies[1].velocity[1]")
+    .at("nan")
+    .says("finite");
+    check("nan_end", edit(BAR, "end = 40.0", "end = +nan"))
+        .key("time.end")
+        .says("finite");
+}
+
+#[test]
+fn end_not_positive() {
+    check("end_zero", edit(BAR, "end = 40.0", "end = 0.0"))
+        .key("time.end")
+        .at_in("end = 0.0", "0.0")
+        .says("must be > 0");
+    check("end_negative", edit(BAR, "end = 40.0", "end = -1.0"))
+        .key("time.end")
+        .at("-1.0")
+        .says("must be > 0");
+    run("end_zero", edit(BAR, "end = 40.0", "end = 0.0"))
+        .key("time.end")
+        .at_in("end = 0.0", "0.0");
+}
+
+#[test]
+fn cfl_and_dt_both_given() {
+    check("cfl_and_dt", edit(BAR, "cfl = 0.1", "cfl = 0.1\ndt = 0.01"))
+        .key("time.dt")
+        .at("0.01")
+        .says("either `cfl` or `dt`");
+}
+
+#[test]
+fn periodic_on_one_side_only() {
+    check(
+        "periodic_upper",
+        edit(BAR, "x_upper = \"free\"", "x_upper = \"periodic\""),
+    )
+    .key("grid.boundary.x_upper")
+    .at("\"periodic\"")
+    .says("`x_lower` is `fixed`");
+    // The other face is not written: it defaults to `fixed`.
+    check(
+        "periodic_lower_2d",
+        edit(
+            DISKS,
+            "y_lower = \"fixed\", y_upper = \"fixed\"",
+            "y_lower = \"periodic\"",
+        ),
+    )
+    .key("grid.boundary.y_lower")
+    .at("\"periodic\"")
+    .says("`y_upper` is `fixed` (the default)");
+}
+
+#[test]
+fn face_missing_in_dimension() {
+    check(
+        "z_face_2d",
+        edit(
+            DISKS,
+            "y_upper = \"fixed\"",
+            "y_upper = \"fixed\", z_lower = \"slip\"",
+        ),
+    )
+    .key("grid.boundary.z_lower")
+    .at("\"slip\"")
+    .says("does not exist in a 2D scene");
+}
+
+#[test]
+fn other_validation() {
+    check(
+        "poisson_half",
+        edit(BAR, "poisson_ratio = 0.0", "poisson_ratio = 0.5"),
+    )
+    .key("materials[0].poisson_ratio")
+    .at("0.5")
+    .says("(-1, 0.5)");
+    check(
+        "name_path",
+        edit(BAR, "name = \"vibrating_bar\"", "name = \"../bar\""),
+    )
+    .key("name")
+    .at("\"../bar\"")
+    .says("output folder");
+    check("flip_range", edit(BAR, "flip = 1.0", "flip = 1.5"))
+        .key("method.flip")
+        .at("1.5")
+        .says("[0, 1]");
+    check("duplicate_material", edit(DISKS, "[[bodies]]", "[[materials]]\nname = \"elastic\"\nmodel = \"neo_hookean\"\ndensity = 1.0\nyoungs_modulus = 1.0\npoisson_ratio = 0.3\n\n[[bodies]]"))
+        .key("materials[1].name")
+        .says("duplicate material name");
+}
+
+#[test]
+fn deeply_nested_values_do_not_overflow_the_stack() {
+    let n = 100_000;
+    let arrays = format!("{}a = {}{}\n", BAR, "[".repeat(n), "]".repeat(n));
+    check("deep_arrays", arrays).no_key().says("not valid TOML");
+    let tables = format!("{}b = {}1{}\n", BAR, "{ c = ".repeat(n), " }".repeat(n));
+    check("deep_tables", tables).no_key().says("not valid TOML");
+    let dotted = format!("{}{} = 1\n", BAR, vec!["d"; n].join("."));
+    check("deep_dotted", dotted).no_key().says("not valid TOML");
+}
