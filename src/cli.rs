@@ -36,6 +36,35 @@ enum Command {
         /// Scene file (TOML).
         scene: PathBuf,
     },
+    /// Run a benchmark scene over resolutions and gradient schemes: error against cost.
+    Sweep(SweepArgs),
+}
+
+#[derive(clap::Args, Debug)]
+struct SweepArgs {
+    /// Scene file (TOML) with a [benchmark] table.
+    scene: PathBuf,
+    /// Cells along x, comma-separated; other axes keep the scene's proportions.
+    #[arg(long, default_value = "8,16,32,64")]
+    cells: String,
+    /// Gradient schemes, comma-separated (mpm, gimp, averaged, mpmcg).
+    #[arg(long, default_value = "mpm,gimp,mpmcg")]
+    gradient: String,
+    /// Particles per cell per direction in every body [default: the scene's].
+    #[arg(long)]
+    ppc: Option<usize>,
+    /// MPI ranks per run; more than 1 starts each run with mpirun.
+    #[arg(long, default_value_t = 1)]
+    ranks: usize,
+    /// Output folder [default: out/<scene name>_sweep].
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Threads per rank [default: all cores in-process, 1 under mpirun].
+    #[arg(long)]
+    threads: Option<usize>,
+    /// No line per run.
+    #[arg(long, short)]
+    quiet: bool,
 }
 
 fn scene_error(e: &SceneError) -> ExitCode {
@@ -53,6 +82,7 @@ pub fn main() -> ExitCode {
         }
     };
     match cli.command {
+        Command::Sweep(args) => sweep_main(args),
         Command::Check { scene } => match scene::load(&scene) {
             Ok((s, _)) => {
                 println!(
@@ -142,5 +172,77 @@ pub fn main() -> ExitCode {
                 }
             }
         }
+    }
+}
+
+/// `mpmcg sweep`: the runs, tables and plots are in [`crate::sweep`].
+fn sweep_main(a: SweepArgs) -> ExitCode {
+    let fail = |e: crate::sweep::SweepError| {
+        eprintln!("error: {e}");
+        ExitCode::from(e.exit_code())
+    };
+    let input = |m: String| fail(crate::sweep::SweepError::Input(m));
+    let (base, _) = match scene::load(&a.scene) {
+        Ok(x) => x,
+        Err(e) => return scene_error(&e),
+    };
+    let cells = match crate::sweep::parse_cells(&a.cells) {
+        Ok(c) => c,
+        Err(m) => return input(m),
+    };
+    let gradients = match crate::sweep::parse_gradients(&a.gradient) {
+        Ok(g) => g,
+        Err(m) => return input(m),
+    };
+    if let Some(t) = a.threads.filter(|&t| t > 0 && a.ranks <= 1) {
+        if let Err(e) = rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build_global()
+        {
+            eprintln!("error: cannot start {t} threads: {e}");
+            return ExitCode::from(1);
+        }
+    }
+    let exe = match std::env::current_exe() {
+        Ok(p) => p,
+        Err(e) => {
+            eprintln!("error: cannot find this program's executable for mpirun: {e}");
+            return ExitCode::from(1);
+        }
+    };
+    let opts = crate::sweep::Options {
+        scene_file: a.scene.display().to_string(),
+        cells,
+        gradients,
+        ppc: a.ppc,
+        ranks: a.ranks,
+        threads: a.threads,
+        out: a.out.unwrap_or_else(|| crate::sweep::default_out(&base)),
+        exe,
+        command: crate::sweep::command_line(std::env::args()),
+        quiet: a.quiet,
+    };
+    match crate::sweep::sweep(&base, &opts) {
+        Ok(rows) => {
+            let count = |s: &str| rows.iter().filter(|r| r.status == s).count();
+            let (unstable, failed) = (count("unstable"), count("failed"));
+            if !a.quiet {
+                eprintln!(
+                    "sweep: {} runs ({unstable} unstable, {failed} failed); report in {}",
+                    rows.len(),
+                    opts.out.join("report.md").display()
+                );
+            }
+            if failed > 0 {
+                eprintln!(
+                    "error: {failed} of {} runs failed; see the status column of {}",
+                    rows.len(),
+                    opts.out.join("results.csv").display()
+                );
+                return ExitCode::from(1);
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => fail(e),
     }
 }

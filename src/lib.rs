@@ -12,4 +12,5 @@ pub mod run;
 pub mod scene;
 pub mod shape;
 pub mod solver;
+pub mod sweep;
 pub mod tensor;
