@@ -44,7 +44,9 @@ pub fn validate(s: &Scene, b: &BenchmarkSpec) -> Result<(), (String, String)> {
         if s.materials.iter().any(|m| m.model != model) {
             Err((
                 "benchmark.kind".to_string(),
-                format!("`{what}` needs every material to be `{model:?}`").replace("LinearElastic", "linear_elastic").replace("NeoHookean", "neo_hookean"),
+                format!("`{what}` needs every material to be `{model:?}`")
+                    .replace("LinearElastic", "linear_elastic")
+                    .replace("NeoHookean", "neo_hookean"),
             ))
         } else {
             Ok(())
@@ -65,7 +67,8 @@ pub fn validate(s: &Scene, b: &BenchmarkSpec) -> Result<(), (String, String)> {
             if m0.poisson_ratio != 0.0 && s.dim > 1 {
                 return Err((
                     "materials[0].poisson_ratio".into(),
-                    "the 2D/3D vibrating bar needs poisson_ratio = 0 for the 1D solution to hold".into(),
+                    "the 2D/3D vibrating bar needs poisson_ratio = 0 for the 1D solution to hold"
+                        .into(),
                 ));
             }
         }
@@ -246,9 +249,12 @@ impl<const D: usize> Benchmark<D> {
                     lnj += fii[i].ln();
                 }
                 for i in 0..D {
-                    b[i] = PI * PI
+                    b[i] = PI
+                        * PI
                         * u[i]
-                        * (mu / rho0 - c * c - (lambda * (lnj - 1.0) - mu) / (rho0 * fii[i] * fii[i]));
+                        * (mu / rho0
+                            - c * c
+                            - (lambda * (lnj - 1.0) - mu) / (rho0 * fii[i] * fii[i]));
                 }
             }
             Benchmark::GeneralizedVortex { mu, rho0, .. } => {

@@ -9,7 +9,11 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 #[derive(Parser, Debug)]
-#[command(name = "mpmcg", version, about = "Material Point Method with continuous gradient, MPI-parallel")]
+#[command(
+    name = "mpmcg",
+    version,
+    about = "Material Point Method with continuous gradient, MPI-parallel"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

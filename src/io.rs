@@ -260,7 +260,13 @@ impl Writer<'_> {
     /// Collective (with MPI-IO) write of this rank's rows `[offset, offset + count)`;
     /// `cols == 0` means a 1-D dataset. A rank without rows takes part with an empty
     /// selection.
-    fn raw_write(&self, ds: &hdf5::Dataset, ptr: *const std::ffi::c_void, cols: usize, ty: hdf5_sys::h5i::hid_t) -> Result<(), String> {
+    fn raw_write(
+        &self,
+        ds: &hdf5::Dataset,
+        ptr: *const std::ffi::c_void,
+        cols: usize,
+        ty: hdf5_sys::h5i::hid_t,
+    ) -> Result<(), String> {
         let (start, count): (Vec<u64>, Vec<u64>) = if cols == 0 {
             (vec![self.offset], vec![self.count])
         } else {
@@ -283,7 +289,8 @@ impl Writer<'_> {
                 if parallel {
                     h5p::H5Pset_dxpl_mpio(dxpl, h5p::H5FD_mpio_xfer_t::H5FD_MPIO_COLLECTIVE);
                 }
-                let mspace = h5s::H5Screate_simple(count.len() as i32, count.as_ptr(), std::ptr::null());
+                let mspace =
+                    h5s::H5Screate_simple(count.len() as i32, count.as_ptr(), std::ptr::null());
                 if self.count == 0 {
                     h5s::H5Sselect_none(fspace);
                     h5s::H5Sselect_none(mspace);

@@ -44,7 +44,11 @@ pub struct Kern<const D: usize, const N: usize> {
 
 impl<const D: usize> Ctx<'_, D> {
     #[inline(always)]
-    pub fn kern<const NA: usize, const N: usize>(&self, x: &Vector<D>, half: Option<&[f64; D]>) -> Kern<D, N> {
+    pub fn kern<const NA: usize, const N: usize>(
+        &self,
+        x: &Vector<D>,
+        half: Option<&[f64; D]>,
+    ) -> Kern<D, N> {
         let xa: [f64; D] = std::array::from_fn(|a| x[a]);
         let w = match half {
             Some(lp) if self.gimp => shape::gimp(self.geom, &xa, lp),
@@ -232,7 +236,13 @@ pub struct GatherMode {
 /// Velocity gradient at a particle from velocity slot `slot` and, for two-step
 /// schemes, the nodal `L̄` in `avg`.
 #[inline(always)]
-fn velocity_gradient<const D: usize, const N: usize>(k: &Kern<D, N>, vel: &[f64], avg: &[f64], slot: usize, two: bool) -> Mat<D> {
+fn velocity_gradient<const D: usize, const N: usize>(
+    k: &Kern<D, N>,
+    vel: &[f64],
+    avg: &[f64],
+    slot: usize,
+    two: bool,
+) -> Mat<D> {
     let mut l = Mat::<D>::zeros();
     let d2 = 2 * D;
     for n in 0..N {
@@ -262,7 +272,13 @@ fn velocity_gradient<const D: usize, const N: usize>(k: &Kern<D, N>, vel: &[f64]
 /// Deform particle `p` of `s` by `l` over `dt`: volume, deformation gradient, stress.
 /// Returns whether the new state is physical.
 #[inline(always)]
-fn deform<const D: usize>(ctx: &Ctx<'_, D>, s: &mut Slices<'_, D>, p: usize, l: &Mat<D>, dt: f64) -> bool {
+fn deform<const D: usize>(
+    ctx: &Ctx<'_, D>,
+    s: &mut Slices<'_, D>,
+    p: usize,
+    l: &Mat<D>,
+    dt: f64,
+) -> bool {
     let inc = Mat::<D>::identity() + l * dt;
     let j = det(&inc);
     s.vol[p] *= j;
@@ -373,7 +389,13 @@ pub struct SlabOrder {
 impl SlabOrder {
     /// Group particles by slab along the last axis of the owned cells `[cell_lo, cell_hi)`.
     /// Stable: within a slab, particles keep their array order.
-    pub fn build<const D: usize>(&mut self, geom: &Geom<D>, x: &[Vector<D>], cell_lo: usize, cell_hi: usize) {
+    pub fn build<const D: usize>(
+        &mut self,
+        geom: &Geom<D>,
+        x: &[Vector<D>],
+        cell_lo: usize,
+        cell_hi: usize,
+    ) {
         let a = D - 1;
         let nslab = (cell_hi - cell_lo).div_ceil(SLAB).max(1);
         self.start.clear();
@@ -452,7 +474,18 @@ pub fn scatter<const D: usize, const NA: usize, const N: usize>(
         let lo = rows_of(first).0;
         let hi = rows_of(first + 2 * (count - 1)).1;
         let window = &mut scat[lo * row_len..hi * row_len];
-        scatter_slabs::<D, NA, N>(ctx, parts, slabs, window, lo * row_len, first, count, &rows_of, row_len, m);
+        scatter_slabs::<D, NA, N>(
+            ctx,
+            parts,
+            slabs,
+            window,
+            lo * row_len,
+            first,
+            count,
+            &rows_of,
+            row_len,
+            m,
+        );
     }
 }
 
@@ -477,8 +510,25 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
         let cut = rows_of(split_slab).0 * row_len - offset;
         let (a, b) = window.split_at_mut(cut);
         rayon::join(
-            || scatter_slabs::<D, NA, N>(ctx, parts, slabs, a, offset, first, half, rows_of, row_len, m),
-            || scatter_slabs::<D, NA, N>(ctx, parts, slabs, b, offset + cut, split_slab, count - half, rows_of, row_len, m),
+            || {
+                scatter_slabs::<D, NA, N>(
+                    ctx, parts, slabs, a, offset, first, half, rows_of, row_len, m,
+                )
+            },
+            || {
+                scatter_slabs::<D, NA, N>(
+                    ctx,
+                    parts,
+                    slabs,
+                    b,
+                    offset + cut,
+                    split_slab,
+                    count - half,
+                    rows_of,
+                    row_len,
+                    m,
+                )
+            },
         );
         return;
     }

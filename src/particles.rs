@@ -47,14 +47,10 @@ impl<const D: usize> Particles<D> {
         self.x.is_empty()
     }
 
-
     /// Apply the permutation `perm` (new position k holds old particle `perm[k]`) to
     /// every array, using `scratch` so no allocation happens once it has grown.
     pub fn permute(&mut self, perm: &[usize], scratch: &mut Vec<f64>) {
-        fn apply<T: Copy>(v: &mut [T], perm: &[usize], scratch: &mut Vec<f64>)
-        where
-            T: AsF64Slice,
-        {
+        fn apply<T: AsF64Slice>(v: &mut [T], perm: &[usize], scratch: &mut Vec<f64>) {
             if v.is_empty() {
                 return;
             }
@@ -92,7 +88,13 @@ impl<const D: usize> Particles<D> {
     /// Values per particle in a migration record for what these particles carry.
     pub fn record_width(c: Carries) -> usize {
         let d = D;
-        2 * d + 3 + d * d + 2 + if c.def_grad { d * d } else { 0 } + if c.x0 { d } else { 0 } + if c.half { d } else { 0 }
+        2 * d
+            + 3
+            + d * d
+            + 2
+            + if c.def_grad { d * d } else { 0 }
+            + if c.x0 { d } else { 0 }
+            + if c.half { d } else { 0 }
     }
 
     /// Append particle `p` as a flat record (ids and material indices are exact in f64).
@@ -209,12 +211,14 @@ impl<const D: usize> Particles<D> {
             let mut c1 = [0usize; D];
             for a in 0..D {
                 let lo = ((blo[a] - geom.lower[a]) * geom.inv_h[a]).floor().max(0.0) as usize;
-                let hi = (((bhi[a] - geom.lower[a]) * geom.inv_h[a]).ceil() as usize).min(geom.cells[a]);
+                let hi =
+                    (((bhi[a] - geom.lower[a]) * geom.inv_h[a]).ceil() as usize).min(geom.cells[a]);
                 c0[a] = lo;
                 c1[a] = hi.max(lo + 1);
             }
             // Restrict to the block, padded by the initial displacement.
-            let pad: [usize; D] = std::array::from_fn(|a| 1 + (disp * geom.inv_h[a]).ceil() as usize);
+            let pad: [usize; D] =
+                std::array::from_fn(|a| 1 + (disp * geom.inv_h[a]).ceil() as usize);
             let mut r0 = [0usize; D];
             let mut r1 = [0usize; D];
             let mut empty = false;
@@ -254,7 +258,8 @@ impl<const D: usize> Particles<D> {
                             continue;
                         }
                         let xr = vector::<D>(&xref);
-                        let (mut x, mut v, mut f) = (xr, Vector::<D>::zeros(), Mat::<D>::identity());
+                        let (mut x, mut v, mut f) =
+                            (xr, Vector::<D>::zeros(), Mat::<D>::identity());
                         if let Some(b) = benchmark {
                             let (u, vel) = b.exact(&xr, 0.0);
                             x += u;
@@ -288,7 +293,8 @@ impl<const D: usize> Particles<D> {
                             p.x0.push(xr);
                         }
                         if gimp {
-                            p.half.push(std::array::from_fn(|a| 0.5 * geom.h[a] / n as f64));
+                            p.half
+                                .push(std::array::from_fn(|a| 0.5 * geom.h[a] / n as f64));
                         }
                     }
                 }

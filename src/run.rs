@@ -118,7 +118,8 @@ fn layout_for<const D: usize>(scene: &Scene, ranks: usize) -> Result<Layout<D>, 
     let cells: [usize; D] = std::array::from_fn(|a| scene.grid.cells[a]);
     let periodic: [bool; D] =
         std::array::from_fn(|a| scene.grid.boundary.face(a, false) == Face::Periodic);
-    Layout::choose(cells, periodic, ranks).map_err(|e| RunError::Input(format!("cannot run on {ranks} ranks: {e}")))
+    Layout::choose(cells, periodic, ranks)
+        .map_err(|e| RunError::Input(format!("cannot run on {ranks} ranks: {e}")))
 }
 
 struct History {
@@ -126,7 +127,12 @@ struct History {
 }
 
 impl History {
-    fn row<const D: usize>(&mut self, s: &Solver<D>, tot: &Totals, err: Option<(f64, f64)>) -> std::io::Result<()> {
+    fn row<const D: usize>(
+        &mut self,
+        s: &Solver<D>,
+        tot: &Totals,
+        err: Option<(f64, f64)>,
+    ) -> std::io::Result<()> {
         if let Some(f) = &mut self.file {
             write!(
                 f,
@@ -158,7 +164,11 @@ fn io_err(path: &Path, e: std::io::Error) -> RunError {
     RunError::Io(format!("{}: {e}", path.display()))
 }
 
-fn run_dim<const D: usize>(scene: &Scene, comm: &dyn Communicator, opts: &RunOptions) -> Result<Summary, RunError> {
+fn run_dim<const D: usize>(
+    scene: &Scene,
+    comm: &dyn Communicator,
+    opts: &RunOptions,
+) -> Result<Summary, RunError> {
     let layout = layout_for::<D>(scene, comm.size())?;
     let root = comm.rank() == 0;
     if root {
@@ -184,15 +194,21 @@ fn run_dim<const D: usize>(scene: &Scene, comm: &dyn Communicator, opts: &RunOpt
         writeln!(w, "{head}").map_err(|e| io_err(&path, e))?;
         history.file = Some(w);
     }
-    let mut snaps = scene.output.as_ref().map(|o| (Snapshots::new(&opts.out, &o.fields), o.every));
+    let mut snaps = scene
+        .output
+        .as_ref()
+        .map(|o| (Snapshots::new(&opts.out, &o.fields), o.every));
     let mut next_out = f64::INFINITY;
     if let Some((sn, every)) = &mut snaps {
-        sn.write(comm, &solver.parts, 0, 0.0).map_err(|e| RunError::Io(e.to_string()))?;
+        sn.write(comm, &solver.parts, 0, 0.0)
+            .map_err(|e| RunError::Io(e.to_string()))?;
         next_out = *every;
     }
     let tot0 = solver.totals();
     let err0 = solver.errors();
-    history.row(&solver, &tot0, err0).map_err(|e| io_err(&opts.out, e))?;
+    history
+        .row(&solver, &tot0, err0)
+        .map_err(|e| io_err(&opts.out, e))?;
     let e0 = tot0.total_energy();
     let mut scale = e0.abs().max(tot0.kinetic + tot0.strain);
     let mut max_dev = 0.0f64;
@@ -221,12 +237,15 @@ fn run_dim<const D: usize>(scene: &Scene, comm: &dyn Communicator, opts: &RunOpt
             last = solver.totals();
             scale = scale.max(last.kinetic + last.strain);
             max_dev = max_dev.max((last.total_energy() - e0).abs());
-            history.row(&solver, &last, last_err).map_err(|e| io_err(&opts.out, e))?;
+            history
+                .row(&solver, &last, last_err)
+                .map_err(|e| io_err(&opts.out, e))?;
         }
         if let Some((sn, every)) = &mut snaps {
             // Write when an output time is reached (to within a thousandth of a step).
             if solver.t >= next_out - 1e-3 * solver.dt || solver.done() {
-                sn.write(comm, &solver.parts, solver.step, solver.t).map_err(|e| RunError::Io(e.to_string()))?;
+                sn.write(comm, &solver.parts, solver.step, solver.t)
+                    .map_err(|e| RunError::Io(e.to_string()))?;
                 while next_out <= solver.t + 1e-3 * solver.dt {
                     next_out += *every;
                 }
@@ -261,7 +280,12 @@ fn run_dim<const D: usize>(scene: &Scene, comm: &dyn Communicator, opts: &RunOpt
         gradient: scene.method.gradient.name().into(),
         update: scene.method.update.name().into(),
         flip: scene.method.flip,
-        status: if failure.is_some() { "unstable" } else { "completed" }.into(),
+        status: if failure.is_some() {
+            "unstable"
+        } else {
+            "completed"
+        }
+        .into(),
         message: failure.as_ref().map(|f| f.to_string()),
         ranks: comm.size(),
         threads: opts.threads,

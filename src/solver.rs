@@ -4,10 +4,10 @@
 //! node→node stencils, migration after the position update).
 
 use crate::benchmark::Benchmark;
+use crate::kernel::{self, SlabOrder};
 use crate::material::Material;
 use crate::particles::{Carries, Particles};
 use crate::scene::{Face, Gradient, Scene, Update};
-use crate::kernel::{self, SlabOrder};
 use crate::shape::{Alpha, Geom};
 use crate::tensor::{vector, Mat, Vector};
 use decomposition::{Block, Communicator, Layout, Migrator};
@@ -248,7 +248,11 @@ impl<'c, const D: usize> Solver<'c, D> {
         s.setup_grid();
         let mut mmin = [s.parts.mass.iter().cloned().fold(f64::INFINITY, f64::min)];
         s.comm.min_f64(&mut mmin);
-        s.mass_floor = if mmin[0].is_finite() { 1e-12 * mmin[0] } else { 0.0 };
+        s.mass_floor = if mmin[0].is_finite() {
+            1e-12 * mmin[0]
+        } else {
+            0.0
+        };
         s.max_speed = s.compute_max_speed();
         s
     }
@@ -302,7 +306,12 @@ impl<'c, const D: usize> Solver<'c, D> {
         let two = self.two_step();
         self.scat.iter_mut().for_each(|v| *v = 0.0);
         let last = D - 1;
-        self.slabs.build(&self.geom, &self.parts.x, self.block.cell_lo[last], self.block.cell_hi[last]);
+        self.slabs.build(
+            &self.geom,
+            &self.parts.x,
+            self.block.cell_lo[last],
+            self.block.cell_hi[last],
+        );
         let ctx = ctx!(self);
         let parts = kernel::ScatterParts {
             x: &self.parts.x,
@@ -320,7 +329,15 @@ impl<'c, const D: usize> Solver<'c, D> {
             row0: self.block.own_lo[last],
             rows: self.block.node_dims[last],
         };
-        by_nodes!(self.gradient == Gradient::Gimp, scatter, &ctx, &parts, &self.slabs, &mut self.scat, m);
+        by_nodes!(
+            self.gradient == Gradient::Gimp,
+            scatter,
+            &ctx,
+            &parts,
+            &self.slabs,
+            &mut self.scat,
+            m
+        );
         self.block.ghost_sum(self.comm, &mut self.scat, self.sw);
         if two {
             self.occupancy();
@@ -494,7 +511,9 @@ impl<'c, const D: usize> Solver<'c, D> {
         let mut m = 0.0f64;
         for p in 0..self.parts.len() {
             let j = self.parts.vol[p] / self.parts.vol0[p];
-            m = m.max(self.materials[self.parts.mat[p] as usize].wave_speed(j) + self.parts.v[p].norm());
+            m = m.max(
+                self.materials[self.parts.mat[p] as usize].wave_speed(j) + self.parts.v[p].norm(),
+            );
         }
         m
     }
@@ -577,7 +596,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             )));
         }
         self.relocate()?;
-        if self.step % SORT_EVERY == 0 {
+        if self.step.is_multiple_of(SORT_EVERY) {
             self.sort();
         }
         Ok(())
@@ -588,7 +607,8 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// position increments are kept in `dx` for later (MUSL).
     fn gather(&mut self, dt: f64, stress: bool, move_now: bool) -> bool {
         let n = self.parts.len();
-        self.dx.resize(if move_now { 0 } else { n }, Vector::<D>::zeros());
+        self.dx
+            .resize(if move_now { 0 } else { n }, Vector::<D>::zeros());
         let mode = kernel::GatherMode {
             dt,
             flip: self.flip,
@@ -598,7 +618,15 @@ impl<'c, const D: usize> Solver<'c, D> {
         };
         let ctx = ctx!(self);
         let parts = slices!(self);
-        let t = by_nodes!(self.gradient == Gradient::Gimp, gather, &ctx, parts, &self.vel, &self.avg, mode);
+        let t = by_nodes!(
+            self.gradient == Gradient::Gimp,
+            gather,
+            &ctx,
+            parts,
+            &self.vel,
+            &self.avg,
+            mode
+        );
         self.external_work += t.work;
         self.max_speed = t.max_speed;
         t.ok
@@ -609,7 +637,17 @@ impl<'c, const D: usize> Solver<'c, D> {
         let two = self.two_step();
         let ctx = ctx!(self);
         let parts = slices!(self);
-        let t = by_nodes!(self.gradient == Gradient::Gimp, update_stress, &ctx, parts, &self.vel, &self.avg, slot, dt, two);
+        let t = by_nodes!(
+            self.gradient == Gradient::Gimp,
+            update_stress,
+            &ctx,
+            parts,
+            &self.vel,
+            &self.avg,
+            slot,
+            dt,
+            two
+        );
         self.max_speed = t.max_speed;
         t.ok
     }
@@ -681,7 +719,9 @@ impl<'c, const D: usize> Solver<'c, D> {
             }
             Err(e) => Err(match (left, e) {
                 (Some(m), _) => Failure::LeftGrid(m),
-                (None, e @ decomposition::Error::ParticleTooFast { .. }) => Failure::Unstable(e.to_string()),
+                (None, e @ decomposition::Error::ParticleTooFast { .. }) => {
+                    Failure::Unstable(e.to_string())
+                }
                 (None, e) => Failure::Elsewhere(e.to_string()),
             }),
         }
@@ -722,7 +762,12 @@ impl<'c, const D: usize> Solver<'c, D> {
             } else {
                 self.parts.def_grad[p]
             };
-            sums[2] += mat.strain_energy(&self.parts.stress[p], &f, self.parts.vol[p], self.parts.vol0[p]);
+            sums[2] += mat.strain_energy(
+                &self.parts.stress[p],
+                &f,
+                self.parts.vol[p],
+                self.parts.vol0[p],
+            );
             for a in 0..D {
                 sums[4 + a] += m * v[a];
             }

@@ -29,7 +29,10 @@ fn mpirun(n: usize, scene: &Path, out: &Path) -> (i32, String) {
         .arg(out)
         .arg("--quiet");
     let o = c.output().expect("mpirun runs");
-    (o.status.code().unwrap_or(-1), String::from_utf8_lossy(&o.stderr).into_owned())
+    (
+        o.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
 }
 
 /// Particle state of a snapshot, sorted by id: (id, position row, velocity row).
@@ -55,7 +58,12 @@ fn last_snapshot(out: &Path) -> PathBuf {
     let mut files: Vec<PathBuf> = std::fs::read_dir(out)
         .unwrap()
         .map(|e| e.unwrap().path())
-        .filter(|p| p.file_name().unwrap().to_string_lossy().starts_with("particles_"))
+        .filter(|p| {
+            p.file_name()
+                .unwrap()
+                .to_string_lossy()
+                .starts_with("particles_")
+        })
         .filter(|p| p.extension().is_some_and(|e| e == "h5"))
         .collect();
     files.sort();
@@ -158,7 +166,11 @@ fn final_state_is_independent_of_rank_count() {
                 let s = summary(&o);
                 assert_eq!(s["ranks"], n);
                 let got = snapshot(&last_snapshot(&o));
-                assert_eq!(got.len(), ref1.len(), "{dim}D {g} {n} ranks: particle count");
+                assert_eq!(
+                    got.len(),
+                    ref1.len(),
+                    "{dim}D {g} {n} ranks: particle count"
+                );
                 let mut worst = (0.0f64, 0.0f64);
                 for (a, b) in got.iter().zip(&ref1) {
                     assert_eq!(a.0, b.0);
@@ -167,18 +179,27 @@ fn final_state_is_independent_of_rank_count() {
                         worst.1 = worst.1.max((a.2[k] - b.2[k]).abs() / 0.5);
                     }
                 }
-                assert!(worst.0 < 1e-12 && worst.1 < 1e-12, "{dim}D {g} {n} ranks: differences {worst:?}");
+                assert!(
+                    worst.0 < 1e-12 && worst.1 < 1e-12,
+                    "{dim}D {g} {n} ranks: differences {worst:?}"
+                );
                 assert_eq!(s["mass"]["final"], s1["mass"]["final"]);
                 for k in 0..dim {
                     let (p, q) = (
                         s["momentum"]["final"][k].as_f64().unwrap(),
                         s1["momentum"]["final"][k].as_f64().unwrap(),
                     );
-                    assert!((p - q).abs() < 1e-12 * s1["mass"]["final"].as_f64().unwrap(), "{dim}D {g} {n}: momentum {p} vs {q}");
+                    assert!(
+                        (p - q).abs() < 1e-12 * s1["mass"]["final"].as_f64().unwrap(),
+                        "{dim}D {g} {n}: momentum {p} vs {q}"
+                    );
                 }
                 // Particles really moved between ranks: some rank ended with another count
                 // than it started, or every rank is busy (load per rank is reported).
-                assert!(s["particles_per_rank"]["max"].as_u64().unwrap() >= s["particles_per_rank"]["min"].as_u64().unwrap());
+                assert!(
+                    s["particles_per_rank"]["max"].as_u64().unwrap()
+                        >= s["particles_per_rank"]["min"].as_u64().unwrap()
+                );
             }
             // Determinism: the same rank count twice gives identical bits.
             let a = snapshot(&last_snapshot(&run(3, "again")));

@@ -89,13 +89,22 @@ fn vcm_error(out: &std::path::Path) -> f64 {
 #[test]
 fn centre_of_mass_velocity_matches_exact_for_all_update_orders() {
     for update in ["usl", "usf", "musl"] {
-        let (_, o16) = run_text(&bar(1, 16, 1, "mpm", update, 0.1), &format!("vcm16-{update}"));
-        let (_, o32) = run_text(&bar(1, 32, 1, "mpm", update, 0.1), &format!("vcm32-{update}"));
+        let (_, o16) = run_text(
+            &bar(1, 16, 1, "mpm", update, 0.1),
+            &format!("vcm16-{update}"),
+        );
+        let (_, o32) = run_text(
+            &bar(1, 32, 1, "mpm", update, 0.1),
+            &format!("vcm32-{update}"),
+        );
         let (e16, e32) = (vcm_error(&o16), vcm_error(&o32));
         println!("{update}: v_cm error {e16:.4} at 16 cells, {e32:.4} at 32 cells");
         assert!(e16 < 0.036, "{update}: v_cm error {e16} at 16 cells");
         assert!(e32 < 0.025, "{update}: v_cm error {e32} at 32 cells");
-        assert!(e16 / e32 > 3.0, "{update}: v_cm error not second order: {e16} -> {e32}");
+        assert!(
+            e16 / e32 > 3.0,
+            "{update}: v_cm error not second order: {e16} -> {e32}"
+        );
     }
 }
 
@@ -120,10 +129,13 @@ fn energy_drift_is_small_and_falls_with_dt() {
         let d: Vec<f64> = [0.2, 0.1, 0.05]
             .iter()
             .map(|&c| {
-                run_text(&bar(1, 16, 1, "mpm", update, c), &format!("drift-{update}-{c}"))
-                    .0
-                    .energy
-                    .max_relative_drift
+                run_text(
+                    &bar(1, 16, 1, "mpm", update, c),
+                    &format!("drift-{update}-{c}"),
+                )
+                .0
+                .energy
+                .max_relative_drift
             })
             .collect();
         println!("{update}: drift at CFL 0.2, 0.1, 0.05: {d:?}");
@@ -149,7 +161,11 @@ fn bar_in_2d_and_3d_matches_1d() {
             for (a, b) in h.iter().zip(&h1) {
                 assert!((a["time"] - b["time"]).abs() <= 1e-12 * b["time"]);
                 let d = (a["velocity_cm_0"] - b["velocity_cm_0"]).abs() / AMP;
-                assert!(d < 1e-12, "{g} {dim}D: v_cm differs by {d} at t = {}", a["time"]);
+                assert!(
+                    d < 1e-12,
+                    "{g} {dim}D: v_cm differs by {d} at t = {}",
+                    a["time"]
+                );
                 for ax in 1..dim {
                     assert!(a[&format!("velocity_cm_{ax}")].abs() < 1e-14);
                 }
@@ -164,7 +180,11 @@ fn bar_in_2d_and_3d_matches_1d() {
 /// The committed scene file runs and meets the bounds above (at its 16 cells, CFL 0.1).
 #[test]
 fn input_scene_meets_bounds() {
-    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/inputs/vibrating_bar.toml")).unwrap();
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/inputs/vibrating_bar.toml"
+    ))
+    .unwrap();
     let (s, out) = run_text(&text, "input-bar");
     assert_eq!(s.status, "completed");
     assert_eq!(s.mass.r#final, s.mass.initial);
@@ -172,7 +192,11 @@ fn input_scene_meets_bounds() {
     assert!(vcm_error(&out) < 0.036);
     // Displacement error: a phase lag of ~0.05 time units on an amplitude v0/ω.
     let e = s.error.unwrap();
-    assert!(e.displacement_l2 < 0.03 * 0.1 / OMEGA, "{}", e.displacement_l2);
+    assert!(
+        e.displacement_l2 < 0.03 * 0.1 / OMEGA,
+        "{}",
+        e.displacement_l2
+    );
 }
 
 /// Two bars collide in the middle of a grid with free faces: internal forces only, so
@@ -215,9 +239,18 @@ velocity = [-0.4]
         let p0 = s.momentum.initial[0];
         let scale = s.mass.initial * 0.7;
         for r in history(&out) {
-            assert!((r["momentum_0"] - p0).abs() < 1e-13 * scale, "{g}: momentum {} vs {p0}", r["momentum_0"]);
+            assert!(
+                (r["momentum_0"] - p0).abs() < 1e-13 * scale,
+                "{g}: momentum {} vs {p0}",
+                r["momentum_0"]
+            );
         }
         // The bars did interact: strain energy was stored at some point.
-        assert!(history(&out).iter().any(|r| r["strain"] > 1e-3 * s.energy.initial_total), "{g}: no collision");
+        assert!(
+            history(&out)
+                .iter()
+                .any(|r| r["strain"] > 1e-3 * s.energy.initial_total),
+            "{g}: no collision"
+        );
     }
 }

@@ -53,7 +53,13 @@ impl Material {
     /// New Cauchy stress after a step with velocity gradient `l`, given the updated
     /// deformation gradient `f` (meaningful only if [`Material::needs_def_grad`]).
     #[inline]
-    pub fn update_stress<const D: usize>(&self, stress: &mut Mat<D>, l: &Mat<D>, f: &Mat<D>, dt: f64) {
+    pub fn update_stress<const D: usize>(
+        &self,
+        stress: &mut Mat<D>,
+        l: &Mat<D>,
+        f: &Mat<D>,
+        dt: f64,
+    ) {
         match self {
             Material::LinearElastic(m) => m.update_stress(stress, l, dt),
             Material::NeoHookean(m) => *stress = m.stress(f),
@@ -70,7 +76,13 @@ impl Material {
     }
 
     /// Stored energy of a particle with current volume `vol` and reference volume `vol0`.
-    pub fn strain_energy<const D: usize>(&self, stress: &Mat<D>, f: &Mat<D>, vol: f64, vol0: f64) -> f64 {
+    pub fn strain_energy<const D: usize>(
+        &self,
+        stress: &Mat<D>,
+        f: &Mat<D>,
+        vol: f64,
+        vol0: f64,
+    ) -> f64 {
         match self {
             Material::LinearElastic(m) => vol * m.energy_density(stress),
             Material::NeoHookean(m) => vol0 * m.energy_density(f),

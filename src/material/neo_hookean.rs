@@ -32,7 +32,8 @@ impl NeoHookean {
     /// over the reference density; never below the small-strain speed.
     #[inline]
     pub fn wave_speed(&self, j: f64) -> f64 {
-        let m = (self.lambda + 2.0 * (self.mu - self.lambda * j.ln())).max(self.lambda + 2.0 * self.mu);
+        let m =
+            (self.lambda + 2.0 * (self.mu - self.lambda * j.ln())).max(self.lambda + 2.0 * self.mu);
         (m / self.density).sqrt()
     }
 }

@@ -24,7 +24,8 @@ pub fn run_text(text: &str, tag: &str) -> (Summary, PathBuf) {
         quiet: true,
         threads: 1,
     };
-    let s = run(&scene, &decomposition::SerialComm, &opts).unwrap_or_else(|e| panic!("run {tag}: {e}"));
+    let s =
+        run(&scene, &decomposition::SerialComm, &opts).unwrap_or_else(|e| panic!("run {tag}: {e}"));
     (s, out)
 }
 
