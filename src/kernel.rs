@@ -294,6 +294,7 @@ fn deform<const D: usize>(
     j > 0.0 && s.vol[p].is_finite() && s.stress[p].iter().all(|x| x.is_finite())
 }
 
+/// Wave speed plus particle speed: the signal speed the time step must resolve.
 #[inline(always)]
 fn speed<const D: usize>(ctx: &Ctx<'_, D>, s: &Slices<'_, D>, p: usize) -> f64 {
     let j = s.vol[p] / s.vol0[p];

@@ -686,6 +686,11 @@ impl<'c, const D: usize> Solver<'c, D> {
                 continue;
             }
             let (cell, _) = self.geom.locate(&std::array::from_fn(|a| x[a]));
+            // Most particles stay in the block: skip the owner lookup for them.
+            let (lo, hi) = (&self.block.cell_lo, &self.block.cell_hi);
+            if (0..D).all(|a| cell[a] >= lo[a] as i64 && cell[a] < hi[a] as i64) {
+                continue;
+            }
             match self.migrator.destination(cell) {
                 Ok(d) if d.rank == me => {}
                 Ok(d) => {
