@@ -4,6 +4,7 @@
 
 pub mod benchmark;
 pub mod cli;
+pub mod gradient;
 pub mod material;
 pub mod particles;
 pub mod run;
