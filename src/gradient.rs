@@ -165,26 +165,62 @@ fn hat_primitive(t: f64) -> f64 {
 }
 
 /// uGIMP shape functions at `x` for particle half-widths `lp`: per axis
-/// `s_i = (1/2l) ∫_{x−l}^{x+l} N_i(y) dy` and `s_i' = (N_i(x+l) − N_i(x−l)) / 2l`.
-/// Nodes outside a bounded grid do not exist and are left out, so where the particle
-/// domain `[x − l, x + l]` sticks out of the grid the weights no longer sum to one.
+/// `s_i = (1/2l) ∫_{x−l}^{x+l} N_i(y) dy` and `s_i' = (N_i(x+l) − N_i(x−l)) / 2l`,
+/// the average of `N_i` and `N_i'` over the particle domain.
+///
+/// On a bounded axis the domain is kept inside the grid, `l = min(lp, x − lower,
+/// upper − x)`, as [`crate::shape::gimp`] does: outside the grid there are no nodes,
+/// and a domain reaching out would lose the outside node's share (see
+/// [`gimp_shape_truncated`]). Below `l = 10⁻³ h` (where the difference of primitives
+/// below loses digits) the averages are taken as the hat function and its slope at `x`:
+/// exact, since such a domain lies in one cell, where the hats are linear.
 pub fn gimp_shape<const D: usize>(
     geom: &Geom<D>,
     x: &[f64; D],
     lp: &[f64; D],
 ) -> Vec<([i64; D], f64, [f64; D])> {
+    let l: [f64; D] = std::array::from_fn(|a| {
+        if geom.periodic[a] {
+            lp[a]
+        } else {
+            lp[a].min(x[a] - geom.lower[a]).min(geom.upper[a] - x[a])
+        }
+    });
+    gimp_shape_truncated(geom, x, &l)
+}
+
+/// uGIMP with the particle domain `[x − lp, x + lp]` as given, even where it reaches
+/// outside a bounded grid: the outside nodes do not exist and are left out, so there
+/// `Σ_i S_i = 1 − S_outside < 1` and neither identity holds. This was `shape::gimp`
+/// before the domain was kept inside the grid.
+pub fn gimp_shape_truncated<const D: usize>(
+    geom: &Geom<D>,
+    x: &[f64; D],
+    lp: &[f64; D],
+) -> Vec<([i64; D], f64, [f64; D])> {
+    let (c, _) = cell_of(geom, x);
     let mut lo = [0i64; D];
     let mut w1: Vec<Vec<(f64, f64)>> = Vec::with_capacity(D);
     for a in 0..D {
         let (h, l) = (geom.h[a], lp[a]);
-        // Every node within h + l of x.
-        lo[a] = ((x[a] - l - geom.lower[a]) / h).floor() as i64;
+        // Every node within h + l of x (the cell's nodes for a tiny l).
+        lo[a] = if l >= 1e-3 * h {
+            ((x[a] - l - geom.lower[a]) / h).floor() as i64
+        } else {
+            c[a]
+        };
         let mut v = Vec::new();
         for g in lo[a]..lo[a] + 4 {
             let xg = geom.lower[a] + g as f64 * h;
-            let s = h * (hat_primitive((x[a] + l - xg) / h) - hat_primitive((x[a] - l - xg) / h))
-                / (2.0 * l);
-            let ds = (hat(geom, a, g, x[a] + l) - hat(geom, a, g, x[a] - l)) / (2.0 * l);
+            let (s, ds) = if l >= 1e-3 * h {
+                (
+                    h * (hat_primitive((x[a] + l - xg) / h) - hat_primitive((x[a] - l - xg) / h))
+                        / (2.0 * l),
+                    (hat(geom, a, g, x[a] + l) - hat(geom, a, g, x[a] - l)) / (2.0 * l),
+                )
+            } else {
+                (hat(geom, a, g, x[a]), hat_slope(geom, a, g, c[a]))
+            };
             v.push(if exists(geom, a, g) {
                 (s, ds)
             } else {
@@ -482,21 +518,10 @@ mod tests {
         ]
     }
 
-    /// Is the GIMP particle domain `[x − lp, x + lp]` inside the grid on bounded axes?
-    fn domain_inside<const D: usize>(geom: &Geom<D>, x: &[f64; D], lp: &[f64; D]) -> bool {
-        (0..D).all(|a| {
-            geom.periodic[a] || (x[a] - lp[a] >= geom.lower[a] && x[a] + lp[a] <= geom.upper[a])
-        })
-    }
-
     /// The identities of DESIGN.md §2 at 200 random points per scheme, many in cells on
-    /// the grid boundary, on grids with non-square cells and some periodic axes.
-    ///
-    /// GIMP is checked only where the particle domain lies inside the grid: a node
-    /// outside a bounded grid does not exist, so for a particle sticking out of the grid
-    /// `Σ_i S_i = 1 − S_outside(x) < 1`, its derivative is not zero, and neither identity
-    /// holds (checked below). MPM, averaged and MPMCG have no such limit: their shape
-    /// functions and integrals never reach outside the grid.
+    /// the grid boundary, on grids with non-square cells and some periodic axes. GIMP
+    /// included: its particle domain is kept inside the grid (the truncated variant
+    /// fails there, see `gimp_truncation_breaks_partition_of_unity`).
     fn check_identities<const D: usize>(seed: u64) {
         let mut rng = Rng(seed);
         let mut worst = [(0.0f64, 0.0f64); 4];
@@ -506,14 +531,8 @@ mod tests {
             let ppc = 1 + rng.below(4);
             for (k, scheme) in schemes(&geom, ppc).into_iter().enumerate() {
                 for _ in 0..10 {
-                    let (c, x) = loop {
-                        let c = random_cell(&mut rng, &geom);
-                        let x = point_in(&mut rng, &geom, c);
-                        match scheme {
-                            Scheme::Gimp { lp } if !domain_inside(&geom, &x, &lp) => continue,
-                            _ => break (c, x),
-                        }
-                    };
+                    let c = random_cell(&mut rng, &geom);
+                    let x = point_in(&mut rng, &geom, c);
                     if (0..D).any(|a| c[a] == 0 || c[a] == geom.cells[a] as i64 - 1) {
                         boundary_points += 1;
                     }
@@ -549,23 +568,52 @@ mod tests {
         check_identities::<3>(3);
     }
 
-    /// Why GIMP is exempt near bounded faces: a particle domain crossing the grid face
-    /// loses the weight of the missing outside node.
+    /// Near a bounded face a GIMP particle domain of the nominal width reaches outside
+    /// the grid, where there are no nodes: the truncated weights lose the outside
+    /// node's share and neither identity holds. Keeping the domain inside the grid
+    /// (`gimp_shape`, `shape::gimp`) restores both, also exactly on the boundary.
     #[test]
-    fn gimp_partition_of_unity_fails_only_outside_the_grid() {
+    fn gimp_truncation_breaks_partition_of_unity() {
         let geom = Geom::<1>::new([0.0], [1.0], [4], [false]);
         let lp = [0.0625];
-        let sum = |x: f64| {
-            gimp_shape(&geom, &[x], &lp)
-                .iter()
-                .map(|p| p.1)
-                .sum::<f64>()
-        };
-        assert!((sum(0.0625) - 1.0).abs() < 1e-15);
-        // Half the particle outside of the lower face: 1 − (share of the outside node).
-        let s = sum(0.03125);
-        assert!(s < 1.0 - 1e-3, "Σ S = {s}");
-        assert!((s - (1.0 - 0.5 * (0.03125f64).powi(2) / (0.25 * 0.125))).abs() < 1e-14);
+        let sum = |r: &Vec<([i64; 1], f64, [f64; 1])>| r.iter().map(|p| p.1).sum::<f64>();
+        // Half a particle width outside the lower face: 1 − (share of the outside node),
+        // with the share q²/4hl of GIMP's outer branch, q = l/2.
+        let x = [0.03125];
+        let s = sum(&gimp_shape_truncated(&geom, &x, &lp));
+        assert!(
+            (s - (1.0 - 0.03125f64.powi(2) / (4.0 * 0.25 * 0.0625))).abs() < 1e-15,
+            "Σ S = {s}"
+        );
+        let g: Pairs<1> = gimp_shape_truncated(&geom, &x, &lp)
+            .into_iter()
+            .map(|p| (p.0, p.2))
+            .collect();
+        let (e0, e1) = identities(&geom, &g);
+        assert!(e0 > 1e-3 && e1 > 1e-3, "{e0:e} {e1:e}");
+        for x in [
+            0.0,
+            1e-300,
+            1e-12,
+            0.01,
+            0.03125,
+            0.0624,
+            0.5,
+            0.97,
+            1.0 - 1e-12,
+            1.0,
+        ] {
+            let r = gimp_shape(&geom, &[x], &lp);
+            let s = sum(&r);
+            let first: f64 = r.iter().map(|p| p.1 * geom.node_position(p.0)[0]).sum();
+            let g: Pairs<1> = r.into_iter().map(|p| (p.0, p.2)).collect();
+            let (e0, e1) = identities(&geom, &g);
+            assert!(
+                (s - 1.0).abs() < 1e-15 && (first - x).abs() < 1e-15,
+                "at {x}: Σ S = {s}, Σ S x_i = {first}"
+            );
+            assert!(e0 < ROUND_OFF && e1 < ROUND_OFF, "at {x}: {e0:e} {e1:e}");
+        }
     }
 
     /// Same values at `x ± δ`, after wrapping periodic node indices: the largest
@@ -635,11 +683,9 @@ mod tests {
                 );
                 worst[1] = worst[1].max(d / big);
                 assert!(d < 1e-7 * big, "averaged D={D} jumps by {d:e} at {x:?}");
-                if domain_inside(&geom, &lo, &lp) && domain_inside(&geom, &hi, &lp) {
-                    let (d, big) = jump(&geom, &gimp(&geom, &lo, &lp), &gimp(&geom, &hi, &lp));
-                    worst[2] = worst[2].max(d / big);
-                    assert!(d < 1e-7 * big, "GIMP D={D} jumps by {d:e} at {x:?}");
-                }
+                let (d, big) = jump(&geom, &gimp(&geom, &lo, &lp), &gimp(&geom, &hi, &lp));
+                worst[2] = worst[2].max(d / big);
+                assert!(d < 1e-7 * big, "GIMP D={D} jumps by {d:e} at {x:?}");
                 let (d, _) = jump(&geom, &mpm(&geom, &lo), &mpm(&geom, &hi));
                 assert!(
                     d > 0.4 * geom.inv_h[a],
@@ -945,7 +991,16 @@ mod tests {
             let scale = geom.inv_h.iter().cloned().fold(0.0, f64::max);
             for _ in 0..20 {
                 let c = random_cell(&mut rng, &geom);
-                let x = point_in(&mut rng, &geom, c);
+                let mut x = point_in(&mut rng, &geom, c);
+                // Now and then exactly on a bounded face.
+                let a = rng.below(D);
+                if !geom.periodic[a] && rng.below(4) == 0 {
+                    x[a] = if rng.below(2) == 0 {
+                        geom.lower[a]
+                    } else {
+                        geom.upper[a]
+                    };
+                }
                 let (s0, g0) = stencil_pairs(&crate::shape::linear(&geom, &x));
                 let (s1, g1) = split(linear_shape(&geom, &x));
                 assert!(
@@ -955,7 +1010,7 @@ mod tests {
                 let (s0, g0) = stencil_pairs(&crate::shape::gimp(&geom, &x, &lp));
                 let (s1, g1) = split(gimp_shape(&geom, &x, &lp));
                 assert!(
-                    diff(&s0, &s1) < 1e-14 && diff(&g0, &g1) < 1e-13 * scale,
+                    diff(&s0, &s1) < 1e-13 && diff(&g0, &g1) < 1e-13 * scale,
                     "gimp at {x:?} lp {lp:?}: {s0:?} {g0:?} vs {s1:?} {g1:?}"
                 );
             }
