@@ -8,6 +8,7 @@
 
 pub mod benchmark;
 pub mod cli;
+pub mod gradient;
 pub mod io;
 pub mod kernel;
 pub mod material;

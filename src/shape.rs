@@ -222,8 +222,18 @@ pub fn linear<const D: usize>(geom: &Geom<D>, x: &[f64; D]) -> Weights1<D> {
 }
 
 /// Uniform GIMP: hat functions convolved with the particle's characteristic function of
-/// half-width `lp[a]` (< h/2). Nodes outside a bounded grid are dropped (their weight
-/// is non-zero only for a particle within `lp` of the boundary).
+/// half-width `lp[a]` (<= h/2).
+///
+/// On a bounded axis the half-width is shrunk to the particle's distance from the grid
+/// boundary, so that the particle domain never reaches outside the grid. There are no
+/// nodes out there: a domain sticking out would lose the outside node's share, the
+/// weights would no longer sum to one, `Σ_i ∇S_i ≠ 0`, and momentum would not be
+/// conserved (a body against a free face, `tests/schemes.rs`). Shrinking the domain
+/// symmetrically keeps the particle's centroid, so `Σ_i S_i x_i = x` and
+/// `Σ_i x_i ⊗ ∇S_i = I` hold as well. A shrunk domain `[x − l, x + l]` touches the
+/// boundary and, as `l < lp <= h/2`, lies inside the boundary cell, where the hat
+/// functions are linear: its averages are the linear weights of that cell, which is
+/// how they are computed (exactly, for any `l` down to 0).
 #[inline]
 pub fn gimp<const D: usize>(geom: &Geom<D>, x: &[f64; D], lp: &[f64; D]) -> Weights1<D> {
     let (c, xi) = geom.locate(x);
@@ -233,12 +243,19 @@ pub fn gimp<const D: usize>(geom: &Geom<D>, x: &[f64; D], lp: &[f64; D]) -> Weig
     for a in 0..D {
         let h = geom.h[a];
         let l = lp[a];
+        let shrunk = !geom.periodic[a] && (x[a] - geom.lower[a] < l || geom.upper[a] - x[a] < l);
         if xi[a] < 0.5 {
             base[a] = c[a] - 1;
         }
+        if shrunk {
+            // Linear weights on the slots of the cell's nodes, the third slot empty.
+            base[a] = c[a];
+            w[a] = [1.0 - xi[a], xi[a], 0.0];
+            dw[a] = [-geom.inv_h[a], geom.inv_h[a], 0.0];
+        }
         for k in 0..3 {
             let g = base[a] + k as i64;
-            if !geom.exists(a, g) {
+            if shrunk || !geom.exists(a, g) {
                 continue;
             }
             // Signed distance from the node to the particle.
@@ -259,7 +276,8 @@ pub fn gimp<const D: usize>(geom: &Geom<D>, x: &[f64; D], lp: &[f64; D]) -> Weig
             dw[a][k] = dk;
         }
         // Keep the three slots on existing nodes at a bounded end (the dropped node has
-        // weight zero), so the stencil never indexes outside the grid.
+        // weight zero: the domain stays inside the grid), so the stencil never indexes
+        // outside the grid.
         if !geom.periodic[a] {
             if base[a] < 0 {
                 base[a] = 0;
@@ -328,5 +346,85 @@ impl<const D: usize> Weights1<D> {
             st.g[k] = g;
         }
         st
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// GIMP particles near, on and against bounded faces: the weights sum to one, the
+    /// gradients to zero, and both reproduce linear fields (`Σ S_i x_i = x`,
+    /// `Σ x_i ⊗ ∇S_i = I`). Before the particle domain was kept inside the grid, a
+    /// domain reaching out lost the outside node's share here.
+    #[test]
+    fn gimp_is_a_partition_of_unity_at_bounded_faces() {
+        let geom = Geom::<2>::new([-0.5, 1.0], [1.5, 1.6], [8, 4], [false, false]);
+        let lp = [0.125 * geom.h[0], 0.5 * geom.h[1]];
+        let xs = [
+            -0.5,
+            -0.5 + 1e-13,
+            -0.49,
+            -0.45,
+            -0.5 + lp[0],
+            0.3,
+            1.5 - 0.02,
+            1.5,
+        ];
+        let ys = [
+            1.0,
+            1.0 + 1e-300,
+            1.01,
+            1.0 + lp[1],
+            1.3,
+            1.6 - 0.1,
+            1.6 - 1e-9,
+            1.6,
+        ];
+        for &x in &xs {
+            for &y in &ys {
+                let p = [x, y];
+                let w = gimp(&geom, &p, &lp);
+                let st = w.stencil();
+                let mut sum = 0.0;
+                let mut first = [0.0; 2];
+                let mut gsum = [0.0; 2];
+                let mut mom = [[0.0; 2]; 2];
+                for k in 0..st.count {
+                    let node = [
+                        w.base[0] + i64::from(st.off[k][0]),
+                        w.base[1] + i64::from(st.off[k][1]),
+                    ];
+                    assert!(
+                        geom.exists(0, node[0]) && geom.exists(1, node[1]),
+                        "{node:?} at {p:?}"
+                    );
+                    let xn = geom.node_position(node);
+                    sum += st.s[k];
+                    for a in 0..2 {
+                        first[a] += st.s[k] * xn[a];
+                        gsum[a] += st.g[k][a];
+                        for (m, g) in mom[a].iter_mut().zip(&st.g[k]) {
+                            *m += xn[a] * g;
+                        }
+                    }
+                }
+                assert!((sum - 1.0).abs() < 1e-14, "Σ S = {sum} at {p:?}");
+                for a in 0..2 {
+                    assert!(
+                        (first[a] - p[a]).abs() < 1e-14,
+                        "Σ S x = {first:?} at {p:?}"
+                    );
+                    assert!(gsum[a].abs() < 1e-13, "Σ ∇S = {gsum:?} at {p:?}");
+                    for b in 0..2 {
+                        let id = if a == b { 1.0 } else { 0.0 };
+                        assert!(
+                            (mom[a][b] - id).abs() < 1e-13,
+                            "Σ x ⊗ ∇S = {mom:?} at {p:?}"
+                        );
+                    }
+                }
+            }
+        }
     }
 }
