@@ -7,6 +7,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod benchmark;
+pub mod checkpoint;
 pub mod cli;
 pub mod io;
 pub mod kernel;
@@ -15,6 +16,7 @@ pub mod particles;
 pub mod run;
 pub mod scene;
 pub mod shape;
+pub mod signals;
 pub mod solver;
 pub mod sweep;
 pub mod tensor;
