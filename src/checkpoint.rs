@@ -292,6 +292,7 @@ pub fn write<const D: usize>(
         };
         rows.floats("particles", &buf, width)?;
         drop(buf);
+        crash_for_tests(step);
         file.dataset("particles")
             .and_then(|ds| {
                 let cols: VarLenUnicode = columns(D, carries).parse().expect("ASCII");
@@ -357,6 +358,16 @@ pub fn write<const D: usize>(
     match agree(comm, renamed) {
         Some(m) => Err(IoError(m)),
         None => Ok(path),
+    }
+}
+
+/// Test hook: `MPMCG_TEST_CRASH_IN_CHECKPOINT=STEP` aborts every rank in the middle of
+/// writing the checkpoint of step STEP (particles written, the rest not), to show that a
+/// crash during a write leaves the earlier checkpoints intact.
+fn crash_for_tests(step: u64) {
+    if std::env::var("MPMCG_TEST_CRASH_IN_CHECKPOINT").is_ok_and(|v| v == step.to_string()) {
+        eprintln!("MPMCG_TEST_CRASH_IN_CHECKPOINT: aborting while writing step {step}");
+        std::process::abort();
     }
 }
 

@@ -10,7 +10,7 @@ use crate::solver::{Failure, Solver, Totals};
 use decomposition::{Communicator, Layout};
 use serde::Serialize;
 use std::io::{IsTerminal, Write};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 #[derive(Clone, Debug, Default)]
