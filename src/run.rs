@@ -145,6 +145,15 @@ pub struct Summary {
     pub last_checkpoint: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub restarted_from: Option<RestartSummary>,
+    /// Wall time spent writing files, part of `wall_seconds`.
+    pub output_seconds: OutputSeconds,
+}
+
+/// Wall time (rank 0's clock) spent writing snapshots and checkpoints.
+#[derive(Serialize, Debug, Clone, Default)]
+pub struct OutputSeconds {
+    pub snapshots: f64,
+    pub checkpoints: f64,
 }
 
 /// Run a validated scene on `comm`'s ranks. Returns the summary (written on rank 0).
@@ -341,6 +350,8 @@ fn run_dim<const D: usize>(
         .output
         .as_ref()
         .map(|o| (Snapshots::new(&opts.out, &o.fields), o.every));
+    let start = Instant::now();
+    let mut output_seconds = OutputSeconds::default();
     let mut st = match restored {
         Some(mut st) => {
             if let Some((sn, _)) = &mut snaps {
@@ -367,6 +378,7 @@ fn run_dim<const D: usize>(
                 sn.write(comm, &solver.parts, 0, 0.0)
                     .map_err(|e| RunError::Io(e.to_string()))?;
                 next_snapshot = *every;
+                output_seconds.snapshots += start.elapsed().as_secs_f64();
             }
             let tot0 = solver.totals();
             let err0 = solver.errors();
@@ -391,7 +403,6 @@ fn run_dim<const D: usize>(
         }
     };
     let e0 = st.initial.total_energy();
-    let start = Instant::now();
     let (t_start, step_start) = (solver.t, solver.step);
     let mut progress = Progress::new(root && !opts.quiet, t_start);
     let mut failure: Option<Failure> = None;
@@ -441,8 +452,10 @@ fn run_dim<const D: usize>(
         if let Some((sn, every)) = &mut snaps {
             // Write when an output time is reached (to within a thousandth of a step).
             if solver.t >= st.next_snapshot - 1e-3 * solver.dt || solver.done() {
+                let t0 = Instant::now();
                 sn.write(comm, &solver.parts, solver.step, solver.t)
                     .map_err(|e| RunError::Io(e.to_string()))?;
+                output_seconds.snapshots += t0.elapsed().as_secs_f64();
                 while st.next_snapshot <= solver.t + 1e-3 * solver.dt {
                     st.next_snapshot += *every;
                 }
@@ -468,7 +481,9 @@ fn run_dim<const D: usize>(
             st.snapshots = snaps
                 .as_ref()
                 .map_or_else(Vec::new, |(sn, _)| sn.entries().to_vec());
+            let t0 = Instant::now();
             let written = checkpoint::write(comm, &opts.out, &solver, &st, &scene_text, keep);
+            output_seconds.checkpoints += t0.elapsed().as_secs_f64();
             history.text = std::mem::take(&mut st.history);
             last_checkpoint = Some(written.map_err(|e| RunError::Io(e.to_string()))?);
             checkpoint_clock = Instant::now();
@@ -580,6 +595,7 @@ fn run_dim<const D: usize>(
         }),
         last_checkpoint: last_checkpoint.as_ref().map(|p| p.display().to_string()),
         restarted_from,
+        output_seconds,
     };
     let mut written = history.error.take();
     if root && written.is_none() {
