@@ -1,8 +1,11 @@
-//! The command line. Exit status: 0 done, 2 bad input or usage, 3 numerically
-//! unstable, 1 any other failure (I/O, MPI).
+//! The command line. Exit status: 0 done, 2 bad input or usage (an unusable checkpoint
+//! included), 3 numerically unstable, 4 stopped by SIGTERM/SIGINT after writing a
+//! checkpoint, 1 any other failure (I/O, MPI).
 
+use crate::checkpoint;
 use crate::run::{self, RunError, RunOptions};
 use crate::scene::{self, SceneError};
+use crate::signals;
 use clap::{Parser, Subcommand};
 use decomposition::{Communicator, MpiComm};
 use std::path::PathBuf;
@@ -34,6 +37,11 @@ enum Command {
         /// No progress line.
         #[arg(long, short)]
         quiet: bool,
+        /// Continue from a checkpoint (OUT/checkpoint_NNNNNN.h5); the scene is the one
+        /// it stores, and SCENE, if given, must be identical to it. Output goes to the
+        /// checkpoint's folder unless --out says otherwise. Any rank count works.
+        #[arg(long, value_name = "CHECKPOINT.h5")]
+        restart: Option<PathBuf>,
     },
     /// Validate a scene file and exit.
     Check {
@@ -106,75 +114,151 @@ pub fn main() -> ExitCode {
             out,
             threads,
             quiet,
-        } => {
-            let (sc, _text) = match &scene {
-                Some(path) => match scene::load(path) {
-                    Ok(x) => x,
-                    Err(e) => return scene_error(&e),
-                },
-                None => match scene::parse(scene::DEFAULT_SCENE, scene::DEFAULT_SCENE_NAME) {
-                    Ok(s) => (s, scene::DEFAULT_SCENE.to_string()),
-                    Err(e) => return scene_error(&e),
-                },
-            };
-            let Some(universe) = mpi::initialize() else {
-                eprintln!("error: MPI could not be initialised");
-                return ExitCode::from(1);
-            };
-            let comm = MpiComm::new(universe.world());
-            let root = comm.rank() == 0;
-            let threads = threads.unwrap_or(if comm.size() > 1 {
-                1
-            } else {
-                std::thread::available_parallelism().map_or(1, |n| n.get())
-            });
-            if threads == 0 {
+            restart,
+        } => run_main(scene, out, threads, quiet, restart),
+    }
+}
+
+/// The scene of a fresh run: the file's, or the built-in default.
+fn fresh_scene(scene: &Option<PathBuf>) -> Result<(scene::Scene, String), ExitCode> {
+    match scene {
+        Some(path) => scene::load(path).map_err(|e| scene_error(&e)),
+        None => match scene::parse(scene::DEFAULT_SCENE, scene::DEFAULT_SCENE_NAME) {
+            Ok(s) => Ok((s, scene::DEFAULT_SCENE.to_string())),
+            Err(e) => Err(scene_error(&e)),
+        },
+    }
+}
+
+/// The scene stored in a checkpoint, checked against the SCENE argument if there is
+/// one. Every rank reads the checkpoint and they agree; rank 0 reports.
+fn restart_scene(
+    comm: &dyn Communicator,
+    ckpt: &std::path::Path,
+    scene_file: &Option<PathBuf>,
+) -> Result<(scene::Scene, String), String> {
+    let header = checkpoint::read_header(ckpt);
+    if let Some(m) = checkpoint::agree(comm, header.as_ref().err().cloned()) {
+        return Err(m);
+    }
+    let header = header.expect("agreed");
+    let label = format!("{}:/scene", ckpt.display());
+    let sc = scene::parse(&header.scene_text, &label).map_err(|e| e.to_string())?;
+    if let Some(path) = scene_file {
+        let (_, text) = scene::load(path).map_err(|e| e.to_string())?;
+        if text != header.scene_text {
+            let line = text
+                .lines()
+                .zip(header.scene_text.lines())
+                .position(|(a, b)| a != b)
+                .unwrap_or_else(|| text.lines().count().min(header.scene_text.lines().count()))
+                + 1;
+            return Err(format!(
+                "{}: scene does not match checkpoint {} (first difference at line {line}); restart without a scene to use the stored one",
+                path.display(),
+                ckpt.display()
+            ));
+        }
+    }
+    Ok((sc, header.scene_text))
+}
+
+/// `mpmcg run`.
+fn run_main(
+    scene: Option<PathBuf>,
+    out: Option<PathBuf>,
+    threads: Option<usize>,
+    quiet: bool,
+    restart: Option<PathBuf>,
+) -> ExitCode {
+    // A fresh run's scene is checked before MPI starts; a restart needs every rank
+    // to agree on the checkpoint, so MPI comes first.
+    let fresh = match &restart {
+        None => match fresh_scene(&scene) {
+            Ok(x) => Some(x),
+            Err(code) => return code,
+        },
+        Some(_) => None,
+    };
+    let Some(universe) = mpi::initialize() else {
+        eprintln!("error: MPI could not be initialised");
+        return ExitCode::from(1);
+    };
+    let comm = MpiComm::new(universe.world());
+    let root = comm.rank() == 0;
+    let (sc, text) = match (fresh, &restart) {
+        (Some(x), _) => x,
+        (None, Some(ckpt)) => match restart_scene(&comm, ckpt, &scene) {
+            Ok(x) => x,
+            Err(m) => {
                 if root {
-                    eprintln!("error: --threads must be >= 1");
+                    eprintln!("error: {m}");
                 }
                 return ExitCode::from(2);
             }
-            if let Err(e) = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build_global()
-            {
-                {
-                    eprintln!("error: cannot start {threads} threads: {e}");
-                    return ExitCode::from(1);
+        },
+        (None, None) => unreachable!("a fresh run has its scene"),
+    };
+    let threads = threads.unwrap_or(if comm.size() > 1 {
+        1
+    } else {
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    });
+    if threads == 0 {
+        if root {
+            eprintln!("error: --threads must be >= 1");
+        }
+        return ExitCode::from(2);
+    }
+    if let Err(e) = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build_global()
+    {
+        eprintln!("error: cannot start {threads} threads: {e}");
+        return ExitCode::from(1);
+    }
+    if let Err(m) = signals::install() {
+        if root {
+            eprintln!("warning: {m}; SIGTERM and SIGINT will end the run without a checkpoint");
+        }
+    }
+    let default_out = match &restart {
+        Some(ckpt) => ckpt
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .map_or_else(|| PathBuf::from("."), PathBuf::from),
+        None => PathBuf::from("out").join(&sc.name),
+    };
+    let opts = RunOptions {
+        out: out.unwrap_or(default_out),
+        quiet,
+        threads,
+        scene_text: Some(text),
+        restart,
+    };
+    match run::run(&sc, &comm, &opts) {
+        Ok(s) => {
+            if root && !quiet {
+                eprintln!(
+                    "{}: completed {} steps to t = {:.6e} in {:.2} s ({:.3e} particle updates/s); output in {}",
+                    s.scene,
+                    s.steps,
+                    s.time,
+                    s.wall_seconds,
+                    s.particle_updates_per_second,
+                    opts.out.display()
+                );
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            if root {
+                match e {
+                    RunError::Interrupted(_) => eprintln!("interrupted: {e}"),
+                    _ => eprintln!("error: {e}"),
                 }
             }
-            let opts = RunOptions {
-                out: out.unwrap_or_else(|| PathBuf::from("out").join(&sc.name)),
-                quiet,
-                threads,
-            };
-            let result = run::run(&sc, &comm, &opts);
-            match result {
-                Ok(s) => {
-                    if root && !quiet {
-                        eprintln!(
-                            "{}: completed {} steps to t = {:.6e} in {:.2} s ({:.3e} particle updates/s); output in {}",
-                            s.scene,
-                            s.steps,
-                            s.time,
-                            s.wall_seconds,
-                            s.particle_updates_per_second,
-                            opts.out.display()
-                        );
-                    }
-                    ExitCode::SUCCESS
-                }
-                Err(e) => {
-                    if root {
-                        eprintln!("error: {e}");
-                    }
-                    ExitCode::from(match e {
-                        RunError::Input(_) => 2,
-                        RunError::Unstable(_) => 3,
-                        RunError::Io(_) => 1,
-                    })
-                }
-            }
+            ExitCode::from(e.exit_code())
         }
     }
 }

@@ -23,16 +23,28 @@ impl std::fmt::Display for IoError {
     }
 }
 
-fn h5err(path: &Path, e: hdf5::Error) -> IoError {
+pub(crate) fn h5err(path: &Path, e: hdf5::Error) -> IoError {
     IoError(format!("{}: {e}", path.display()))
 }
 
-/// One entry of the time series.
-#[derive(Clone, Debug)]
-struct Entry {
-    file: String,
-    time: f64,
-    particles: u64,
+/// One entry of the time series: a snapshot written at `step`, time `time`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Entry {
+    pub step: u64,
+    pub time: f64,
+    pub particles: u64,
+}
+
+impl Entry {
+    /// The snapshot's file name.
+    pub fn file(&self) -> String {
+        snapshot_name(self.step)
+    }
+}
+
+/// `particles_NNNNNN.h5`.
+pub fn snapshot_name(step: u64) -> String {
+    format!("particles_{step:06}.h5")
 }
 
 /// Writes snapshots and keeps the XDMF index of those written.
@@ -58,6 +70,17 @@ impl Snapshots {
         }
     }
 
+    /// The snapshots written so far (those of earlier runs too, after a restart).
+    pub fn entries(&self) -> &[Entry] {
+        &self.entries
+    }
+
+    /// Continue the time series of an earlier run (restart): these snapshots are listed
+    /// in the XDMF index before the ones written from now on.
+    pub fn set_entries(&mut self, entries: Vec<Entry>) {
+        self.entries = entries;
+    }
+
     /// Collective: write the particles of every rank at `step`, time `t`, then (rank 0)
     /// rewrite the XDMF index.
     pub fn write<const D: usize>(
@@ -67,8 +90,7 @@ impl Snapshots {
         step: u64,
         t: f64,
     ) -> Result<(), IoError> {
-        let name = format!("particles_{step:06}.h5");
-        let path = self.out.join(&name);
+        let path = self.out.join(snapshot_name(step));
         let n = parts.len() as u64;
         let offset = comm.exclusive_scan_u64(n);
         let mut tot = [n];
@@ -137,13 +159,23 @@ impl Snapshots {
             }
         }
         drop(file);
+        // A restarted run may write a step again: replace its entry.
+        self.entries.retain(|e| e.step < step);
         self.entries.push(Entry {
-            file: name,
+            step,
             time: t,
             particles: total,
         });
-        if comm.rank() == 0 {
-            self.write_xdmf()?;
+        let xdmf = if comm.rank() == 0 {
+            self.write_xdmf().err()
+        } else {
+            None
+        };
+        // Rank 0 alone writes the index: let every rank know if that failed.
+        if comm.any(xdmf.is_some()) {
+            return Err(
+                xdmf.unwrap_or_else(|| IoError("writing particles.xmf failed on rank 0".into()))
+            );
         }
         Ok(())
     }
@@ -159,19 +191,19 @@ impl Snapshots {
             let item = |path: &str, cols: usize| {
                 format!(
                     "<DataItem Dimensions=\"{n} {cols}\" NumberType=\"Float\" Precision=\"8\" Format=\"HDF\">{}:/{path}</DataItem>",
-                    e.file
+                    e.file()
                 )
             };
             x += &format!(
                 "   <Grid Name=\"{}\" GridType=\"Uniform\">\n    <Time Value=\"{:.17e}\"/>\n    <Topology TopologyType=\"Polyvertex\" NumberOfElements=\"{n}\" NodesPerElement=\"1\"/>\n    <Geometry GeometryType=\"XYZ\">{}</Geometry>\n",
-                e.file,
+                e.file(),
                 e.time,
                 item("position", 3)
             );
             for (name, ty) in [("id", "Int"), ("rank", "Int"), ("material", "Int")] {
                 x += &format!(
                     "    <Attribute Name=\"{name}\" AttributeType=\"Scalar\" Center=\"Node\"><DataItem Dimensions=\"{n}\" NumberType=\"{ty}\" Precision=\"8\" Format=\"HDF\">{}:/{name}</DataItem></Attribute>\n",
-                    e.file
+                    e.file()
                 );
             }
             for f in &self.fields {
@@ -206,7 +238,7 @@ fn pad3<'a>(buf: &mut Vec<f64>, rows: impl Iterator<Item = &'a [f64]>, d: usize)
 }
 
 /// Create a file: with the MPI-IO driver on an MPI communicator, plainly on one process.
-fn create(comm: &dyn Communicator, path: &Path) -> Result<hdf5::File, IoError> {
+pub(crate) fn create(comm: &dyn Communicator, path: &Path) -> Result<hdf5::File, IoError> {
     let r = match comm.raw_mpi() {
         Some(raw) => hdf5::File::with_options()
             .with_fapl(|p| p.mpio(raw, None))
@@ -222,30 +254,61 @@ fn create(comm: &dyn Communicator, path: &Path) -> Result<hdf5::File, IoError> {
     r.map_err(|e| h5err(path, e))
 }
 
-struct Writer<'a> {
-    file: &'a hdf5::File,
-    path: &'a Path,
-    offset: u64,
-    count: u64,
-    total: u64,
+/// Collective writes of this rank's rows `[offset, offset + count)` of datasets with
+/// `total` rows.
+pub(crate) struct Writer<'a> {
+    pub file: &'a hdf5::File,
+    pub path: &'a Path,
+    pub offset: u64,
+    pub count: u64,
+    pub total: u64,
 }
 
 impl Writer<'_> {
-    fn floats(&self, name: &str, data: &[f64], cols: usize) -> Result<(), IoError> {
+    pub fn u64s(&self, name: &str, data: &[u64]) -> Result<(), IoError> {
+        let ds = self
+            .file
+            .new_dataset::<u64>()
+            .shape([self.total as usize])
+            .create(name)
+            .map_err(|e| h5err(self.path, e))?;
+        assert_eq!(data.len() as u64, self.count);
+        self.raw_write(&ds, data.as_ptr().cast(), 0, *h5t::H5T_NATIVE_UINT64)
+            .map_err(|m| IoError(format!("{}: writing {name}: {m}", self.path.display())))
+    }
+
+    pub fn bytes(&self, name: &str, data: &[u8]) -> Result<(), IoError> {
+        let ds = self
+            .file
+            .new_dataset::<u8>()
+            .shape([self.total as usize])
+            .create(name)
+            .map_err(|e| h5err(self.path, e))?;
+        assert_eq!(data.len() as u64, self.count);
+        self.raw_write(&ds, data.as_ptr().cast(), 0, *h5t::H5T_NATIVE_UINT8)
+            .map_err(|m| IoError(format!("{}: writing {name}: {m}", self.path.display())))
+    }
+
+    /// A dataset of `total × cols` values, or of `total` values if `cols == 0`.
+    pub fn floats(&self, name: &str, data: &[f64], cols: usize) -> Result<(), IoError> {
+        let shape = if cols == 0 {
+            vec![self.total as usize]
+        } else {
+            vec![self.total as usize, cols]
+        };
         let ds = self
             .file
             .new_dataset::<f64>()
-            .shape([self.total as usize, cols])
+            .shape(shape)
             .create(name)
             .map_err(|e| h5err(self.path, e))?;
-        // SAFETY: `data` holds `count × cols` f64 (asserted), the selection below covers
-        // exactly that many elements, and H5T_NATIVE_DOUBLE matches f64.
-        assert_eq!(data.len() as u64, self.count * cols as u64);
+        // The selection of `raw_write` covers `count × max(cols, 1)` elements.
+        assert_eq!(data.len() as u64, self.count * cols.max(1) as u64);
         self.raw_write(&ds, data.as_ptr().cast(), cols, *h5t::H5T_NATIVE_DOUBLE)
             .map_err(|m| IoError(format!("{}: writing {name}: {m}", self.path.display())))
     }
 
-    fn ints(&self, name: &str, data: &[i64]) -> Result<(), IoError> {
+    pub fn ints(&self, name: &str, data: &[i64]) -> Result<(), IoError> {
         let ds = self
             .file
             .new_dataset::<i64>()

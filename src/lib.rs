@@ -7,6 +7,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod benchmark;
+pub mod checkpoint;
 pub mod cli;
 pub mod gradient;
 pub mod io;
@@ -16,6 +17,7 @@ pub mod particles;
 pub mod run;
 pub mod scene;
 pub mod shape;
+pub mod signals;
 pub mod solver;
 pub mod sweep;
 pub mod tensor;

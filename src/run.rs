@@ -1,37 +1,63 @@
-//! A whole run: set-up, the step loop with progress and diagnostics, and the files it
-//! leaves in the output folder (`summary.json`, `history.csv`).
+//! A whole run: set-up (fresh or from a checkpoint), the step loop with progress,
+//! diagnostics, snapshots, checkpoints and stop signals, and the files it leaves in
+//! the output folder (`summary.json`, `history.csv`).
 
+use crate::checkpoint::{self, RunState};
 use crate::io::Snapshots;
-use crate::scene::{Face, Scene};
+use crate::scene::{CheckpointEvery, Face, Scene};
+use crate::signals;
 use crate::solver::{Failure, Solver, Totals};
 use decomposition::{Communicator, Layout};
 use serde::Serialize;
 use std::io::{IsTerminal, Write};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct RunOptions {
     pub out: PathBuf,
     pub quiet: bool,
     pub threads: usize,
+    /// The scene file's text, stored verbatim in checkpoints (`None`: the scene is
+    /// serialised again, which keeps its content but not its comments and layout).
+    pub scene_text: Option<String>,
+    /// Continue from this checkpoint; the scene must be the one it stores.
+    pub restart: Option<PathBuf>,
 }
 
 /// How a run ended, for the exit status.
 #[derive(Debug)]
 pub enum RunError {
-    /// Bad input discovered at set-up (exit 2).
+    /// Bad input discovered at set-up, including an unusable checkpoint (exit 2).
     Input(String),
     /// The run became unstable; the summary says so (exit 3).
     Unstable(String),
+    /// Stopped by SIGTERM or SIGINT after writing a checkpoint; the summary says
+    /// "interrupted" (exit 4).
+    Interrupted(String),
     /// Files could not be written (exit 1).
     Io(String),
+}
+
+impl RunError {
+    /// The process exit status for this outcome.
+    pub fn exit_code(&self) -> u8 {
+        match self {
+            RunError::Input(_) => 2,
+            RunError::Unstable(_) => 3,
+            RunError::Interrupted(_) => 4,
+            RunError::Io(_) => 1,
+        }
+    }
 }
 
 impl std::fmt::Display for RunError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            RunError::Input(m) | RunError::Unstable(m) | RunError::Io(m) => f.write_str(m),
+            RunError::Input(m)
+            | RunError::Unstable(m)
+            | RunError::Interrupted(m)
+            | RunError::Io(m) => f.write_str(m),
         }
     }
 }
@@ -77,6 +103,14 @@ pub struct RankLoad {
     pub max: u64,
 }
 
+/// Where a restarted run began.
+#[derive(Serialize, Debug, Clone)]
+pub struct RestartSummary {
+    pub checkpoint: String,
+    pub step: u64,
+    pub time: f64,
+}
+
 #[derive(Serialize, Debug, Clone)]
 pub struct Summary {
     pub scene: String,
@@ -84,6 +118,7 @@ pub struct Summary {
     pub gradient: String,
     pub update: String,
     pub flip: f64,
+    /// `completed`, `unstable` or `interrupted`.
     pub status: String,
     pub message: Option<String>,
     pub ranks: usize,
@@ -95,13 +130,30 @@ pub struct Summary {
     pub steps: u64,
     pub time: f64,
     pub end_time: f64,
+    /// Wall time of this run (since its restart, if it was restarted).
     pub wall_seconds: f64,
+    /// Over the steps of this run.
     pub particle_updates_per_second: f64,
     pub mass: MassSummary,
     pub momentum: MomentumSummary,
     pub energy: EnergySummary,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<ErrorSummary>,
+    /// The newest checkpoint (written by this run, or the one it restarted from): what
+    /// to restart from after an interruption or instability.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub last_checkpoint: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub restarted_from: Option<RestartSummary>,
+    /// Wall time spent writing files, part of `wall_seconds`.
+    pub output_seconds: OutputSeconds,
+}
+
+/// Wall time (rank 0's clock) spent writing snapshots and checkpoints.
+#[derive(Serialize, Debug, Clone, Default)]
+pub struct OutputSeconds {
+    pub snapshots: f64,
+    pub checkpoints: f64,
 }
 
 /// Run a validated scene on `comm`'s ranks. Returns the summary (written on rank 0).
@@ -125,46 +177,109 @@ fn layout_for<const D: usize>(scene: &Scene, ranks: usize) -> Result<Layout<D>, 
 /// Fewest steps between two history samples.
 const DIAG_MIN_STEPS: u64 = 10;
 
+/// `history.csv` on rank 0: the file, and its whole text so far (checkpoints carry it,
+/// so that a restart continues the same file). Write errors are kept, not returned, so
+/// that rank 0 does not leave the others waiting in a collective; the run loop agrees
+/// on them.
 struct History {
     file: Option<std::io::BufWriter<std::fs::File>>,
+    path: PathBuf,
+    text: Vec<u8>,
+    error: Option<String>,
 }
 
 impl History {
-    fn row<const D: usize>(
-        &mut self,
-        s: &Solver<D>,
-        tot: &Totals,
-        err: Option<(f64, f64)>,
-    ) -> std::io::Result<()> {
+    fn write(&mut self, s: &str) {
         if let Some(f) = &mut self.file {
-            write!(
-                f,
-                "{},{:.17e},{:.17e},{:.17e},{:.17e},{:.17e},{:.17e}",
-                s.step,
-                s.t,
-                s.dt,
-                tot.kinetic,
-                tot.strain,
-                tot.external_work,
-                tot.total_energy()
-            )?;
-            for a in 0..D {
-                write!(f, ",{:.17e}", tot.momentum[a])?;
+            self.text.extend_from_slice(s.as_bytes());
+            if let Err(e) = f.write_all(s.as_bytes()) {
+                self.error
+                    .get_or_insert(format!("{}: {e}", self.path.display()));
             }
-            for a in 0..D {
-                write!(f, ",{:.17e}", tot.momentum[a] / tot.mass)?;
-            }
-            if let Some((u, v)) = err {
-                write!(f, ",{u:.17e},{v:.17e}")?;
-            }
-            writeln!(f)?;
         }
-        Ok(())
+    }
+
+    fn flush(&mut self) {
+        if let Some(f) = &mut self.file {
+            if let Err(e) = f.flush() {
+                self.error
+                    .get_or_insert(format!("{}: {e}", self.path.display()));
+            }
+        }
+    }
+
+    fn row<const D: usize>(&mut self, s: &Solver<D>, tot: &Totals, err: Option<(f64, f64)>) {
+        if self.file.is_none() {
+            return;
+        }
+        use std::fmt::Write as _;
+        let mut l = String::new();
+        let _ = write!(
+            l,
+            "{},{:.17e},{:.17e},{:.17e},{:.17e},{:.17e},{:.17e}",
+            s.step,
+            s.t,
+            s.dt,
+            tot.kinetic,
+            tot.strain,
+            tot.external_work,
+            tot.total_energy()
+        );
+        for a in 0..D {
+            let _ = write!(l, ",{:.17e}", tot.momentum[a]);
+        }
+        for a in 0..D {
+            let _ = write!(l, ",{:.17e}", tot.momentum[a] / tot.mass);
+        }
+        if let Some((u, v)) = err {
+            let _ = write!(l, ",{u:.17e},{v:.17e}");
+        }
+        l.push('\n');
+        self.write(&l);
     }
 }
 
-fn io_err(path: &Path, e: std::io::Error) -> RunError {
-    RunError::Io(format!("{}: {e}", path.display()))
+/// The solver and, after a restart, the run state and where it came from.
+type SetUp<'c, const D: usize> = (Solver<'c, D>, Option<RunState>, Option<RestartSummary>);
+
+/// A fresh solver, or one continuing from `opts.restart` (every rank agrees on errors).
+fn set_up<'c, const D: usize>(
+    scene: &Scene,
+    comm: &'c dyn Communicator,
+    layout: &Layout<D>,
+    opts: &RunOptions,
+) -> Result<SetUp<'c, D>, RunError> {
+    let Some(path) = &opts.restart else {
+        return Ok((Solver::new(scene, comm, layout.clone()), None, None));
+    };
+    let geom = Solver::<D>::geometry(scene);
+    let carries = Solver::<D>::carries_for(scene);
+    let r = checkpoint::read_header(path).and_then(|h| {
+        checkpoint::read::<D>(&h, comm.rank(), layout, &geom, carries).map(|x| (h, x))
+    });
+    if let Some(m) = checkpoint::agree(comm, r.as_ref().err().cloned()) {
+        return Err(RunError::Input(m));
+    }
+    let (header, restored) = r.expect("agreed: no rank failed");
+    let mut count = [restored.parts.len() as u64];
+    comm.sum_u64(&mut count);
+    if count[0] != header.particles {
+        return Err(RunError::Input(format!(
+            "{}: damaged checkpoint: {} of its {} particles lie in this run's cells",
+            path.display(),
+            count[0],
+            header.particles
+        )));
+    }
+    let mut solver = Solver::with_particles(scene, comm, layout.clone(), restored.parts);
+    let s = restored.solver;
+    solver.restore(s.t, s.step, s.dt, s.external_work, s.max_speed);
+    let info = RestartSummary {
+        checkpoint: path.display().to_string(),
+        step: s.step,
+        time: s.t,
+    };
+    Ok((solver, Some(restored.run), Some(info)))
 }
 
 fn run_dim<const D: usize>(
@@ -174,94 +289,221 @@ fn run_dim<const D: usize>(
 ) -> Result<Summary, RunError> {
     let layout = layout_for::<D>(scene, comm.size())?;
     let root = comm.rank() == 0;
-    if root {
-        std::fs::create_dir_all(&opts.out).map_err(|e| io_err(&opts.out, e))?;
+    let made = if root {
+        std::fs::create_dir_all(&opts.out)
+            .err()
+            .map(|e| format!("{}: {e}", opts.out.display()))
+    } else {
+        None
+    };
+    if let Some(m) = checkpoint::agree(comm, made) {
+        return Err(RunError::Io(m));
     }
-    let mut solver = Solver::<D>::new(scene, comm, layout.clone());
+    let scene_text = match &opts.scene_text {
+        Some(t) => t.clone(),
+        None => toml::to_string(scene).unwrap_or_default(),
+    };
+    let schedule = scene.checkpoint.as_ref().map(|c| c.schedule());
+    let keep = scene.checkpoint.as_ref().map_or(2, |c| c.keep);
+    let (mut solver, restored, restarted_from) = set_up::<D>(scene, comm, &layout, opts)?;
     let has_bench = solver.benchmark.is_some();
-    let mut history = History { file: None };
+    let diag_dt = scene.time.end / 1000.0;
+
+    // history.csv: a new file, or the restored one up to the checkpoint.
+    let hpath = opts.out.join("history.csv");
+    let mut history = History {
+        file: None,
+        path: hpath.clone(),
+        text: Vec::new(),
+        error: None,
+    };
     if root {
-        let path = opts.out.join("history.csv");
-        let f = std::fs::File::create(&path).map_err(|e| io_err(&path, e))?;
-        let mut w = std::io::BufWriter::new(f);
-        let mut head = String::from("step,time,dt,kinetic,strain,external_work,total");
-        for a in 0..D {
-            head += &format!(",momentum_{a}");
+        match std::fs::File::create(&hpath) {
+            Ok(f) => history.file = Some(std::io::BufWriter::new(f)),
+            Err(e) => history.error = Some(format!("{}: {e}", hpath.display())),
         }
-        for a in 0..D {
-            head += &format!(",velocity_cm_{a}");
+        match &restored {
+            Some(st) => {
+                let text = String::from_utf8_lossy(&st.history).into_owned();
+                history.write(&text);
+            }
+            None => {
+                let mut head = String::from("step,time,dt,kinetic,strain,external_work,total");
+                for a in 0..D {
+                    head += &format!(",momentum_{a}");
+                }
+                for a in 0..D {
+                    head += &format!(",velocity_cm_{a}");
+                }
+                if has_bench {
+                    head += ",displacement_l2,velocity_l2";
+                }
+                history.write(&(head + "\n"));
+            }
         }
-        if has_bench {
-            head += ",displacement_l2,velocity_l2";
-        }
-        writeln!(w, "{head}").map_err(|e| io_err(&path, e))?;
-        history.file = Some(w);
     }
+    if let Some(m) = checkpoint::agree(comm, history.error.clone()) {
+        return Err(RunError::Io(m));
+    }
+
     let mut snaps = scene
         .output
         .as_ref()
         .map(|o| (Snapshots::new(&opts.out, &o.fields), o.every));
-    let mut next_out = f64::INFINITY;
-    if let Some((sn, every)) = &mut snaps {
-        sn.write(comm, &solver.parts, 0, 0.0)
-            .map_err(|e| RunError::Io(e.to_string()))?;
-        next_out = *every;
-    }
-    let tot0 = solver.totals();
-    let err0 = solver.errors();
-    history
-        .row(&solver, &tot0, err0)
-        .map_err(|e| io_err(&opts.out, e))?;
-    let e0 = tot0.total_energy();
-    let mut scale = e0.abs().max(tot0.kinetic + tot0.strain);
-    let mut max_dev = 0.0f64;
-    let mut max_err = err0.unwrap_or((0.0, 0.0));
-    let mut last_err = err0;
-    let diag_dt = scene.time.end / 1000.0;
-    let mut next_diag = diag_dt;
-    let mut last_diag_step = 0u64;
     let start = Instant::now();
-    let mut progress = Progress::new(root && !opts.quiet);
+    let mut output_seconds = OutputSeconds::default();
+    let mut st = match restored {
+        Some(mut st) => {
+            if let Some((sn, _)) = &mut snaps {
+                // Keep the earlier snapshots that are in this output folder (rank 0
+                // decides, every rank keeps the same list).
+                let mask: Vec<u8> = st
+                    .snapshots
+                    .iter()
+                    .map(|e| u8::from(root && opts.out.join(e.file()).is_file()))
+                    .collect();
+                let mask = comm.broadcast_bytes(&mask);
+                let mut k = 0;
+                st.snapshots.retain(|_| {
+                    k += 1;
+                    mask[k - 1] == 1
+                });
+                sn.set_entries(st.snapshots.clone());
+            }
+            st
+        }
+        None => {
+            let mut next_snapshot = f64::INFINITY;
+            if let Some((sn, every)) = &mut snaps {
+                sn.write(comm, &solver.parts, 0, 0.0)
+                    .map_err(|e| RunError::Io(e.to_string()))?;
+                next_snapshot = *every;
+                output_seconds.snapshots += start.elapsed().as_secs_f64();
+            }
+            let tot0 = solver.totals();
+            let err0 = solver.errors();
+            history.row(&solver, &tot0, err0);
+            RunState {
+                energy_scale: tot0.total_energy().abs().max(tot0.kinetic + tot0.strain),
+                max_energy_dev: 0.0,
+                max_err: err0.unwrap_or((0.0, 0.0)),
+                last_err: err0,
+                next_history: diag_dt,
+                last_history_step: 0,
+                next_snapshot,
+                next_checkpoint: match schedule {
+                    Some(CheckpointEvery::Time(t)) => t,
+                    _ => f64::INFINITY,
+                },
+                snapshots: Vec::new(),
+                history: Vec::new(),
+                last: tot0.clone(),
+                initial: tot0,
+            }
+        }
+    };
+    let e0 = st.initial.total_energy();
+    let (t_start, step_start) = (solver.t, solver.step);
+    let mut progress = Progress::new(root && !opts.quiet, t_start);
     let mut failure: Option<Failure> = None;
-    let mut last = tot0.clone();
+    let mut stopped_by = 0i32;
+    let mut last_checkpoint: Option<PathBuf> = opts.restart.clone();
+    let mut checkpoint_clock = Instant::now();
     while !solver.done() {
-        if let Err(f) = solver.advance() {
+        // Requests every rank must agree on travel with the step's own reduction: a
+        // stop signal (any rank), a wall-clock checkpoint (rank 0's clock), a failed
+        // history write (rank 0).
+        let wall_due = root
+            && matches!(schedule, Some(CheckpointEvery::Seconds(s))
+                if checkpoint_clock.elapsed().as_secs_f64() >= s);
+        let mut flags = [
+            f64::from(signals::pending()),
+            f64::from(u8::from(wall_due)),
+            f64::from(u8::from(history.error.is_some())),
+        ];
+        if let Err(f) = solver.advance_with(&mut flags) {
             failure = Some(f);
             break;
         }
+        if flags[2] > 0.0 {
+            return Err(RunError::Io(history.error.take().unwrap_or_else(|| {
+                format!("{}: writing failed on rank 0", hpath.display())
+            })));
+        }
         if has_bench {
-            last_err = solver.errors();
-            if let Some((u, v)) = last_err {
-                max_err.0 = max_err.0.max(u);
-                max_err.1 = max_err.1.max(v);
+            st.last_err = solver.errors();
+            if let Some((u, v)) = st.last_err {
+                st.max_err.0 = st.max_err.0.max(u);
+                st.max_err.1 = st.max_err.1.max(v);
             }
         }
         // A history sample every thousandth of the run, but no closer than
         // DIAG_MIN_STEPS steps: each costs a pass over the particles.
-        if (solver.t >= next_diag && solver.step >= last_diag_step + DIAG_MIN_STEPS) || solver.done() {
-            next_diag = solver.t + diag_dt;
-            last_diag_step = solver.step;
-            last = solver.totals();
-            scale = scale.max(last.kinetic + last.strain);
-            max_dev = max_dev.max((last.total_energy() - e0).abs());
-            history
-                .row(&solver, &last, last_err)
-                .map_err(|e| io_err(&opts.out, e))?;
+        if (solver.t >= st.next_history && solver.step >= st.last_history_step + DIAG_MIN_STEPS)
+            || solver.done()
+        {
+            st.next_history = solver.t + diag_dt;
+            st.last_history_step = solver.step;
+            st.last = solver.totals();
+            st.energy_scale = st.energy_scale.max(st.last.kinetic + st.last.strain);
+            st.max_energy_dev = st.max_energy_dev.max((st.last.total_energy() - e0).abs());
+            history.row(&solver, &st.last, st.last_err);
         }
         if let Some((sn, every)) = &mut snaps {
             // Write when an output time is reached (to within a thousandth of a step).
-            if solver.t >= next_out - 1e-3 * solver.dt || solver.done() {
+            if solver.t >= st.next_snapshot - 1e-3 * solver.dt || solver.done() {
+                let t0 = Instant::now();
                 sn.write(comm, &solver.parts, solver.step, solver.t)
                     .map_err(|e| RunError::Io(e.to_string()))?;
-                while next_out <= solver.t + 1e-3 * solver.dt {
-                    next_out += *every;
+                output_seconds.snapshots += t0.elapsed().as_secs_f64();
+                while st.next_snapshot <= solver.t + 1e-3 * solver.dt {
+                    st.next_snapshot += *every;
                 }
             }
         }
+        let signal = flags[0] as i32;
+        let due = signal != 0
+            || match schedule {
+                Some(CheckpointEvery::Time(_)) => solver.t >= st.next_checkpoint - 1e-3 * solver.dt,
+                Some(CheckpointEvery::Steps(n)) => solver.step.is_multiple_of(n),
+                Some(CheckpointEvery::Seconds(_)) => flags[1] > 0.0,
+                None => false,
+            };
+        // A finished run needs no checkpoint.
+        if due && !solver.done() {
+            if let Some(CheckpointEvery::Time(every)) = schedule {
+                while st.next_checkpoint <= solver.t + 1e-3 * solver.dt {
+                    st.next_checkpoint += every;
+                }
+            }
+            history.flush();
+            st.history = std::mem::take(&mut history.text);
+            st.snapshots = snaps
+                .as_ref()
+                .map_or_else(Vec::new, |(sn, _)| sn.entries().to_vec());
+            let t0 = Instant::now();
+            let written = checkpoint::write(comm, &opts.out, &solver, &st, &scene_text, keep);
+            output_seconds.checkpoints += t0.elapsed().as_secs_f64();
+            history.text = std::mem::take(&mut st.history);
+            last_checkpoint = Some(written.map_err(|e| RunError::Io(e.to_string()))?);
+            checkpoint_clock = Instant::now();
+        }
         progress.tick(&solver, start);
+        if signal != 0 && !solver.done() {
+            stopped_by = signal;
+            break;
+        }
+    }
+    let ckpt_note = match &last_checkpoint {
+        Some(p) => format!("the last checkpoint is {}", p.display()),
+        None => "no checkpoint was written".to_string(),
+    };
+    let mut last = st.last.clone();
+    let mut message = None;
+    if failure.is_some() || stopped_by != 0 {
+        last = solver.totals();
     }
     if failure.is_some() {
-        last = solver.totals();
         // Report the failing rank's own reason on rank 0, not "failed elsewhere".
         let mine = match &failure {
             Some(Failure::Elsewhere(_)) | None => String::new(),
@@ -271,6 +513,17 @@ fn run_dim<const D: usize>(
         if let Some(m) = all.iter().find(|m| !m.is_empty()) {
             failure = Some(Failure::Elsewhere(String::from_utf8_lossy(m).into_owned()));
         }
+        message = failure.as_ref().map(|f| format!("{f}; {ckpt_note}"));
+    } else if stopped_by != 0 {
+        message = Some(format!(
+            "stopped by {} after step {} (t = {:.6e}); {ckpt_note}: continue with `mpmcg run --restart {}`",
+            signals::name(stopped_by),
+            solver.step,
+            solver.t,
+            last_checkpoint
+                .as_ref()
+                .map_or_else(|| "CHECKPOINT".to_string(), |p| p.display().to_string())
+        ));
     }
     progress.finish();
     let wall = start.elapsed().as_secs_f64();
@@ -278,22 +531,23 @@ fn run_dim<const D: usize>(
     let mut hi = lo;
     comm.min_f64(&mut lo);
     comm.max_f64(&mut hi);
-    if let Some(f) = &mut history.file {
-        f.flush().map_err(|e| io_err(&opts.out, e))?;
-    }
+    history.flush();
+    let tot0 = &st.initial;
+    let status = if failure.is_some() {
+        "unstable"
+    } else if stopped_by != 0 {
+        "interrupted"
+    } else {
+        "completed"
+    };
     let summary = Summary {
         scene: scene.name.clone(),
         dim: D,
         gradient: scene.method.gradient.name().into(),
         update: scene.method.update.name().into(),
         flip: scene.method.flip,
-        status: if failure.is_some() {
-            "unstable"
-        } else {
-            "completed"
-        }
-        .into(),
-        message: failure.as_ref().map(|f| f.to_string()),
+        status: status.into(),
+        message: message.clone(),
         ranks: comm.size(),
         threads: opts.threads,
         blocks: layout.procs.to_vec(),
@@ -308,7 +562,8 @@ fn run_dim<const D: usize>(
         time: solver.t,
         end_time: scene.time.end,
         wall_seconds: wall,
-        particle_updates_per_second: tot0.particles as f64 * solver.step as f64 / wall.max(1e-9),
+        particle_updates_per_second: tot0.particles as f64 * (solver.step - step_start) as f64
+            / wall.max(1e-9),
         mass: MassSummary {
             initial: tot0.mass,
             r#final: last.mass,
@@ -320,29 +575,45 @@ fn run_dim<const D: usize>(
         energy: EnergySummary {
             initial_total: e0,
             final_total: last.total_energy(),
-            max_relative_drift: if scale > 0.0 { max_dev / scale } else { 0.0 },
+            max_relative_drift: if st.energy_scale > 0.0 {
+                st.max_energy_dev / st.energy_scale
+            } else {
+                0.0
+            },
             final_kinetic: last.kinetic,
             final_strain: last.strain,
             external_work: last.external_work,
         },
         error: has_bench.then(|| {
-            let (fu, fv) = last_err.unwrap_or((f64::NAN, f64::NAN));
+            let (fu, fv) = st.last_err.unwrap_or((f64::NAN, f64::NAN));
             ErrorSummary {
-                displacement_l2: max_err.0,
-                velocity_l2: max_err.1,
+                displacement_l2: st.max_err.0,
+                velocity_l2: st.max_err.1,
                 final_displacement_l2: fu,
                 final_velocity_l2: fv,
             }
         }),
+        last_checkpoint: last_checkpoint.as_ref().map(|p| p.display().to_string()),
+        restarted_from,
+        output_seconds,
     };
-    if root {
+    let mut written = history.error.take();
+    if root && written.is_none() {
         let path = opts.out.join("summary.json");
         let text = serde_json::to_string_pretty(&summary).expect("summary serialises");
-        std::fs::write(&path, text + "\n").map_err(|e| io_err(&path, e))?;
+        written = std::fs::write(&path, text + "\n")
+            .err()
+            .map(|e| format!("{}: {e}", path.display()));
     }
-    match failure {
-        Some(f) => Err(RunError::Unstable(f.to_string())),
-        None => Ok(summary),
+    // No rank leaves before rank 0 has written everything: mpirun ends the whole job
+    // as soon as one rank exits with a non-zero status.
+    if let Some(m) = checkpoint::agree(comm, written) {
+        return Err(RunError::Io(m));
+    }
+    match (failure, stopped_by) {
+        (Some(_), _) => Err(RunError::Unstable(message.unwrap_or_default())),
+        (None, 0) => Ok(summary),
+        (None, _) => Err(RunError::Interrupted(message.unwrap_or_default())),
     }
 }
 
@@ -352,14 +623,17 @@ struct Progress {
     on: bool,
     tty: bool,
     last: Option<Instant>,
+    /// Simulated time at the start of this run (a restart's ETA counts from there).
+    t0: f64,
 }
 
 impl Progress {
-    fn new(on: bool) -> Self {
+    fn new(on: bool, t0: f64) -> Self {
         Self {
             on,
             tty: std::io::stderr().is_terminal(),
             last: None,
+            t0,
         }
     }
 
@@ -379,7 +653,8 @@ impl Progress {
         self.last = Some(now);
         let el = now.duration_since(start).as_secs_f64();
         let frac = (s.t / s.end).clamp(1e-12, 1.0);
-        let eta = el * (1.0 - frac) / frac;
+        let run_frac = ((s.t - self.t0) / (s.end - self.t0)).clamp(1e-12, 1.0);
+        let eta = el * (1.0 - run_frac) / run_frac;
         let line = format!(
             "step {:>8}  t = {:.4e} / {:.4e} ({:5.1}%)  dt = {:.3e}  elapsed {}  ETA {}",
             s.step,

@@ -24,6 +24,7 @@ pub struct Scene {
     pub benchmark: Option<BenchmarkSpec>,
     pub gravity: Option<Gravity>,
     pub output: Option<Output>,
+    pub checkpoint: Option<CheckpointSpec>,
 }
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
@@ -269,6 +270,46 @@ pub struct Output {
     pub every: f64,
     #[serde(default)]
     pub fields: Vec<Field>,
+}
+
+/// When to write restart checkpoints: exactly one of `every` (simulated time),
+/// `every_steps` or `every_seconds` (wall clock), keeping the last `keep` files.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CheckpointSpec {
+    /// Simulated time between checkpoints.
+    pub every: Option<f64>,
+    /// Steps between checkpoints.
+    pub every_steps: Option<u64>,
+    /// Wall-clock seconds between checkpoints (rank 0's clock decides).
+    pub every_seconds: Option<f64>,
+    /// How many of the newest checkpoints to keep (older ones are deleted).
+    #[serde(default = "default_keep")]
+    pub keep: usize,
+}
+
+fn default_keep() -> usize {
+    2
+}
+
+/// The checkpoint schedule of a validated `[checkpoint]` table.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CheckpointEvery {
+    Time(f64),
+    Steps(u64),
+    Seconds(f64),
+}
+
+impl CheckpointSpec {
+    /// The one schedule a validated table holds.
+    pub fn schedule(&self) -> CheckpointEvery {
+        match (self.every, self.every_steps, self.every_seconds) {
+            (Some(t), _, _) => CheckpointEvery::Time(t),
+            (_, Some(n), _) => CheckpointEvery::Steps(n),
+            (_, _, Some(s)) => CheckpointEvery::Seconds(s),
+            _ => unreachable!("validated: one of every, every_steps, every_seconds"),
+        }
+    }
 }
 
 /// A scene error: file, key, position and what was expected.
@@ -941,6 +982,53 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
     }
     if let Some(o) = &s.output {
         positive("output.every", o.every)?;
+    }
+    if let Some(c) = &s.checkpoint {
+        let given: Vec<&str> = [
+            ("every", c.every.is_some()),
+            ("every_steps", c.every_steps.is_some()),
+            ("every_seconds", c.every_seconds.is_some()),
+        ]
+        .iter()
+        .filter(|k| k.1)
+        .map(|k| k.0)
+        .collect();
+        match given.len() {
+            0 => {
+                return Err((
+                    "checkpoint".into(),
+                    "give one of `every` (simulated time), `every_steps` or `every_seconds` (wall clock)".into(),
+                ))
+            }
+            1 => {}
+            _ => {
+                return Err((
+                    format!("checkpoint.{}", given[1]),
+                    format!(
+                        "give only one of `every`, `every_steps`, `every_seconds`, not both `{}` and `{}`",
+                        given[0], given[1]
+                    ),
+                ))
+            }
+        }
+        if let Some(t) = c.every {
+            positive("checkpoint.every", t)?;
+        }
+        if c.every_steps == Some(0) {
+            return Err((
+                "checkpoint.every_steps".into(),
+                "must be >= 1, got 0".into(),
+            ));
+        }
+        if let Some(t) = c.every_seconds {
+            positive("checkpoint.every_seconds", t)?;
+        }
+        if c.keep == 0 {
+            return Err((
+                "checkpoint.keep".into(),
+                "must be >= 1 (the newest checkpoint is always kept), got 0".into(),
+            ));
+        }
     }
     Ok(())
 }

@@ -164,17 +164,9 @@ pub struct Solver<'c, const D: usize> {
 const SORT_EVERY: u64 = 20;
 
 impl<'c, const D: usize> Solver<'c, D> {
+    /// A solver at t = 0 with the scene's particles seeded in this rank's block.
     pub fn new(scene: &Scene, comm: &'c dyn Communicator, layout: Layout<D>) -> Self {
-        let g = &scene.grid;
-        let faces: [[Face; 2]; D] =
-            std::array::from_fn(|a| [g.boundary.face(a, false), g.boundary.face(a, true)]);
-        let periodic: [bool; D] = std::array::from_fn(|a| faces[a][0] == Face::Periodic);
-        let geom = Geom::new(
-            std::array::from_fn(|a| g.lower[a]),
-            std::array::from_fn(|a| g.upper[a]),
-            std::array::from_fn(|a| g.cells[a]),
-            periodic,
-        );
+        let geom = Self::geometry(scene);
         let block = Block::new(&layout, comm.rank());
         let materials: Vec<Material> = scene.materials.iter().map(Material::from_spec).collect();
         let benchmark = Benchmark::<D>::new(scene);
@@ -186,11 +178,50 @@ impl<'c, const D: usize> Solver<'c, D> {
             block.cell_lo,
             block.cell_hi,
         );
-        let carries = Carries {
-            def_grad: materials.iter().any(Material::needs_def_grad),
-            x0: benchmark.is_some(),
+        Self::with_particles(scene, comm, layout, parts)
+    }
+
+    /// The grid geometry of a scene.
+    pub fn geometry(scene: &Scene) -> Geom<D> {
+        let g = &scene.grid;
+        let periodic: [bool; D] =
+            std::array::from_fn(|a| g.boundary.face(a, false) == Face::Periodic);
+        Geom::new(
+            std::array::from_fn(|a| g.lower[a]),
+            std::array::from_fn(|a| g.upper[a]),
+            std::array::from_fn(|a| g.cells[a]),
+            periodic,
+        )
+    }
+
+    /// The optional particle arrays a scene needs.
+    pub fn carries_for(scene: &Scene) -> Carries {
+        Carries {
+            def_grad: scene
+                .materials
+                .iter()
+                .any(|m| Material::from_spec(m).needs_def_grad()),
+            x0: scene.benchmark.is_some(),
             half: scene.method.gradient == Gradient::Gimp,
-        };
+        }
+    }
+
+    /// A solver at t = 0 on the given particles of this rank's block (they must lie in
+    /// its cells and carry the arrays of [`Solver::carries_for`]).
+    pub fn with_particles(
+        scene: &Scene,
+        comm: &'c dyn Communicator,
+        layout: Layout<D>,
+        parts: Particles<D>,
+    ) -> Self {
+        let g = &scene.grid;
+        let faces: [[Face; 2]; D] =
+            std::array::from_fn(|a| [g.boundary.face(a, false), g.boundary.face(a, true)]);
+        let geom = Self::geometry(scene);
+        let block = Block::new(&layout, comm.rank());
+        let materials: Vec<Material> = scene.materials.iter().map(Material::from_spec).collect();
+        let benchmark = Benchmark::<D>::new(scene);
+        let carries = Self::carries_for(scene);
         let migrator = Migrator::new(&layout, &block, Particles::<D>::record_width(carries));
         let gradient = scene.method.gradient;
         let alpha = match gradient {
@@ -536,8 +567,39 @@ impl<'c, const D: usize> Solver<'c, D> {
         }
     }
 
+    /// What a restart needs besides the particles: this rank's accumulated external
+    /// work and its fastest signal speed after the last step.
+    pub fn local_state(&self) -> (f64, f64) {
+        (self.external_work, self.max_speed)
+    }
+
+    /// Continue from a checkpoint: time, step, last step size, this rank's share of the
+    /// external work and the fastest signal speed the next step size derives from
+    /// (any value that is the maximum over ranks gives the same step).
+    pub fn restore(&mut self, t: f64, step: u64, dt: f64, external_work: f64, max_speed: f64) {
+        self.t = t;
+        self.step = step;
+        self.dt = dt;
+        self.external_work = external_work;
+        self.max_speed = max_speed;
+    }
+
+    /// Which optional particle arrays this solver's particles carry.
+    pub fn carries(&self) -> Carries {
+        self.carries
+    }
+
     /// Advance one step. On failure the particle state is that of the failed step.
     pub fn advance(&mut self) -> Result<(), Failure> {
+        self.advance_with(&mut [])
+    }
+
+    /// Advance one step and agree on up to three caller flags (values >= 0, e.g. "a
+    /// signal arrived", "a checkpoint is due"): on success each holds its maximum over
+    /// all ranks. They travel in the reduction every step makes anyway, so agreeing
+    /// costs no extra message.
+    pub fn advance_with(&mut self, flags: &mut [f64]) -> Result<(), Failure> {
+        assert!(flags.len() <= 3, "at most three flags per step");
         let dt = self.choose_dt();
         self.dt = dt;
         let mut ok = true;
@@ -588,8 +650,12 @@ impl<'c, const D: usize> Solver<'c, D> {
         }
         self.t += dt;
         self.step += 1;
-        let bad = self.comm.any(!ok);
-        if bad {
+        let mut agree = [0.0; 4];
+        agree[0] = if ok { 0.0 } else { 1.0 };
+        agree[1..1 + flags.len()].copy_from_slice(flags);
+        self.comm.max_f64(&mut agree[..1 + flags.len()]);
+        flags.copy_from_slice(&agree[1..1 + flags.len()]);
+        if agree[0] > 0.0 {
             return Err(Failure::Unstable(format!(
                 "non-finite or inverted (J <= 0) particle state at step {}, t = {:.6e}",
                 self.step, self.t

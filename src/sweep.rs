@@ -251,9 +251,10 @@ fn run_in_process(scene: &Scene, dir: &Path, threads: usize) -> Result<Failure, 
         out: dir.to_path_buf(),
         quiet: true,
         threads,
+        ..RunOptions::default()
     };
     match run::run(scene, &SerialComm, &opts) {
-        Ok(_) | Err(RunError::Unstable(_)) => Ok(None),
+        Ok(_) | Err(RunError::Unstable(_) | RunError::Interrupted(_)) => Ok(None),
         Err(RunError::Input(m)) => Ok(Some(m)),
         Err(RunError::Io(m)) => Err(SweepError::Io(m)),
     }
@@ -319,9 +320,9 @@ fn run_mpirun(
         out.status
     );
     std::fs::write(&log, text).map_err(|e| io(&log, e))?;
-    // 0: completed, 3: unstable; either way the run wrote its summary.
+    // 0: completed, 3: unstable, 4: interrupted; each time the run wrote its summary.
     match out.status.code() {
-        Some(0 | 3) => Ok(None),
+        Some(0 | 3 | 4) => Ok(None),
         _ => {
             let err = String::from_utf8_lossy(&out.stderr);
             Ok(Some(format!(

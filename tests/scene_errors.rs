@@ -834,3 +834,36 @@ fn deeply_nested_values_do_not_overflow_the_stack() {
     let dotted = format!("{}{} = 1\n", BAR, vec!["d"; n].join("."));
     check("deep_dotted", dotted).no_key().says("not valid TOML");
 }
+
+#[test]
+fn checkpoint_table() {
+    let with = |name: &str, table: &str| check(name, format!("{BAR}\n[checkpoint]\n{table}\n"));
+    with("checkpoint_none", "keep = 3")
+        .key("checkpoint")
+        .says("give one of `every` (simulated time), `every_steps` or `every_seconds`");
+    with("checkpoint_two", "every = 1.0\nevery_seconds = 60.0")
+        .key("checkpoint.every_seconds")
+        .at("60.0")
+        .says("give only one of");
+    with("checkpoint_every_zero", "every = 0.0")
+        .key("checkpoint.every")
+        .at("0.0")
+        .says("must be > 0");
+    with("checkpoint_steps_zero", "every_steps = 0")
+        .key("checkpoint.every_steps")
+        .says("must be >= 1");
+    with("checkpoint_steps_negative", "every_steps = -5")
+        .key("checkpoint.every_steps")
+        .at("-5")
+        .says("non-negative integer");
+    with("checkpoint_seconds_nan", "every_seconds = nan")
+        .key("checkpoint.every_seconds")
+        .says("finite");
+    with("checkpoint_keep_zero", "every_steps = 10\nkeep = 0")
+        .key("checkpoint.keep")
+        .says("must be >= 1");
+    with("checkpoint_unknown", "every_steps = 10\nkeep_last = 3")
+        .key("checkpoint.keep_last")
+        .at("keep_last")
+        .says("unknown key `keep_last`");
+}

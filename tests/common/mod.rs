@@ -23,6 +23,7 @@ pub fn run_text(text: &str, tag: &str) -> (Summary, PathBuf) {
         out: out.clone(),
         quiet: true,
         threads: 1,
+        ..RunOptions::default()
     };
     let s =
         run(&scene, &decomposition::SerialComm, &opts).unwrap_or_else(|e| panic!("run {tag}: {e}"));

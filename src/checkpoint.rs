@@ -1,0 +1,761 @@
+//! Restart checkpoints: one HDF5 file per checkpoint, written by all ranks together
+//! with the collective machinery of [`crate::io`], holding everything a run needs to
+//! continue bit for bit: every particle array, time, step, step size, the solver's
+//! accumulated external work, the diagnostics of the run loop, the scene text and the
+//! layout.
+//!
+//! A checkpoint is written as `OUT/.checkpoint_NNNNNN.h5.tmp`, closed by every rank,
+//! flushed to disk and only then renamed to `OUT/checkpoint_NNNNNN.h5` by rank 0, so a
+//! crash during a write leaves the previous checkpoints intact. Then the oldest
+//! checkpoints beyond `keep` are deleted.
+//!
+//! # Format (version 1)
+//!
+//! Root attributes: `format` = "mpmcg-checkpoint", `version` = 1, `dim`, `step`,
+//! `time`, `dt`, `max_speed` (fastest signal speed over all ranks after the step; the
+//! next step size follows from it), `ranks` and `blocks` (the writer's process grid),
+//! `cells`, `particles` (total), `record_width`, `carries_def_grad`, `carries_x0`,
+//! `carries_half` (0/1), and the run loop's diagnostics: `initial_totals` and
+//! `last_totals` (mass, kinetic, strain, external work, momentum[dim]),
+//! `initial_particles`, `last_particles`, `energy_scale`, `max_energy_deviation`,
+//! `max_errors` (displacement, velocity), `has_last_errors`, `last_errors`,
+//! `next_history_time`, `last_history_step`, `next_snapshot_time`,
+//! `next_checkpoint_time`.
+//!
+//! Datasets: `particles` (N × `record_width` f64): one row per particle as
+//! [`Particles::pack`] lays it out (attribute `columns` names them), the rows of rank 0
+//! first, each rank's in its memory order; `rank_rows` (ranks, u64): rows per writer
+//! rank; `external_work` (ranks, f64): each writer rank's accumulated external work;
+//! `checksum` (ranks, u64): a hash of each writer rank's rows; `scene` (u8): the scene
+//! text verbatim; `history` (u8): `history.csv` up to this step; `snapshot_steps`,
+//! `snapshot_times`, `snapshot_particles`: the snapshots written so far.
+//!
+//! Restart on the writer's rank count reads each rank's own rows back in their order
+//! (bit-identical continuation). On another rank count every rank reads all rows in
+//! chunks and keeps those in its cells: O(N) reading per rank, fine for the sizes of a
+//! few nodes but not for thousands of ranks.
+
+use crate::io::{self, h5err, Entry, IoError, Writer};
+use crate::particles::{Carries, Particles};
+use crate::shape::Geom;
+use crate::solver::{Solver, Totals};
+use decomposition::{Communicator, Layout};
+use hdf5::types::VarLenUnicode;
+use std::path::{Path, PathBuf};
+
+/// The `format` attribute of every checkpoint.
+pub const FORMAT: &str = "mpmcg-checkpoint";
+/// The format version this build writes and reads.
+pub const VERSION: u64 = 1;
+
+/// Rows read at a time when every rank scans the whole file.
+const CHUNK_ROWS: usize = 1 << 16;
+
+/// `checkpoint_NNNNNN.h5`.
+pub fn checkpoint_name(step: u64) -> String {
+    format!("checkpoint_{step:06}.h5")
+}
+
+fn temp_name(step: u64) -> String {
+    format!(".checkpoint_{step:06}.h5.tmp")
+}
+
+/// The step of a file named `checkpoint_NNNNNN.h5`.
+pub fn step_of(name: &str) -> Option<u64> {
+    let n = name.strip_prefix("checkpoint_")?.strip_suffix(".h5")?;
+    if n.len() < 6 || !n.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    n.parse().ok()
+}
+
+/// The state of the run loop (`run.rs`) that a restart continues with.
+#[derive(Clone, Debug)]
+pub struct RunState {
+    /// Totals at t = 0.
+    pub initial: Totals,
+    /// Totals of the latest history sample.
+    pub last: Totals,
+    /// Energy drift normalisation, `max(|E(0)|, max_t (kinetic + strain))`.
+    pub energy_scale: f64,
+    /// `max_t |E(t) − E(0)|` over the history samples.
+    pub max_energy_dev: f64,
+    /// Maximum displacement and velocity error norms so far (benchmarks).
+    pub max_err: (f64, f64),
+    /// The latest error norms (benchmarks).
+    pub last_err: Option<(f64, f64)>,
+    pub next_history: f64,
+    pub last_history_step: u64,
+    pub next_snapshot: f64,
+    pub next_checkpoint: f64,
+    /// Snapshots written so far.
+    pub snapshots: Vec<Entry>,
+    /// `history.csv` so far (rank 0 only; empty elsewhere).
+    pub history: Vec<u8>,
+}
+
+/// Solver state besides the particles, for [`Solver::restore`].
+#[derive(Clone, Copy, Debug)]
+pub struct SolverState {
+    pub t: f64,
+    pub step: u64,
+    pub dt: f64,
+    /// This rank's share of the accumulated external work.
+    pub external_work: f64,
+    /// The fastest signal speed over all ranks.
+    pub max_speed: f64,
+}
+
+/// What every rank learns from a checkpoint's attributes before reading particles.
+#[derive(Clone, Debug)]
+pub struct Header {
+    pub path: PathBuf,
+    pub scene_text: String,
+    pub dim: usize,
+    pub step: u64,
+    pub time: f64,
+    pub ranks: usize,
+    pub blocks: Vec<usize>,
+    pub particles: u64,
+}
+
+fn totals_vec(t: &Totals) -> Vec<f64> {
+    let mut v = vec![t.mass, t.kinetic, t.strain, t.external_work];
+    v.extend_from_slice(&t.momentum);
+    v
+}
+
+fn totals_from(v: &[f64], particles: u64) -> Totals {
+    Totals {
+        mass: v[0],
+        kinetic: v[1],
+        strain: v[2],
+        external_work: v[3],
+        momentum: v[4..].to_vec(),
+        particles,
+    }
+}
+
+/// splitmix64: a well-mixed 64-bit hash step.
+fn mix(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// Hash contribution of row `k` (counted within its writer rank) of a record matrix.
+fn row_hash(k: u64, row: &[f64]) -> u64 {
+    let w = row.len() as u64;
+    let mut h = 0u64;
+    for (c, x) in row.iter().enumerate() {
+        h = h.wrapping_add(mix(x.to_bits() ^ mix(k * w + c as u64)));
+    }
+    h
+}
+
+/// Column names of a particle record, in [`Particles::pack`] order.
+fn columns(d: usize, c: Carries) -> String {
+    let mut cols: Vec<String> = Vec::new();
+    let vec = |cols: &mut Vec<String>, n: &str| (0..d).for_each(|a| cols.push(format!("{n}[{a}]")));
+    let mat = |cols: &mut Vec<String>, n: &str| {
+        // nalgebra stores matrices column-major.
+        for j in 0..d {
+            for i in 0..d {
+                cols.push(format!("{n}[{i}][{j}]"));
+            }
+        }
+    };
+    vec(&mut cols, "x");
+    vec(&mut cols, "v");
+    cols.extend(["mass", "vol", "vol0"].map(String::from));
+    mat(&mut cols, "stress");
+    cols.extend(["material", "id"].map(String::from));
+    if c.def_grad {
+        mat(&mut cols, "def_grad");
+    }
+    if c.x0 {
+        vec(&mut cols, "x0");
+    }
+    if c.half {
+        vec(&mut cols, "half");
+    }
+    cols.join(" ")
+}
+
+/// Collective: write a checkpoint of the solver and run state after the current step,
+/// then delete the oldest checkpoints beyond `keep`. Returns the checkpoint's path.
+/// Every rank returns the same result.
+pub fn write<const D: usize>(
+    comm: &dyn Communicator,
+    out: &Path,
+    solver: &Solver<D>,
+    run: &RunState,
+    scene_text: &str,
+    keep: usize,
+) -> Result<PathBuf, IoError> {
+    let step = solver.step;
+    let tmp = out.join(temp_name(step));
+    let path = out.join(checkpoint_name(step));
+    let root = comm.rank() == 0;
+    let (external_work, local_speed) = solver.local_state();
+    let mut speed = [local_speed];
+    comm.max_f64(&mut speed);
+    let parts = &solver.parts;
+    let n = parts.len() as u64;
+    let offset = comm.exclusive_scan_u64(n);
+    let mut sums = [n, if root { run.history.len() as u64 } else { 0 }];
+    comm.sum_u64(&mut sums);
+    let (total, history_len) = (sums[0], sums[1]);
+    let carries = solver.carries();
+    let width = Particles::<D>::record_width(carries);
+
+    let file = io::create(comm, &tmp)?;
+    let result = (|| -> Result<(), IoError> {
+        let e = |e: hdf5::Error| h5err(&tmp, e);
+        let format: VarLenUnicode = FORMAT.parse().expect("ASCII");
+        file.new_attr::<VarLenUnicode>()
+            .create("format")
+            .and_then(|a| a.write_scalar(&format))
+            .map_err(e)?;
+        let u = |name: &str, v: u64| {
+            file.new_attr::<u64>()
+                .create(name)
+                .and_then(|a| a.write_scalar(&v))
+                .map_err(e)
+        };
+        let f = |name: &str, v: f64| {
+            file.new_attr::<f64>()
+                .create(name)
+                .and_then(|a| a.write_scalar(&v))
+                .map_err(e)
+        };
+        let fs = |name: &str, v: &[f64]| {
+            file.new_attr_builder()
+                .with_data(v)
+                .create(name)
+                .map(|_| ())
+                .map_err(e)
+        };
+        let us = |name: &str, v: &[u64]| {
+            file.new_attr_builder()
+                .with_data(v)
+                .create(name)
+                .map(|_| ())
+                .map_err(e)
+        };
+        u("version", VERSION)?;
+        u("dim", D as u64)?;
+        u("step", step)?;
+        f("time", solver.t)?;
+        f("dt", solver.dt)?;
+        f("max_speed", speed[0])?;
+        u("ranks", comm.size() as u64)?;
+        us("blocks", &solver.layout.procs.map(|p| p as u64))?;
+        us("cells", &solver.layout.cells.map(|c| c as u64))?;
+        u("particles", total)?;
+        u("record_width", width as u64)?;
+        u("carries_def_grad", u64::from(carries.def_grad))?;
+        u("carries_x0", u64::from(carries.x0))?;
+        u("carries_half", u64::from(carries.half))?;
+        fs("initial_totals", &totals_vec(&run.initial))?;
+        u("initial_particles", run.initial.particles)?;
+        fs("last_totals", &totals_vec(&run.last))?;
+        u("last_particles", run.last.particles)?;
+        f("energy_scale", run.energy_scale)?;
+        f("max_energy_deviation", run.max_energy_dev)?;
+        fs("max_errors", &[run.max_err.0, run.max_err.1])?;
+        u("has_last_errors", u64::from(run.last_err.is_some()))?;
+        let le = run.last_err.unwrap_or((f64::NAN, f64::NAN));
+        fs("last_errors", &[le.0, le.1])?;
+        f("next_history_time", run.next_history)?;
+        u("last_history_step", run.last_history_step)?;
+        f("next_snapshot_time", run.next_snapshot)?;
+        f("next_checkpoint_time", run.next_checkpoint)?;
+
+        // Particles: one packed record per row, this rank's rows at its offset.
+        let mut buf = Vec::with_capacity(parts.len() * width);
+        let mut rec = Vec::with_capacity(width);
+        let mut hash = 0u64;
+        for p in 0..parts.len() {
+            parts.pack(p, carries, &mut rec);
+            debug_assert_eq!(rec.len(), width);
+            hash = hash.wrapping_add(row_hash(p as u64, &rec));
+            buf.extend_from_slice(&rec);
+        }
+        let rows = Writer {
+            file: &file,
+            path: &tmp,
+            offset,
+            count: n,
+            total,
+        };
+        rows.floats("particles", &buf, width)?;
+        drop(buf);
+        crash_for_tests(step);
+        file.dataset("particles")
+            .and_then(|ds| {
+                let cols: VarLenUnicode = columns(D, carries).parse().expect("ASCII");
+                ds.new_attr::<VarLenUnicode>()
+                    .create("columns")
+                    .and_then(|a| a.write_scalar(&cols))
+            })
+            .map_err(e)?;
+        // One value per writer rank.
+        let per_rank = Writer {
+            file: &file,
+            path: &tmp,
+            offset: comm.rank() as u64,
+            count: 1,
+            total: comm.size() as u64,
+        };
+        per_rank.u64s("rank_rows", &[n])?;
+        per_rank.floats("external_work", &[external_work], 0)?;
+        per_rank.u64s("checksum", &[hash])?;
+        // Data rank 0 writes alone (the others take part with empty selections).
+        let only_root = |len: usize| Writer {
+            file: &file,
+            path: &tmp,
+            offset: 0,
+            count: if root { len as u64 } else { 0 },
+            total: len as u64,
+        };
+        let pick = |b: &[u8]| if root { b.to_vec() } else { Vec::new() };
+        only_root(scene_text.len()).bytes("scene", &pick(scene_text.as_bytes()))?;
+        let hist = Writer {
+            file: &file,
+            path: &tmp,
+            offset: 0,
+            count: if root { history_len } else { 0 },
+            total: history_len,
+        };
+        hist.bytes("history", &pick(&run.history))?;
+        let k = run.snapshots.len();
+        let steps: Vec<u64> = run.snapshots.iter().map(|s| s.step).collect();
+        let times: Vec<f64> = run.snapshots.iter().map(|s| s.time).collect();
+        let counts: Vec<u64> = run.snapshots.iter().map(|s| s.particles).collect();
+        let mine = |v: Vec<u64>| if root { v } else { Vec::new() };
+        only_root(k).u64s("snapshot_steps", &mine(steps))?;
+        only_root(k).floats("snapshot_times", &if root { times } else { Vec::new() }, 0)?;
+        only_root(k).u64s("snapshot_particles", &mine(counts))?;
+        Ok(())
+    })();
+    // Closing is collective: after it every rank's rows are in the file.
+    drop(file);
+    let failed = result.as_ref().err().map(|e| e.0.clone());
+    if let Some(m) = agree(comm, failed) {
+        if root {
+            let _ = std::fs::remove_file(&tmp);
+        }
+        return Err(IoError(m));
+    }
+    // Rank 0 makes the complete file durable, then gives it its name.
+    let renamed = if root {
+        finish(&tmp, &path, out, keep).err()
+    } else {
+        None
+    };
+    match agree(comm, renamed) {
+        Some(m) => Err(IoError(m)),
+        None => Ok(path),
+    }
+}
+
+/// Test hook: `MPMCG_TEST_CRASH_IN_CHECKPOINT=STEP` aborts every rank in the middle of
+/// writing the checkpoint of step STEP (particles written, the rest not), to show that a
+/// crash during a write leaves the earlier checkpoints intact.
+fn crash_for_tests(step: u64) {
+    if std::env::var("MPMCG_TEST_CRASH_IN_CHECKPOINT").is_ok_and(|v| v == step.to_string()) {
+        eprintln!("MPMCG_TEST_CRASH_IN_CHECKPOINT: aborting while writing step {step}");
+        std::process::abort();
+    }
+}
+
+/// Rank 0: fsync the temporary file, rename it, fsync the folder, delete old ones.
+fn finish(tmp: &Path, path: &Path, out: &Path, keep: usize) -> Result<(), String> {
+    let io = |p: &Path, e: std::io::Error| format!("{}: {e}", p.display());
+    std::fs::File::open(tmp)
+        .and_then(|f| f.sync_all())
+        .map_err(|e| io(tmp, e))?;
+    std::fs::rename(tmp, path).map_err(|e| io(path, e))?;
+    if let Ok(d) = std::fs::File::open(out) {
+        let _ = d.sync_all();
+    }
+    let step = step_of(&path.file_name().unwrap_or_default().to_string_lossy()).unwrap_or(0);
+    prune(out, step, keep).map_err(|e| io(out, e))
+}
+
+/// Delete checkpoints in `out` older than the newest `keep` with step <= `step` (files of
+/// later steps, left by an earlier run of a restarted job, are not touched).
+fn prune(out: &Path, step: u64, keep: usize) -> std::io::Result<()> {
+    let mut found: Vec<(u64, PathBuf)> = Vec::new();
+    for e in std::fs::read_dir(out)? {
+        let e = e?;
+        if let Some(s) = step_of(&e.file_name().to_string_lossy()) {
+            if s <= step {
+                found.push((s, e.path()));
+            }
+        }
+    }
+    found.sort();
+    let old = found.len().saturating_sub(keep);
+    for (_, p) in &found[..old] {
+        std::fs::remove_file(p)?;
+    }
+    Ok(())
+}
+
+/// Collective: `Some(message)` on every rank if any rank has an error; the message is
+/// the first failing rank's own on rank 0, a pointer to it elsewhere.
+pub fn agree(comm: &dyn Communicator, mine: Option<String>) -> Option<String> {
+    if !comm.any(mine.is_some()) {
+        return None;
+    }
+    let all = comm.gather_bytes(mine.as_deref().unwrap_or("").as_bytes());
+    if comm.rank() == 0 {
+        let (r, m) = all
+            .iter()
+            .enumerate()
+            .find(|(_, m)| !m.is_empty())
+            .expect("some rank failed");
+        let m = String::from_utf8_lossy(m).into_owned();
+        Some(if r == 0 { m } else { format!("rank {r}: {m}") })
+    } else {
+        Some(mine.unwrap_or_else(|| "failed on another rank".into()))
+    }
+}
+
+/// An HDF5 file that is an mpmcg checkpoint of this format version, opened for reading.
+fn open(path: &Path) -> Result<hdf5::File, String> {
+    let p = path.display();
+    let meta =
+        std::fs::metadata(path).map_err(|e| format!("{p}: cannot read the checkpoint: {e}"))?;
+    if meta.is_dir() {
+        return Err(format!("{p}: is a folder, not a checkpoint file"));
+    }
+    if meta.len() == 0 {
+        return Err(format!("{p}: the file is empty, not an mpmcg checkpoint"));
+    }
+    let file = hdf5::File::open(path).map_err(|e| {
+        format!("{p}: not a readable HDF5 file (truncated, corrupt or not HDF5): {e}")
+    })?;
+    let format = file
+        .attr("format")
+        .and_then(|a| a.read_scalar::<VarLenUnicode>())
+        .map(|s| s.as_str().to_string());
+    match format {
+        Ok(f) if f == FORMAT => {}
+        Ok(f) => {
+            return Err(format!(
+                "{p}: not an mpmcg checkpoint (its format is {f:?}, expected {FORMAT:?})"
+            ))
+        }
+        Err(_) if file.link_exists("position") => {
+            return Err(format!(
+                "{p}: not an mpmcg checkpoint but a particle snapshot; restart from a checkpoint_NNNNNN.h5 file"
+            ))
+        }
+        Err(_) => {
+            return Err(format!(
+                "{p}: not an mpmcg checkpoint (an HDF5 file without the attribute format = {FORMAT:?})"
+            ))
+        }
+    }
+    let version = file
+        .attr("version")
+        .and_then(|a| a.read_scalar::<u64>())
+        .map_err(|e| format!("{p}: damaged checkpoint: attribute `version`: {e}"))?;
+    if version != VERSION {
+        return Err(format!(
+            "{p}: checkpoint format version {version}, but this mpmcg reads version {VERSION}"
+        ));
+    }
+    Ok(file)
+}
+
+fn attr_u64(f: &hdf5::File, p: &Path, name: &str) -> Result<u64, String> {
+    f.attr(name)
+        .and_then(|a| a.read_scalar::<u64>())
+        .map_err(|e| {
+            format!(
+                "{}: damaged checkpoint: attribute `{name}`: {e}",
+                p.display()
+            )
+        })
+}
+
+fn attr_f64(f: &hdf5::File, p: &Path, name: &str) -> Result<f64, String> {
+    f.attr(name)
+        .and_then(|a| a.read_scalar::<f64>())
+        .map_err(|e| {
+            format!(
+                "{}: damaged checkpoint: attribute `{name}`: {e}",
+                p.display()
+            )
+        })
+}
+
+fn attr_vec<T: hdf5::H5Type>(
+    f: &hdf5::File,
+    p: &Path,
+    name: &str,
+    len: usize,
+) -> Result<Vec<T>, String> {
+    let v: Vec<T> = f.attr(name).and_then(|a| a.read_raw::<T>()).map_err(|e| {
+        format!(
+            "{}: damaged checkpoint: attribute `{name}`: {e}",
+            p.display()
+        )
+    })?;
+    if v.len() != len {
+        return Err(format!(
+            "{}: damaged checkpoint: attribute `{name}` has {} values, expected {len}",
+            p.display(),
+            v.len()
+        ));
+    }
+    Ok(v)
+}
+
+fn dataset<T: hdf5::H5Type>(
+    f: &hdf5::File,
+    p: &Path,
+    name: &str,
+    len: usize,
+) -> Result<Vec<T>, String> {
+    let v: Vec<T> = f
+        .dataset(name)
+        .and_then(|d| d.read_raw::<T>())
+        .map_err(|e| format!("{}: damaged checkpoint: dataset `{name}`: {e}", p.display()))?;
+    if v.len() != len {
+        return Err(format!(
+            "{}: damaged checkpoint: dataset `{name}` has {} values, expected {len}",
+            p.display(),
+            v.len()
+        ));
+    }
+    Ok(v)
+}
+
+fn dataset_any<T: hdf5::H5Type>(f: &hdf5::File, p: &Path, name: &str) -> Result<Vec<T>, String> {
+    f.dataset(name)
+        .and_then(|d| d.read_raw::<T>())
+        .map_err(|e| format!("{}: damaged checkpoint: dataset `{name}`: {e}", p.display()))
+}
+
+/// Open a checkpoint and read what every rank needs before anything else: the scene,
+/// dimension, step, time and the writer's layout. Errors name the file.
+pub fn read_header(path: &Path) -> Result<Header, String> {
+    let f = open(path)?;
+    let p = path.display();
+    let dim = attr_u64(&f, path, "dim")? as usize;
+    if !(1..=3).contains(&dim) {
+        return Err(format!("{p}: damaged checkpoint: dim = {dim}"));
+    }
+    let ranks = attr_u64(&f, path, "ranks")? as usize;
+    let blocks: Vec<u64> = attr_vec(&f, path, "blocks", dim)?;
+    if ranks == 0 || blocks.iter().product::<u64>() != ranks as u64 {
+        return Err(format!(
+            "{p}: damaged checkpoint: blocks {blocks:?} do not match {ranks} ranks"
+        ));
+    }
+    let scene: Vec<u8> = dataset_any(&f, path, "scene")?;
+    let scene_text = String::from_utf8(scene)
+        .map_err(|_| format!("{p}: damaged checkpoint: the stored scene is not UTF-8 text"))?;
+    Ok(Header {
+        path: path.to_path_buf(),
+        scene_text,
+        dim,
+        step: attr_u64(&f, path, "step")?,
+        time: attr_f64(&f, path, "time")?,
+        ranks,
+        blocks: blocks.iter().map(|&b| b as usize).collect(),
+        particles: attr_u64(&f, path, "particles")?,
+    })
+}
+
+/// Everything a restart reads on one rank.
+pub struct Restored<const D: usize> {
+    pub parts: Particles<D>,
+    pub solver: SolverState,
+    pub run: RunState,
+}
+
+/// Read this rank's particles and the run state (no collectives: the caller agrees on
+/// the outcome). With the writer's rank count and process grid each rank reads its own
+/// rows in their order; otherwise it scans all rows and keeps those in its cells.
+pub fn read<const D: usize>(
+    header: &Header,
+    rank: usize,
+    layout: &Layout<D>,
+    geom: &Geom<D>,
+    carries: Carries,
+) -> Result<Restored<D>, String> {
+    let path = &header.path;
+    let p = path.display();
+    let f = open(path)?;
+    if header.dim != D {
+        return Err(format!(
+            "{p}: damaged checkpoint: dim {} != {D}",
+            header.dim
+        ));
+    }
+    let cells: Vec<u64> = attr_vec(&f, path, "cells", D)?;
+    if cells
+        .iter()
+        .zip(&layout.cells)
+        .any(|(&a, &b)| a != b as u64)
+    {
+        return Err(format!(
+            "{p}: damaged checkpoint: cells {cells:?} differ from the stored scene's {:?}",
+            layout.cells
+        ));
+    }
+    let stored = Carries {
+        def_grad: attr_u64(&f, path, "carries_def_grad")? != 0,
+        x0: attr_u64(&f, path, "carries_x0")? != 0,
+        half: attr_u64(&f, path, "carries_half")? != 0,
+    };
+    let width = Particles::<D>::record_width(carries);
+    if stored != carries || attr_u64(&f, path, "record_width")? != width as u64 {
+        return Err(format!(
+            "{p}: damaged checkpoint: its particle arrays ({stored:?}) are not those the stored scene needs ({carries:?})"
+        ));
+    }
+    let n = header.particles as usize;
+    let ds = f
+        .dataset("particles")
+        .map_err(|e| format!("{p}: damaged checkpoint: dataset `particles`: {e}"))?;
+    if ds.shape() != [n, width] {
+        return Err(format!(
+            "{p}: damaged checkpoint: dataset `particles` has shape {:?}, expected [{n}, {width}]",
+            ds.shape()
+        ));
+    }
+    let writers = header.ranks;
+    let rows: Vec<u64> = dataset(&f, path, "rank_rows", writers)?;
+    if rows.iter().sum::<u64>() != n as u64 {
+        return Err(format!(
+            "{p}: damaged checkpoint: rank_rows {rows:?} do not add up to {n} particles"
+        ));
+    }
+    let work: Vec<f64> = dataset(&f, path, "external_work", writers)?;
+    let sums: Vec<u64> = dataset(&f, path, "checksum", writers)?;
+    let starts: Vec<usize> = rows
+        .iter()
+        .scan(0usize, |acc, &r| {
+            let s = *acc;
+            *acc += r as usize;
+            Some(s)
+        })
+        .collect();
+    let read_rows = |r0: usize, r1: usize| -> Result<Vec<f64>, String> {
+        if r0 == r1 {
+            return Ok(Vec::new());
+        }
+        ds.read_slice_2d::<f64, _>((r0..r1, ..))
+            .map(|a| a.iter().copied().collect())
+            .map_err(|e| format!("{p}: cannot read particles {r0}..{r1}: {e}"))
+    };
+    let corrupt = |w: usize| {
+        format!("{p}: corrupt checkpoint: the particle rows of writer rank {w} do not match their checksum")
+    };
+    let mut parts = Particles::<D>::default();
+    let same =
+        writers == layout.ranks() && header.blocks.iter().zip(&layout.procs).all(|(a, b)| a == b);
+    let external_work;
+    if same {
+        // Own rows, in the writer's memory order.
+        let (r0, r1) = (starts[rank], starts[rank] + rows[rank] as usize);
+        let mut hash = 0u64;
+        let mut k = 0u64;
+        let mut at = r0;
+        while at < r1 {
+            let end = (at + CHUNK_ROWS).min(r1);
+            let buf = read_rows(at, end)?;
+            for rec in buf.chunks_exact(width) {
+                hash = hash.wrapping_add(row_hash(k, rec));
+                k += 1;
+                parts.unpack(rec, carries);
+            }
+            at = end;
+        }
+        if hash != sums[rank] {
+            return Err(corrupt(rank));
+        }
+        external_work = work[rank];
+    } else {
+        // Every row, keeping those in this rank's cells.
+        let mut hash = vec![0u64; writers];
+        let mut w = 0usize;
+        let mut at = 0usize;
+        while at < n {
+            let end = (at + CHUNK_ROWS).min(n);
+            let buf = read_rows(at, end)?;
+            for (i, rec) in buf.chunks_exact(width).enumerate() {
+                let row = at + i;
+                while row >= starts[w] + rows[w] as usize {
+                    w += 1;
+                }
+                hash[w] = hash[w].wrapping_add(row_hash((row - starts[w]) as u64, rec));
+                let x: [f64; D] = std::array::from_fn(|a| rec[a]);
+                let (c, _) = geom.locate(&x);
+                let cell: [usize; D] =
+                    std::array::from_fn(|a| c[a].rem_euclid(layout.cells[a] as i64) as usize);
+                if layout.cell_owner(cell) == rank {
+                    parts.unpack(rec, carries);
+                }
+            }
+            at = end;
+        }
+        if let Some(w) = (0..writers).find(|&w| hash[w] != sums[w]) {
+            return Err(corrupt(w));
+        }
+        external_work = if rank == 0 { work.iter().sum() } else { 0.0 };
+    }
+
+    let nt = 4 + D;
+    let le: Vec<f64> = attr_vec(&f, path, "last_errors", 2)?;
+    let me: Vec<f64> = attr_vec(&f, path, "max_errors", 2)?;
+    let steps: Vec<u64> = dataset_any(&f, path, "snapshot_steps")?;
+    let times: Vec<f64> = dataset(&f, path, "snapshot_times", steps.len())?;
+    let counts: Vec<u64> = dataset(&f, path, "snapshot_particles", steps.len())?;
+    let run = RunState {
+        initial: totals_from(
+            &attr_vec::<f64>(&f, path, "initial_totals", nt)?,
+            attr_u64(&f, path, "initial_particles")?,
+        ),
+        last: totals_from(
+            &attr_vec::<f64>(&f, path, "last_totals", nt)?,
+            attr_u64(&f, path, "last_particles")?,
+        ),
+        energy_scale: attr_f64(&f, path, "energy_scale")?,
+        max_energy_dev: attr_f64(&f, path, "max_energy_deviation")?,
+        max_err: (me[0], me[1]),
+        last_err: (attr_u64(&f, path, "has_last_errors")? != 0).then_some((le[0], le[1])),
+        next_history: attr_f64(&f, path, "next_history_time")?,
+        last_history_step: attr_u64(&f, path, "last_history_step")?,
+        next_snapshot: attr_f64(&f, path, "next_snapshot_time")?,
+        next_checkpoint: attr_f64(&f, path, "next_checkpoint_time")?,
+        snapshots: (0..steps.len())
+            .map(|k| Entry {
+                step: steps[k],
+                time: times[k],
+                particles: counts[k],
+            })
+            .collect(),
+        history: if rank == 0 {
+            dataset_any(&f, path, "history")?
+        } else {
+            Vec::new()
+        },
+    };
+    let solver = SolverState {
+        t: attr_f64(&f, path, "time")?,
+        step: attr_u64(&f, path, "step")?,
+        dt: attr_f64(&f, path, "dt")?,
+        external_work,
+        max_speed: attr_f64(&f, path, "max_speed")?,
+    };
+    Ok(Restored { parts, solver, run })
+}

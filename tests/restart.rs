@@ -1,0 +1,752 @@
+//! Checkpoints, restart, stop signals and the files a run writes, through the real
+//! binary under `mpirun` (1 to 3 ranks, `--oversubscribe`):
+//!
+//! - a run restarted from its half-way checkpoint ends bit for bit where the
+//!   uninterrupted run ends on the same rank count, and within 1e-12 on another;
+//! - a run killed with SIGKILL restarts from its last complete checkpoint and ends
+//!   like an uninterrupted run; SIGTERM ends a run cleanly with a final checkpoint,
+//!   status "interrupted" and exit status 4;
+//! - snapshots and the XDMF index read back;
+//! - unusable checkpoints end with exit status 2 and a message naming the file.
+
+mod common;
+use common::temp_dir;
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+const BIN: &str = env!("CARGO_BIN_EXE_mpmcg");
+
+fn is_root() -> bool {
+    Command::new("id")
+        .arg("-u")
+        .output()
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
+        .unwrap_or(false)
+}
+
+/// `mpirun -n N mpmcg ARGS...`.
+fn mpirun_cmd(n: usize, args: &[&str]) -> Command {
+    let mut c = Command::new("mpirun");
+    c.args(["--oversubscribe", "--timeout", "120", "-n", &n.to_string()]);
+    if is_root() {
+        c.arg("--allow-run-as-root");
+    }
+    c.arg(BIN).args(args);
+    c
+}
+
+fn mpirun(n: usize, args: &[&str]) -> Output {
+    mpirun_cmd(n, args).output().expect("mpirun runs")
+}
+
+/// Run and require exit status 0.
+fn ok(n: usize, args: &[&str]) {
+    let o = mpirun(n, args);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "mpirun -n {n} mpmcg {args:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("UTF-8 path")
+}
+
+/// Particle state of a snapshot sorted by id: id, then position, velocity, stress and
+/// displacement rows (3 + 3 + 9 + 3 values).
+type Rows = Vec<(i64, Vec<f64>)>;
+
+fn snapshot(path: &Path) -> Rows {
+    let f = hdf5::File::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let id: Vec<i64> = f.dataset("id").unwrap().read_raw().unwrap();
+    let cols: Vec<(Vec<f64>, usize)> = [
+        ("position", 3),
+        ("velocity", 3),
+        ("stress", 9),
+        ("displacement", 3),
+    ]
+    .iter()
+    .map(|&(name, w)| (f.dataset(name).unwrap().read_raw::<f64>().unwrap(), w))
+    .collect();
+    let mut rows: Rows = (0..id.len())
+        .map(|i| {
+            let mut r = Vec::new();
+            for (c, w) in &cols {
+                r.extend_from_slice(&c[i * w..(i + 1) * w]);
+            }
+            (id[i], r)
+        })
+        .collect();
+    rows.sort_by_key(|r| r.0);
+    rows
+}
+
+fn files(out: &Path, prefix: &str) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(out)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| {
+            let n = p.file_name().unwrap().to_string_lossy();
+            n.starts_with(prefix) && n.ends_with(".h5")
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+fn last_snapshot(out: &Path) -> PathBuf {
+    files(out, "particles_").pop().expect("a snapshot")
+}
+
+fn summary(out: &Path) -> Value {
+    let p = out.join("summary.json");
+    serde_json::from_str(
+        &std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display())),
+    )
+    .unwrap()
+}
+
+/// The summary fields that describe the simulated state (not the wall clock).
+const STATE_KEYS: [&str; 6] = ["steps", "time", "particles", "mass", "momentum", "energy"];
+
+/// Bit-identical final state: the last snapshot, the summary's state fields and the
+/// history.
+fn assert_identical(a: &Path, b: &Path, what: &str) {
+    let (sa, sb) = (snapshot(&last_snapshot(a)), snapshot(&last_snapshot(b)));
+    assert_eq!(sa.len(), sb.len(), "{what}: particle count");
+    assert!(sa == sb, "{what}: final particle states differ");
+    let (ja, jb) = (summary(a), summary(b));
+    for k in STATE_KEYS.iter().chain(&["error"]) {
+        assert_eq!(ja[k], jb[k], "{what}: summary `{k}`");
+    }
+    let (ha, hb) = (
+        std::fs::read_to_string(a.join("history.csv")).unwrap(),
+        std::fs::read_to_string(b.join("history.csv")).unwrap(),
+    );
+    assert!(ha == hb, "{what}: history.csv differs");
+}
+
+/// Every number in a JSON value, in order.
+fn numbers(v: &Value, out: &mut Vec<f64>) {
+    match v {
+        Value::Number(n) => out.push(n.as_f64().unwrap()),
+        Value::Array(a) => a.iter().for_each(|x| numbers(x, out)),
+        Value::Object(o) => o.values().for_each(|x| numbers(x, out)),
+        _ => {}
+    }
+}
+
+/// The same final state to `tol` relative: positions against the domain size (1),
+/// every other field against its largest magnitude, summary numbers against the
+/// largest of their group. Returns the largest particle difference.
+fn assert_close(a: &Path, b: &Path, tol: f64, what: &str) -> f64 {
+    let (sa, sb) = (snapshot(&last_snapshot(a)), snapshot(&last_snapshot(b)));
+    assert_eq!(sa.len(), sb.len(), "{what}: particle count");
+    // Positions against the domain size, the rest against each field's largest value.
+    let field = |k: usize| match k {
+        0..3 => 0,
+        3..6 => 1,
+        6..15 => 2,
+        _ => 3,
+    };
+    let mut scale = [1.0f64, 0.0, 0.0, 0.0];
+    for (_, r) in &sa {
+        for (k, x) in r.iter().enumerate().skip(3) {
+            scale[field(k)] = scale[field(k)].max(x.abs());
+        }
+    }
+    let mut worst = 0.0f64;
+    for ((ia, ra), (ib, rb)) in sa.iter().zip(&sb) {
+        assert_eq!(ia, ib, "{what}: ids");
+        for k in 0..ra.len() {
+            let sc = scale[field(k)].max(1e-300);
+            worst = worst.max((ra[k] - rb[k]).abs() / sc);
+        }
+    }
+    assert!(
+        worst < tol,
+        "{what}: particle state differs by {worst:e} (relative)"
+    );
+    let (ja, jb) = (summary(a), summary(b));
+    assert_eq!(ja["steps"], jb["steps"], "{what}: steps");
+    for k in ["time", "mass", "momentum", "energy", "error"] {
+        let (mut x, mut y) = (Vec::new(), Vec::new());
+        numbers(&ja[k], &mut x);
+        numbers(&jb[k], &mut y);
+        assert_eq!(x.len(), y.len(), "{what}: summary `{k}`");
+        let m = x.iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-300);
+        for (p, q) in x.iter().zip(&y) {
+            assert!(
+                (p - q).abs() <= tol * m,
+                "{what}: summary `{k}`: {p} vs {q}"
+            );
+        }
+    }
+    worst
+}
+
+/// Axis-aligned MMS in 2D with GIMP: its particles carry every optional array
+/// (deformation gradient, reference position, GIMP half-width), a body force does
+/// external work, the benchmark errors are tracked, and particles cross block
+/// boundaries. Checkpoint half-way in simulated time.
+fn mms_scene() -> String {
+    let base = include_str!("../inputs/axis_aligned_mms_2d.toml")
+        .replace("gradient = \"mpmcg\"", "gradient = \"gimp\"");
+    format!(
+        "{base}\n[output]\nevery = 0.005\nfields = [\"velocity\", \"stress\", \"displacement\"]\n\n[checkpoint]\nevery = 0.01\n"
+    )
+}
+
+/// Two disks crossing a periodic box diagonally (every block boundary and periodic
+/// face) with MPMCG and MUSL; `cells` per axis, until `end`, with `checkpoint` as the
+/// [checkpoint] table's contents.
+fn crossing_scene(cells: usize, end: f64, checkpoint: &str) -> String {
+    format!(
+        r#"name = "crossing"
+dim = 2
+[time]
+end = {end}
+cfl = 0.3
+[method]
+gradient = "mpmcg"
+update = "musl"
+[grid]
+lower = [0.0, 0.0]
+upper = [1.0, 1.0]
+cells = [{cells}, {cells}]
+boundary = {{ x_lower = "periodic", x_upper = "periodic", y_lower = "periodic", y_upper = "periodic" }}
+[[materials]]
+name = "m"
+model = "neo_hookean"
+density = 1000.0
+youngs_modulus = 1000.0
+poisson_ratio = 0.3
+[[bodies]]
+material = "m"
+shape = {{ sphere = {{ center = [0.25, 0.3], radius = 0.15 }} }}
+velocity = [-0.35, -0.3]
+[[bodies]]
+material = "m"
+shape = {{ sphere = {{ center = [0.75, 0.7], radius = 0.15 }} }}
+velocity = [0.3, 0.35]
+[output]
+every = {end}
+fields = ["velocity", "stress", "displacement"]
+[checkpoint]
+{checkpoint}
+"#
+    )
+}
+
+/// (a) Restart from the half-way checkpoint: 1→1 and 2→2 bit-identical to the
+/// uninterrupted run, 2→1 and 1→3 within 1e-12.
+#[test]
+fn restart_continues_the_run() {
+    for (tag, text) in [
+        ("mms", mms_scene()),
+        ("crossing", crossing_scene(16, 1.2, "every = 0.6")),
+    ] {
+        let dir = temp_dir(&format!("restart-{tag}"));
+        let sc = dir.join("scene.toml");
+        std::fs::write(&sc, &text).unwrap();
+        let full = |n: usize| {
+            let out = dir.join(format!("full{n}"));
+            ok(n, &["run", s(&sc), "--out", s(&out), "--quiet"]);
+            out
+        };
+        let (f1, f2) = (full(1), full(2));
+        let half = |out: &Path| {
+            let c = files(out, "checkpoint_");
+            assert_eq!(
+                c.len(),
+                1,
+                "{tag}: one checkpoint half-way in {}",
+                out.display()
+            );
+            c[0].clone()
+        };
+        let (c1, c2) = (half(&f1), half(&f2));
+        let restart = |n: usize, ckpt: &Path, name: &str| {
+            let out = dir.join(name);
+            ok(
+                n,
+                &["run", "--restart", s(ckpt), "--out", s(&out), "--quiet"],
+            );
+            let j = summary(&out);
+            assert_eq!(j["status"], "completed");
+            assert_eq!(j["restarted_from"]["checkpoint"], s(ckpt));
+            assert!(j["restarted_from"]["step"].as_u64().unwrap() > 0);
+            out
+        };
+        assert_identical(&f1, &restart(1, &c1, "r11"), &format!("{tag} 1→1"));
+        assert_identical(&f2, &restart(2, &c2, "r22"), &format!("{tag} 2→2"));
+        let d21 = assert_close(&f2, &restart(1, &c2, "r21"), 1e-12, &format!("{tag} 2→1"));
+        let d13 = assert_close(&f1, &restart(3, &c1, "r13"), 1e-12, &format!("{tag} 1→3"));
+        eprintln!("{tag}: 2→1 differs by {d21:.1e}, 1→3 by {d13:.1e} (relative)");
+        // The scene file given again with --restart must be the stored one, byte for byte.
+        let again = dir.join("again");
+        ok(
+            1,
+            &[
+                "run",
+                s(&sc),
+                "--restart",
+                s(&c1),
+                "--out",
+                s(&again),
+                "--quiet",
+            ],
+        );
+        assert_identical(&f1, &again, &format!("{tag} 1→1 with SCENE"));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
+
+/// The scene of the interruption tests: a run of a few seconds on 2 ranks with a
+/// checkpoint every 25 steps.
+fn long_scene() -> String {
+    crossing_scene(48, 4.0, "every_steps = 25\nkeep = 2")
+}
+
+/// The uninterrupted 2-rank run of [`long_scene`], shared by the tests that interrupt it.
+fn reference() -> &'static Path {
+    static REF: OnceLock<PathBuf> = OnceLock::new();
+    REF.get_or_init(|| {
+        let dir = temp_dir("interrupt-reference");
+        let sc = dir.join("scene.toml");
+        std::fs::write(&sc, long_scene()).unwrap();
+        let out = dir.join("out");
+        ok(2, &["run", s(&sc), "--out", s(&out), "--quiet"]);
+        out
+    })
+}
+
+/// PIDs of the processes whose parent is `pid` (the ranks under `mpirun`: Open MPI
+/// puts each in its own process group, so signalling mpirun's group misses them).
+fn children(pid: u32) -> Vec<i32> {
+    let mut v = Vec::new();
+    for e in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(stat) = std::fs::read_to_string(e.path().join("stat")) else {
+            continue;
+        };
+        // pid (comm) state ppid ...: comm may contain spaces, so split after ')'.
+        let Some((head, rest)) = stat.rsplit_once(')') else {
+            continue;
+        };
+        let ppid = rest
+            .split_whitespace()
+            .nth(1)
+            .and_then(|x| x.parse::<u32>().ok());
+        if ppid == Some(pid) {
+            if let Some(p) = head.split_whitespace().next().and_then(|x| x.parse().ok()) {
+                v.push(p);
+            }
+        }
+    }
+    v
+}
+
+fn signal(pid: i32, sig: i32) {
+    // SAFETY: kill(2) with a pid this test started.
+    unsafe {
+        libc::kill(pid, sig);
+    }
+}
+
+/// Start the long scene on 2 ranks in `out` (its own process group) and wait until a
+/// checkpoint exists.
+fn start_and_wait_for_checkpoint(out: &Path, scene: &Path) -> Child {
+    use std::os::unix::process::CommandExt;
+    let mut cmd = mpirun_cmd(2, &["run", s(scene), "--out", s(out), "--quiet"]);
+    cmd.process_group(0)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped());
+    let child = cmd.spawn().expect("start mpirun");
+    let t0 = Instant::now();
+    while !out.is_dir() || files(out, "checkpoint_").is_empty() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "no checkpoint appeared"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child
+}
+
+/// (b) SIGKILL to every process mid-run, then a restart from the newest complete
+/// checkpoint in the same folder ends exactly like the uninterrupted run.
+#[test]
+fn killed_run_restarts_from_its_last_checkpoint() {
+    let reference = reference();
+    let dir = temp_dir("sigkill");
+    let sc = dir.join("scene.toml");
+    std::fs::write(&sc, long_scene()).unwrap();
+    let out = dir.join("out");
+    let mut child = start_and_wait_for_checkpoint(&out, &sc);
+    std::thread::sleep(Duration::from_millis(150));
+    for p in children(child.id()) {
+        signal(p, libc::SIGKILL);
+    }
+    signal(-(child.id() as i32), libc::SIGKILL);
+    let _ = child.wait();
+    assert!(
+        !out.join("summary.json").exists(),
+        "the run ended before it was killed; make the scene longer"
+    );
+    // Whatever the kill interrupted, every file with a checkpoint's name is complete.
+    let ckpts = files(&out, "checkpoint_");
+    assert!(!ckpts.is_empty());
+    for c in &ckpts {
+        mpmcg::checkpoint::read_header(c).unwrap_or_else(|e| panic!("{e}"));
+    }
+    let newest = ckpts.last().unwrap();
+    eprintln!(
+        "killed after {}; restarting from it",
+        newest.file_name().unwrap().to_string_lossy()
+    );
+    ok(2, &["run", "--restart", s(newest), "--quiet"]);
+    assert_eq!(summary(&out)["status"], "completed");
+    assert_identical(reference, &out, "SIGKILL, then restart 2→2");
+    // keep = 2: only the newest two checkpoints remain, and no temporary file.
+    assert_eq!(files(&out, "checkpoint_").len(), 2);
+    let tmp: Vec<_> = std::fs::read_dir(&out)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().ends_with(".tmp"))
+        .collect();
+    assert!(tmp.is_empty(), "temporary files left: {tmp:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// (b) A crash in the middle of writing a checkpoint (every rank aborts after writing
+/// the particles of step 50): the previous checkpoint is intact, the half-written file
+/// keeps its temporary name, and a restart from step 25 ends like the uninterrupted run.
+#[test]
+fn crash_while_writing_a_checkpoint_keeps_the_previous_one() {
+    let reference = reference();
+    let dir = temp_dir("crash-in-write");
+    let sc = dir.join("scene.toml");
+    std::fs::write(&sc, long_scene()).unwrap();
+    let out = dir.join("out");
+    let o = mpirun_cmd(2, &["run", s(&sc), "--out", s(&out), "--quiet"])
+        .env("MPMCG_TEST_CRASH_IN_CHECKPOINT", "50")
+        .output()
+        .unwrap();
+    assert_ne!(o.status.code(), Some(0));
+    assert!(!out.join("summary.json").exists());
+    assert_eq!(
+        files(&out, "checkpoint_"),
+        [out.join("checkpoint_000025.h5")]
+    );
+    assert!(out.join(".checkpoint_000050.h5.tmp").exists());
+    let h = mpmcg::checkpoint::read_header(&out.join("checkpoint_000025.h5")).unwrap();
+    assert_eq!(h.step, 25);
+    ok(
+        2,
+        &[
+            "run",
+            "--restart",
+            s(&out.join("checkpoint_000025.h5")),
+            "--quiet",
+        ],
+    );
+    assert_identical(
+        reference,
+        &out,
+        "crash in a checkpoint write, then restart 2→2",
+    );
+    assert!(!out.join(".checkpoint_000050.h5.tmp").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// (c) SIGTERM to the ranks (what a scheduler such as Slurm sends to every task before
+/// killing a job): the step is finished, a final checkpoint written, the summary says
+/// "interrupted", the exit status is 4; restarting from that checkpoint ends exactly like
+/// the uninterrupted run.
+#[test]
+fn sigterm_writes_a_final_checkpoint_and_exits_4() {
+    let reference = reference();
+    let dir = temp_dir("sigterm");
+    let sc = dir.join("scene.toml");
+    std::fs::write(&sc, long_scene()).unwrap();
+    let out = dir.join("out");
+    let child = start_and_wait_for_checkpoint(&out, &sc);
+    let ranks = children(child.id());
+    assert_eq!(ranks.len(), 2, "two ranks under mpirun");
+    for p in ranks {
+        signal(p, libc::SIGTERM);
+    }
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(4), "stderr: {err}");
+    assert!(
+        err.contains("interrupted: stopped by SIGTERM"),
+        "stderr: {err}"
+    );
+    let j = summary(&out);
+    assert_eq!(j["status"], "interrupted");
+    let step = j["steps"].as_u64().unwrap();
+    assert!(step < summary(reference)["steps"].as_u64().unwrap());
+    let ckpt = out.join(format!("checkpoint_{step:06}.h5"));
+    assert_eq!(j["last_checkpoint"], s(&ckpt));
+    assert!(j["message"].as_str().unwrap().contains(s(&ckpt)));
+    let h = mpmcg::checkpoint::read_header(&ckpt).unwrap();
+    assert_eq!((h.step, h.ranks), (step, 2));
+    assert!((h.time - j["time"].as_f64().unwrap()).abs() <= 1e-15 * h.time);
+    assert_eq!(h.scene_text, long_scene());
+    ok(2, &["run", "--restart", s(&ckpt), "--quiet"]);
+    assert_identical(reference, &out, "SIGTERM, then restart 2→2");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// (d) Snapshots and the XDMF index of a uniformly translating body on 2 ranks: shapes,
+/// ids, positions, the exact velocity, and every `file.h5:/path` of the index exists
+/// with the dimensions the index states.
+#[test]
+fn snapshots_and_xdmf_read_back() {
+    let dir = temp_dir("snapshots");
+    let sc = dir.join("scene.toml");
+    let (vx, vy) = (0.5, -0.25);
+    std::fs::write(
+        &sc,
+        format!(
+            r#"name = "translate"
+dim = 2
+[time]
+end = 0.5
+cfl = 0.4
+[grid]
+lower = [0.0, 0.0]
+upper = [2.0, 1.0]
+cells = [16, 8]
+boundary = {{ x_lower = "periodic", x_upper = "periodic", y_lower = "periodic", y_upper = "periodic" }}
+[[materials]]
+name = "m"
+model = "linear_elastic"
+density = 1.0
+youngs_modulus = 100.0
+poisson_ratio = 0.25
+[[bodies]]
+material = "m"
+shape = {{ box = {{ lower = [0.0, 0.0], upper = [2.0, 1.0] }} }}
+particles_per_cell = 2
+velocity = [{vx}, {vy}]
+[output]
+every = 0.125
+fields = ["velocity", "stress", "displacement"]
+"#
+        ),
+    )
+    .unwrap();
+    let out = dir.join("out");
+    ok(2, &["run", s(&sc), "--out", s(&out), "--quiet"]);
+    let snaps = files(&out, "particles_");
+    assert_eq!(snaps.len(), 5, "t = 0, 0.125, ..., 0.5: {snaps:?}");
+    let n = 16 * 8 * 4;
+    let mut worst_v = 0.0f64;
+    for p in &snaps {
+        let f = hdf5::File::open(p).unwrap();
+        let shape = |name: &str| f.dataset(name).unwrap().shape();
+        assert_eq!(shape("id"), [n]);
+        assert_eq!(shape("rank"), [n]);
+        assert_eq!(shape("material"), [n]);
+        assert_eq!(shape("position"), [n, 3]);
+        assert_eq!(shape("velocity"), [n, 3]);
+        assert_eq!(shape("displacement"), [n, 3]);
+        assert_eq!(shape("stress"), [n, 9]);
+        assert_eq!(f.attr("dim").unwrap().read_scalar::<u64>().unwrap(), 2);
+        let mut id: Vec<i64> = f.dataset("id").unwrap().read_raw().unwrap();
+        id.sort();
+        assert_eq!(
+            id,
+            (0..n as i64).collect::<Vec<_>>(),
+            "ids are a permutation"
+        );
+        let rank: Vec<i64> = f.dataset("rank").unwrap().read_raw().unwrap();
+        assert!(rank.iter().all(|&r| r == 0 || r == 1) && rank.contains(&0) && rank.contains(&1));
+        let x: Vec<f64> = f.dataset("position").unwrap().read_raw().unwrap();
+        for r in x.chunks(3) {
+            assert!(
+                (0.0..2.0).contains(&r[0]) && (0.0..1.0).contains(&r[1]) && r[2] == 0.0,
+                "{r:?}"
+            );
+        }
+        let v: Vec<f64> = f.dataset("velocity").unwrap().read_raw().unwrap();
+        for r in v.chunks(3) {
+            worst_v = worst_v.max((r[0] - vx).abs()).max((r[1] - vy).abs());
+            assert_eq!(r[2], 0.0);
+        }
+        let st: Vec<f64> = f.dataset("stress").unwrap().read_raw().unwrap();
+        assert!(
+            st.iter().all(|x| x.abs() < 1e-9),
+            "a translating body stays unstressed"
+        );
+    }
+    // Velocities that are powers of two survive every projection exactly.
+    assert_eq!(worst_v, 0.0, "translation velocity off by {worst_v:e}");
+
+    // The XDMF index: every DataItem names an existing dataset of the stated size, and
+    // the times are those of the files.
+    let xmf = std::fs::read_to_string(out.join("particles.xmf")).unwrap();
+    let mut items = 0;
+    for part in xmf.split("<DataItem ").skip(1) {
+        let dims: Vec<usize> = part
+            .split("Dimensions=\"")
+            .nth(1)
+            .unwrap()
+            .split('"')
+            .next()
+            .unwrap()
+            .split_whitespace()
+            .map(|d| d.parse().unwrap())
+            .collect();
+        let target = part.split('>').nth(1).unwrap().split('<').next().unwrap();
+        let (file, path) = target.split_once(":/").expect("file.h5:/path");
+        let f = hdf5::File::open(out.join(file)).unwrap_or_else(|e| panic!("{file}: {e}"));
+        let ds = f
+            .dataset(path)
+            .unwrap_or_else(|e| panic!("{file}:/{path}: {e}"));
+        assert_eq!(ds.shape(), dims, "{target}");
+        items += 1;
+    }
+    assert_eq!(
+        items,
+        5 * 7,
+        "position, id, rank, material and three fields per snapshot"
+    );
+    let times: Vec<f64> = xmf
+        .split("<Time Value=\"")
+        .skip(1)
+        .map(|t| t.split('"').next().unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(times.len(), snaps.len());
+    for (t, p) in times.iter().zip(&snaps) {
+        let f = hdf5::File::open(p).unwrap();
+        assert_eq!(*t, f.attr("time").unwrap().read_scalar::<f64>().unwrap());
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `mpmcg run --restart FILE [SCENE]` on one process: exit status 2 and one error line
+/// naming the file and saying `words`.
+fn rejected(args: &[&str], file: &Path, words: &str) {
+    let o = Command::new(BIN).args(args).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!err.contains("panicked"), "{args:?} panicked:\n{err}");
+    assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+    assert!(
+        err.starts_with(&format!("error: {}", file.display())),
+        "{args:?}: the error does not name {}:\n{err}",
+        file.display()
+    );
+    assert!(
+        err.contains(words),
+        "{args:?}: the error does not say {words:?}:\n{err}"
+    );
+    assert_eq!(
+        err.trim_end().lines().count(),
+        1,
+        "{args:?}: not one line:\n{err}"
+    );
+}
+
+/// (e) Unusable checkpoints: each ends with exit status 2 and names the file.
+#[test]
+fn unusable_checkpoints_are_rejected() {
+    let dir = temp_dir("corrupt");
+    let sc = dir.join("scene.toml");
+    let text = crossing_scene(16, 0.2, "every_steps = 10\nkeep = 1");
+    std::fs::write(&sc, &text).unwrap();
+    let out = dir.join("out");
+    ok(1, &["run", s(&sc), "--out", s(&out), "--quiet"]);
+    let good = files(&out, "checkpoint_").pop().expect("a checkpoint");
+    let bytes = std::fs::read(&good).unwrap();
+    let put = |name: &str, b: &[u8]| {
+        let p = dir.join(name);
+        std::fs::write(&p, b).unwrap();
+        p
+    };
+    let run = |ckpt: &Path, words: &str| {
+        let o = dir.join("restarted");
+        rejected(
+            &["run", "--restart", s(ckpt), "--out", s(&o), "--quiet"],
+            ckpt,
+            words,
+        );
+        assert!(!o.join("summary.json").exists());
+    };
+
+    run(&put("empty.h5", b""), "the file is empty");
+    run(
+        &put("half.h5", &bytes[..bytes.len() / 2]),
+        "not a readable HDF5 file",
+    );
+    let mut x = 0x2545_f491_4f6c_dd1du64;
+    let noise: Vec<u8> = (0..bytes.len())
+        .map(|_| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x as u8
+        })
+        .collect();
+    run(&put("noise.h5", &noise), "not a readable HDF5 file");
+    run(&dir.join("missing.h5"), "No such file");
+    run(
+        &last_snapshot(&out),
+        "not an mpmcg checkpoint but a particle snapshot",
+    );
+    // Another HDF5 file, and a checkpoint of another format version.
+    let foreign = dir.join("foreign.h5");
+    {
+        let f = hdf5::File::create(&foreign).unwrap();
+        f.new_dataset::<f64>().shape([4]).create("data").unwrap();
+    }
+    run(&foreign, "not an mpmcg checkpoint");
+    let future = put("future.h5", &bytes);
+    {
+        let f = hdf5::File::open_rw(&future).unwrap();
+        f.delete_attr("version").unwrap();
+        f.new_attr::<u64>()
+            .create("version")
+            .unwrap()
+            .write_scalar(&99u64)
+            .unwrap();
+    }
+    run(
+        &future,
+        "checkpoint format version 99, but this mpmcg reads version 1",
+    );
+    // Particle data changed in the middle of the file: the checksum notices.
+    let flipped = put("flipped.h5", &bytes);
+    let at = {
+        let f = hdf5::File::open(&flipped).unwrap();
+        let ds = f.dataset("particles").unwrap();
+        ds.offset().expect("contiguous particle data") as usize + 8 * ds.shape()[1] * 7 + 3
+    };
+    let mut b = bytes.clone();
+    b[at] ^= 0x10;
+    std::fs::write(&flipped, &b).unwrap();
+    run(&flipped, "do not match their checksum");
+    // A scene argument that is not the stored scene.
+    let other = dir.join("other.toml");
+    std::fs::write(&other, text.replace("cfl = 0.3", "cfl = 0.25")).unwrap();
+    rejected(
+        &["run", s(&other), "--restart", s(&good), "--quiet"],
+        &other,
+        "scene does not match checkpoint",
+    );
+    // Under mpirun every rank agrees: one message, exit status 2, no hang.
+    let half = dir.join("half.h5");
+    let o = mpirun(2, &["run", "--restart", s(&half), "--quiet"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert_eq!(err.matches("error: ").count(), 1, "{err}");
+    assert!(err.contains(s(&half)), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
