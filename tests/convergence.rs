@@ -73,6 +73,7 @@ fn mms(dim: usize, cells: usize, ppc: usize, gradient: Gradient) -> (f64, f64) {
         out: out.clone(),
         quiet: true,
         threads: 1,
+        ..RunOptions::default()
     };
     let start = Instant::now();
     let summary = run(&scene, &SerialComm, &opts).unwrap_or_else(|e| panic!("{}: {e}", scene.name));
