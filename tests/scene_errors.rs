@@ -845,9 +845,9 @@ fn checkpoint_table() {
         .key("checkpoint.every_seconds")
         .at("60.0")
         .says("give only one of");
-    with("checkpoint_every_zero", "every = 0.0")
+    with("checkpoint_every_negative", "every = -2.5")
         .key("checkpoint.every")
-        .at("0.0")
+        .at("-2.5")
         .says("must be > 0");
     with("checkpoint_steps_zero", "every_steps = 0")
         .key("checkpoint.every_steps")
