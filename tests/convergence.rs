@@ -248,5 +248,10 @@ fn mms_2d_64() {
     );
     let ratio = t[1][0] / t[0][0];
     assert!(ratio >= 20.0, "at 64 cells MPM/MPMCG = {ratio:.2}");
-    assert!(t[0][0] < t[2][0], "at 64 cells MPMCG {} >= GIMP {}", t[0][0], t[2][0]);
+    assert!(
+        t[0][0] < t[2][0],
+        "at 64 cells MPMCG {} >= GIMP {}",
+        t[0][0],
+        t[2][0]
+    );
 }

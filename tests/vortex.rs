@@ -33,6 +33,7 @@ fn error(gradient: Gradient, cells: usize) -> f64 {
         out: temp_dir(&format!("vortex-{}-{cells}", gradient.name())),
         quiet: true,
         threads: 1,
+        ..RunOptions::default()
     };
     let s = run(&scene, &decomposition::SerialComm, &opts).expect("run");
     assert_eq!(
