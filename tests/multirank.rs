@@ -18,7 +18,17 @@ fn is_root() -> bool {
 /// Run `mpmcg run scene` on `n` ranks; returns (exit code, stderr).
 fn mpirun(n: usize, scene: &Path, out: &Path) -> (i32, String) {
     let mut c = Command::new("mpirun");
-    c.args(["--oversubscribe", "--timeout", "120", "-n", &n.to_string()]);
+    // Yield while waiting: with more ranks than cores, spinning ranks starve the others.
+    c.args([
+        "--oversubscribe",
+        "--mca",
+        "mpi_yield_when_idle",
+        "1",
+        "--timeout",
+        "120",
+        "-n",
+        &n.to_string(),
+    ]);
     if is_root() {
         c.arg("--allow-run-as-root");
     }
