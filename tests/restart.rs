@@ -30,7 +30,17 @@ fn is_root() -> bool {
 /// `mpirun -n N mpmcg ARGS...`.
 fn mpirun_cmd(n: usize, args: &[&str]) -> Command {
     let mut c = Command::new("mpirun");
-    c.args(["--oversubscribe", "--timeout", "120", "-n", &n.to_string()]);
+    // Yield while waiting: with more ranks than cores, spinning ranks starve the others.
+    c.args([
+        "--oversubscribe",
+        "--mca",
+        "mpi_yield_when_idle",
+        "1",
+        "--timeout",
+        "120",
+        "-n",
+        &n.to_string(),
+    ]);
     if is_root() {
         c.arg("--allow-run-as-root");
     }
