@@ -5,33 +5,10 @@
 mod common;
 use common::temp_dir;
 use std::path::{Path, PathBuf};
-use std::process::Command;
-
-fn is_root() -> bool {
-    Command::new("id")
-        .arg("-u")
-        .output()
-        .map(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
-        .unwrap_or(false)
-}
 
 /// Run `mpmcg run scene` on `n` ranks; returns (exit code, stderr).
 fn mpirun(n: usize, scene: &Path, out: &Path) -> (i32, String) {
-    let mut c = Command::new("mpirun");
-    // Yield while waiting: with more ranks than cores, spinning ranks starve the others.
-    c.args([
-        "--oversubscribe",
-        "--mca",
-        "mpi_yield_when_idle",
-        "1",
-        "--timeout",
-        "120",
-        "-n",
-        &n.to_string(),
-    ]);
-    if is_root() {
-        c.arg("--allow-run-as-root");
-    }
+    let mut c = common::mpirun(n);
     c.arg(env!("CARGO_BIN_EXE_mpmcg"))
         .arg("run")
         .arg(scene)

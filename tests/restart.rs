@@ -19,31 +19,9 @@ use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_mpmcg");
 
-fn is_root() -> bool {
-    Command::new("id")
-        .arg("-u")
-        .output()
-        .map(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
-        .unwrap_or(false)
-}
-
 /// `mpirun -n N mpmcg ARGS...`.
 fn mpirun_cmd(n: usize, args: &[&str]) -> Command {
-    let mut c = Command::new("mpirun");
-    // Yield while waiting: with more ranks than cores, spinning ranks starve the others.
-    c.args([
-        "--oversubscribe",
-        "--mca",
-        "mpi_yield_when_idle",
-        "1",
-        "--timeout",
-        "120",
-        "-n",
-        &n.to_string(),
-    ]);
-    if is_root() {
-        c.arg("--allow-run-as-root");
-    }
+    let mut c = common::mpirun(n);
     c.arg(BIN).args(args);
     c
 }

@@ -44,3 +44,29 @@ pub fn history(out: &std::path::Path) -> Vec<HashMap<String, f64>> {
         })
         .collect()
 }
+
+/// `mpirun -n N` with the flags every multi-rank test needs: more ranks than cores,
+/// ranks that yield while waiting (spinning ranks starve the others on 2 cores), a
+/// timeout so a hang fails, and permission to run as root (CI does).
+pub fn mpirun(n: usize) -> std::process::Command {
+    let mut c = std::process::Command::new("mpirun");
+    c.args([
+        "--oversubscribe",
+        "--mca",
+        "mpi_yield_when_idle",
+        "1",
+        "--timeout",
+        "120",
+        "-n",
+        &n.to_string(),
+    ]);
+    let root = std::process::Command::new("id")
+        .arg("-u")
+        .output()
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
+        .unwrap_or(false);
+    if root {
+        c.arg("--allow-run-as-root");
+    }
+    c
+}
