@@ -95,7 +95,7 @@ pub struct RunState {
 }
 
 /// Solver state besides the particles, for [`Solver::restore`].
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Default)]
 pub struct SolverState {
     pub t: f64,
     pub step: u64,

@@ -47,6 +47,22 @@ impl<const D: usize> Particles<D> {
         self.x.is_empty()
     }
 
+    /// Make `self` a copy of `other`, reusing `self`'s allocations (a derived
+    /// `clone_from` would allocate fresh arrays every time).
+    pub fn copy_from(&mut self, other: &Self) {
+        self.x.clone_from(&other.x);
+        self.v.clone_from(&other.v);
+        self.mass.clone_from(&other.mass);
+        self.vol.clone_from(&other.vol);
+        self.vol0.clone_from(&other.vol0);
+        self.stress.clone_from(&other.stress);
+        self.def_grad.clone_from(&other.def_grad);
+        self.mat.clone_from(&other.mat);
+        self.id.clone_from(&other.id);
+        self.x0.clone_from(&other.x0);
+        self.half.clone_from(&other.half);
+    }
+
     /// Apply the permutation `perm` (new position k holds old particle `perm[k]`) to
     /// every array, using `scratch` so no allocation happens once it has grown.
     pub fn permute(&mut self, perm: &[usize], scratch: &mut Vec<f64>) {

@@ -2,8 +2,9 @@
 //! diagnostics, snapshots, checkpoints and stop signals, and the files it leaves in
 //! the output folder (`summary.json`, `history.csv`).
 
-use crate::checkpoint::{self, RunState};
+use crate::checkpoint::{self, RunState, SolverState};
 use crate::io::Snapshots;
+use crate::particles::Particles;
 use crate::scene::{CheckpointEvery, Face, Scene};
 use crate::signals;
 use crate::solver::{Failure, Solver, Totals};
@@ -409,6 +410,9 @@ fn run_dim<const D: usize>(
     let mut stopped_by = 0i32;
     let mut last_checkpoint: Option<PathBuf> = opts.restart.clone();
     let mut checkpoint_clock = Instant::now();
+    let mut checkpoint_step = opts.restart.as_ref().map(|_| solver.step);
+    let mut rescue = Rescue::default();
+    rescue.keep(&solver, &st, history.text.len());
     while !solver.done() {
         // Requests every rank must agree on travel with the step's own reduction: a
         // stop signal (any rank), a wall-clock checkpoint (rank 0's clock), a failed
@@ -486,7 +490,11 @@ fn run_dim<const D: usize>(
             output_seconds.checkpoints += t0.elapsed().as_secs_f64();
             history.text = std::mem::take(&mut st.history);
             last_checkpoint = Some(written.map_err(|e| RunError::Io(e.to_string()))?);
+            checkpoint_step = Some(solver.step);
             checkpoint_clock = Instant::now();
+        }
+        if solver.step.is_multiple_of(RESCUE_EVERY) {
+            rescue.keep(&solver, &st, history.text.len());
         }
         progress.tick(&solver, start);
         if signal != 0 && !solver.done() {
@@ -494,15 +502,12 @@ fn run_dim<const D: usize>(
             break;
         }
     }
-    let ckpt_note = match &last_checkpoint {
-        Some(p) => format!("the last checkpoint is {}", p.display()),
-        None => "no checkpoint was written".to_string(),
-    };
     let mut last = st.last.clone();
     let mut message = None;
     if failure.is_some() || stopped_by != 0 {
         last = solver.totals();
     }
+    let (fail_step, fail_t) = (solver.step, solver.t);
     if failure.is_some() {
         // Report the failing rank's own reason on rank 0, not "failed elsewhere".
         let mine = match &failure {
@@ -513,13 +518,38 @@ fn run_dim<const D: usize>(
         if let Some(m) = all.iter().find(|m| !m.is_empty()) {
             failure = Some(Failure::Elsewhere(String::from_utf8_lossy(m).into_owned()));
         }
-        message = failure.as_ref().map(|f| format!("{f}; {ckpt_note}"));
+        // The failed state cannot be continued or inspected usefully: checkpoint the
+        // last state known good instead (unless a regular checkpoint already holds it).
+        if checkpoint_step != Some(rescue.solver.step) {
+            rescue.restore(&mut solver, &mut st, &mut history.text);
+            st.snapshots = snaps
+                .as_ref()
+                .map_or_else(Vec::new, |(sn, _)| sn.entries().to_vec());
+            st.snapshots.retain(|e| e.step <= rescue.solver.step);
+            let t0 = Instant::now();
+            let written = checkpoint::write(comm, &opts.out, &solver, &st, &scene_text, keep);
+            output_seconds.checkpoints += t0.elapsed().as_secs_f64();
+            history.text = std::mem::take(&mut st.history);
+            last_checkpoint = Some(written.map_err(|e| RunError::Io(e.to_string()))?);
+        }
+        let ckpt = last_checkpoint
+            .as_ref()
+            .map_or(String::new(), |p| p.display().to_string());
+        message = failure.as_ref().map(|f| {
+            format!(
+                "{f}; the last good state (step {}, t = {:.6e}) is checkpointed in {ckpt}",
+                rescue.solver.step, rescue.solver.t
+            )
+        });
     } else if stopped_by != 0 {
         message = Some(format!(
-            "stopped by {} after step {} (t = {:.6e}); {ckpt_note}: continue with `mpmcg run --restart {}`",
+            "stopped by {} after step {} (t = {:.6e}); the last checkpoint is {}: continue with `mpmcg run --restart {}`",
             signals::name(stopped_by),
             solver.step,
             solver.t,
+            last_checkpoint
+                .as_ref()
+                .map_or_else(String::new, |p| p.display().to_string()),
             last_checkpoint
                 .as_ref()
                 .map_or_else(|| "CHECKPOINT".to_string(), |p| p.display().to_string())
@@ -558,8 +588,8 @@ fn run_dim<const D: usize>(
         },
         particles: tot0.particles,
         cells: scene.grid.cells.clone(),
-        steps: solver.step,
-        time: solver.t,
+        steps: fail_step,
+        time: fail_t,
         end_time: scene.time.end,
         wall_seconds: wall,
         particle_updates_per_second: tot0.particles as f64 * (solver.step - step_start) as f64
@@ -614,6 +644,53 @@ fn run_dim<const D: usize>(
         (Some(_), _) => Err(RunError::Unstable(message.unwrap_or_default())),
         (None, 0) => Ok(summary),
         (None, _) => Err(RunError::Interrupted(message.unwrap_or_default())),
+    }
+}
+
+/// Steps between copies of the state kept for [`Rescue`]: a copy costs about as much
+/// as a twentieth of a step, so every tenth step costs well under 1 %.
+const RESCUE_EVERY: u64 = 10;
+
+/// The newest state known good (at most [`RESCUE_EVERY`] steps old): a run that turns
+/// unstable checkpoints this, since the failed step's own state is non-finite or
+/// outside the grid and can be neither continued nor usefully inspected.
+#[derive(Default)]
+struct Rescue<const D: usize> {
+    parts: Particles<D>,
+    solver: SolverState,
+    run: Option<RunState>,
+    history_len: usize,
+}
+
+impl<const D: usize> Rescue<D> {
+    /// Copy the state after the current step; no allocation once the buffers have grown.
+    fn keep(&mut self, solver: &Solver<D>, st: &RunState, history_len: usize) {
+        self.parts.copy_from(&solver.parts);
+        let (external_work, max_speed) = solver.local_state();
+        self.solver = SolverState {
+            t: solver.t,
+            step: solver.step,
+            dt: solver.dt,
+            external_work,
+            max_speed,
+        };
+        match &mut self.run {
+            Some(r) => r.clone_from(st),
+            None => self.run = Some(st.clone()),
+        }
+        self.history_len = history_len;
+    }
+
+    /// Put the kept state back into the solver, the run state and `history.csv`'s text.
+    fn restore(&mut self, solver: &mut Solver<D>, st: &mut RunState, history: &mut Vec<u8>) {
+        std::mem::swap(&mut solver.parts, &mut self.parts);
+        let s = &self.solver;
+        solver.restore(s.t, s.step, s.dt, s.external_work, s.max_speed);
+        if let Some(r) = &self.run {
+            st.clone_from(r);
+        }
+        history.truncate(self.history_len);
+        st.history = std::mem::take(history);
     }
 }
 

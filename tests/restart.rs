@@ -5,7 +5,8 @@
 //!   uninterrupted run ends on the same rank count, and within 1e-12 on another;
 //! - a run killed with SIGKILL restarts from its last complete checkpoint and ends
 //!   like an uninterrupted run; SIGTERM ends a run cleanly with a final checkpoint,
-//!   status "interrupted" and exit status 4;
+//!   status "interrupted" and exit status 4; a run that turns unstable checkpoints
+//!   its last good state;
 //! - snapshots and the XDMF index read back;
 //! - unusable checkpoints end with exit status 2 and a message naming the file.
 
@@ -364,6 +365,64 @@ fn start_and_wait_for_checkpoint(out: &Path, scene: &Path) -> Child {
         std::thread::sleep(Duration::from_millis(20));
     }
     child
+}
+
+/// A run that turns unstable (a fixed step about 1.3 times the stable one) checkpoints
+/// its last good state, at most ten steps before the failure, with no regular
+/// checkpoint scheduled; restarting from it reproduces the run bit for bit up to the
+/// same failure: the checkpoint holds the real state, not the failed one.
+#[test]
+fn unstable_run_checkpoints_its_last_good_state() {
+    let dir = temp_dir("unstable");
+    let sc = dir.join("scene.toml");
+    let text = crossing_scene(16, 3.0, "")
+        .replace("cfl = 0.3", "dt = 0.07")
+        .replace("[checkpoint]\n", "");
+    std::fs::write(&sc, text).unwrap();
+    let run = |args: &[&str]| {
+        let o = mpirun(2, args);
+        assert_eq!(
+            o.status.code(),
+            Some(3),
+            "exit status 3 when unstable: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let first = dir.join("first");
+    let err = run(&["run", s(&sc), "--out", s(&first), "--quiet"]);
+    let j = summary(&first);
+    assert_eq!(j["status"], "unstable");
+    let failed = j["steps"].as_u64().unwrap();
+    let c = files(&first, "checkpoint_");
+    assert_eq!(c.len(), 1, "one checkpoint: {c:?}");
+    assert_eq!(j["last_checkpoint"], s(&c[0]));
+    let name = c[0].file_name().unwrap().to_str().unwrap();
+    let good: u64 = name["checkpoint_".len()..name.len() - 3].parse().unwrap();
+    assert!(
+        good < failed && good + 10 >= failed,
+        "checkpoint at step {good}, failure at step {failed}"
+    );
+    let said = format!("last good state (step {good},");
+    assert!(
+        err.contains(&said) && err.contains(s(&c[0])),
+        "stderr: {err}"
+    );
+
+    let again = dir.join("again");
+    run(&["run", "--restart", s(&c[0]), "--out", s(&again), "--quiet"]);
+    let k = summary(&again);
+    assert_eq!(k["steps"].as_u64(), Some(failed), "fails at the same step");
+    assert_eq!(k["restarted_from"]["step"].as_u64(), Some(good));
+    let (ha, hb) = (
+        std::fs::read_to_string(first.join("history.csv")).unwrap(),
+        std::fs::read_to_string(again.join("history.csv")).unwrap(),
+    );
+    assert!(
+        ha == hb,
+        "history.csv up to the failure differs after the restart"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// (b) SIGKILL to every process mid-run, then a restart from the newest complete
