@@ -38,6 +38,25 @@ pub struct Carries {
     pub half: bool,
 }
 
+impl Carries {
+    /// The optional particle arrays a scene needs.
+    pub fn for_scene(scene: &Scene) -> Self {
+        Carries {
+            def_grad: scene
+                .materials
+                .iter()
+                .any(|m| Material::from_spec(m).needs_def_grad()),
+            // Benchmarks measure displacement errors; a displacement output needs it too.
+            x0: scene.benchmark.is_some()
+                || scene
+                    .output
+                    .as_ref()
+                    .is_some_and(|o| o.fields.contains(&crate::scene::Field::Displacement)),
+            half: scene.method.gradient == crate::scene::Gradient::Gimp,
+        }
+    }
+}
+
 impl<const D: usize> Particles<D> {
     pub fn len(&self) -> usize {
         self.x.len()
@@ -202,8 +221,8 @@ impl<const D: usize> Particles<D> {
         cell_lo: [usize; D],
         cell_hi: [usize; D],
     ) -> Self {
-        let needs_f = materials.iter().any(Material::needs_def_grad);
-        let gimp = scene.method.gradient == crate::scene::Gradient::Gimp;
+        let carries = Carries::for_scene(scene);
+        let (needs_f, gimp) = (carries.def_grad, carries.half);
         let mut p = Particles::<D>::default();
         // Benchmarks may start displaced: look that many cells beyond the block.
         let disp = match benchmark {
@@ -285,6 +304,14 @@ impl<const D: usize> Particles<D> {
                         if let Some(bv) = &body.velocity {
                             v += vector::<D>(bv);
                         }
+                        if let Some(g) = &body.velocity_gradient {
+                            for (i, row) in g.value.iter().enumerate() {
+                                for (j, gij) in row.iter().enumerate() {
+                                    let c = g.about.as_ref().map_or(0.0, |c| c[j]);
+                                    v[i] += gij * (xr[j] - c);
+                                }
+                            }
+                        }
                         let (c, _) = geom.locate(&std::array::from_fn(|a| x[a]));
                         if (0..D).any(|a| c[a] < cell_lo[a] as i64 || c[a] >= cell_hi[a] as i64) {
                             continue;
@@ -305,7 +332,7 @@ impl<const D: usize> Particles<D> {
                         }
                         p.mat.push(mi as u16);
                         p.id.push(id_base + (lin * sub + s) as u64);
-                        if benchmark.is_some() {
+                        if carries.x0 {
                             p.x0.push(xr);
                         }
                         if gimp {

@@ -226,6 +226,17 @@ pub struct BodySpec {
     #[serde(default = "default_ppc")]
     pub particles_per_cell: usize,
     pub velocity: Option<Vec<f64>>,
+    /// A linear initial velocity field added to `velocity`: `v += value · (x − about)`.
+    pub velocity_gradient: Option<VelocityGradient>,
+}
+
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct VelocityGradient {
+    /// Rows of the gradient: `value[i][j] = ∂v_i/∂x_j`.
+    pub value: Vec<Vec<f64>>,
+    /// The point where this part of the velocity vanishes (default: the origin).
+    pub about: Option<Vec<f64>>,
 }
 
 fn default_ppc() -> usize {
@@ -891,6 +902,20 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
         }
         if let Some(v) = &b.velocity {
             vector(&k("velocity"), v, d)?;
+        }
+        if let Some(g) = &b.velocity_gradient {
+            if g.value.len() != d {
+                return Err((
+                    k("velocity_gradient.value"),
+                    format!("must have dim = {d} rows, got {}", g.value.len()),
+                ));
+            }
+            for (r, row) in g.value.iter().enumerate() {
+                vector(&k(&format!("velocity_gradient.value[{r}]")), row, d)?;
+            }
+            if let Some(c) = &g.about {
+                vector(&k("velocity_gradient.about"), c, d)?;
+            }
         }
         let (blo, bhi) = match &b.shape {
             Shape::Box { lower, upper } => {

@@ -196,14 +196,7 @@ impl<'c, const D: usize> Solver<'c, D> {
 
     /// The optional particle arrays a scene needs.
     pub fn carries_for(scene: &Scene) -> Carries {
-        Carries {
-            def_grad: scene
-                .materials
-                .iter()
-                .any(|m| Material::from_spec(m).needs_def_grad()),
-            x0: scene.benchmark.is_some(),
-            half: scene.method.gradient == Gradient::Gimp,
-        }
+        Carries::for_scene(scene)
     }
 
     /// A solver at t = 0 on the given particles of this rank's block (they must lie in

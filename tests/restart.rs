@@ -11,7 +11,7 @@
 //! - unusable checkpoints end with exit status 2 and a message naming the file.
 
 mod common;
-use common::temp_dir;
+use common::{files, temp_dir};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
@@ -73,19 +73,6 @@ fn snapshot(path: &Path) -> Rows {
         .collect();
     rows.sort_by_key(|r| r.0);
     rows
-}
-
-fn files(out: &Path, prefix: &str) -> Vec<PathBuf> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(out)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| {
-            let n = p.file_name().unwrap().to_string_lossy();
-            n.starts_with(prefix) && n.ends_with(".h5")
-        })
-        .collect();
-    v.sort();
-    v
 }
 
 fn last_snapshot(out: &Path) -> PathBuf {

@@ -70,3 +70,48 @@ pub fn mpirun(n: usize) -> std::process::Command {
     }
     c
 }
+
+/// The files in `out` named `PREFIX*.h5`, sorted (by step: the names are zero-padded).
+pub fn files(out: &std::path::Path, prefix: &str) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(out)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| {
+            let n = p.file_name().unwrap().to_string_lossy();
+            n.starts_with(prefix) && n.ends_with(".h5")
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+/// One snapshot: its time, and per particle (in file order) id, position, and the
+/// named 3-vector field if asked for.
+pub struct Snapshot {
+    pub time: f64,
+    pub id: Vec<i64>,
+    pub x: Vec<[f64; 3]>,
+    pub field: Vec<[f64; 3]>,
+}
+
+pub fn read_snapshot(path: &std::path::Path, field: Option<&str>) -> Snapshot {
+    let f = hdf5::File::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let rows = |name: &str| -> Vec<[f64; 3]> {
+        let v: Vec<f64> = f.dataset(name).unwrap().read_raw().unwrap();
+        v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+    };
+    Snapshot {
+        time: f.attr("time").unwrap().read_scalar().unwrap(),
+        id: f.dataset("id").unwrap().read_raw().unwrap(),
+        x: rows("position"),
+        field: field.map_or_else(Vec::new, rows),
+    }
+}
+
+/// Every snapshot a run wrote, in time order.
+pub fn snapshots(out: &std::path::Path, field: Option<&str>) -> Vec<Snapshot> {
+    files(out, "particles_")
+        .iter()
+        .map(|p| read_snapshot(p, field))
+        .collect()
+}
