@@ -2,6 +2,8 @@
 //! In 2D the models are plane strain and in 1D uniaxial strain, so a bar's 1D
 //! modulus is `λ + 2μ` (= E when ν = 0).
 
+pub mod brittle;
+pub mod j2_plastic;
 pub mod linear_elastic;
 pub mod neo_hookean;
 
