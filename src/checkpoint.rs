@@ -15,8 +15,8 @@
 //! `time`, `dt`, `max_speed` (fastest signal speed over all ranks after the step; the
 //! next step size follows from it), `ranks` and `blocks` (the writer's process grid),
 //! `cells`, `particles` (total), `record_width`, `carries_def_grad`, `carries_x0`,
-//! `carries_half` (0/1), and the run loop's diagnostics: `initial_totals` and
-//! `last_totals` (mass, kinetic, strain, external work, momentum[dim]),
+//! `carries_half`, `carries_plastic`, `carries_damage` (0/1), and the run loop's diagnostics: `initial_totals` and
+//! `last_totals` (mass, kinetic, strain, external work, plastic work, momentum[dim]),
 //! `initial_particles`, `last_particles`, `energy_scale`, `max_energy_deviation`,
 //! `max_errors` (displacement, velocity), `has_last_errors`, `last_errors`,
 //! `next_history_time`, `last_history_step`, `next_snapshot_time`,
@@ -46,7 +46,7 @@ use std::path::{Path, PathBuf};
 /// The `format` attribute of every checkpoint.
 pub const FORMAT: &str = "mpmcg-checkpoint";
 /// The format version this build writes and reads.
-pub const VERSION: u64 = 1;
+pub const VERSION: u64 = 2;
 
 /// Rows read at a time when every rank scans the whole file.
 const CHUNK_ROWS: usize = 1 << 16;
@@ -120,7 +120,7 @@ pub struct Header {
 }
 
 fn totals_vec(t: &Totals) -> Vec<f64> {
-    let mut v = vec![t.mass, t.kinetic, t.strain, t.external_work];
+    let mut v = vec![t.mass, t.kinetic, t.strain, t.external_work, t.plastic_work];
     v.extend_from_slice(&t.momentum);
     v
 }
@@ -131,7 +131,8 @@ fn totals_from(v: &[f64], particles: u64) -> Totals {
         kinetic: v[1],
         strain: v[2],
         external_work: v[3],
-        momentum: v[4..].to_vec(),
+        plastic_work: v[4],
+        momentum: v[5..].to_vec(),
         particles,
     }
 }
@@ -258,6 +259,8 @@ pub fn write<const D: usize>(
         u("carries_def_grad", u64::from(carries.def_grad))?;
         u("carries_x0", u64::from(carries.x0))?;
         u("carries_half", u64::from(carries.half))?;
+        u("carries_plastic", u64::from(carries.plastic))?;
+        u("carries_damage", u64::from(carries.damage))?;
         fs("initial_totals", &totals_vec(&run.initial))?;
         u("initial_particles", run.initial.particles)?;
         fs("last_totals", &totals_vec(&run.last))?;
@@ -615,6 +618,8 @@ pub fn read<const D: usize>(
         def_grad: attr_u64(&f, path, "carries_def_grad")? != 0,
         x0: attr_u64(&f, path, "carries_x0")? != 0,
         half: attr_u64(&f, path, "carries_half")? != 0,
+        plastic: attr_u64(&f, path, "carries_plastic")? != 0,
+        damage: attr_u64(&f, path, "carries_damage")? != 0,
     };
     let width = Particles::<D>::record_width(carries);
     if stored != carries || attr_u64(&f, path, "record_width")? != width as u64 {
@@ -714,7 +719,7 @@ pub fn read<const D: usize>(
         external_work = if rank == 0 { work.iter().sum() } else { 0.0 };
     }
 
-    let nt = 4 + D;
+    let nt = 5 + D;
     let le: Vec<f64> = attr_vec(&f, path, "last_errors", 2)?;
     let me: Vec<f64> = attr_vec(&f, path, "max_errors", 2)?;
     let steps: Vec<u64> = dataset_any(&f, path, "snapshot_steps")?;

@@ -156,6 +156,10 @@ impl Snapshots {
                     }
                     w.floats("stress", &self.buf, 9)?;
                 }
+                // Scalars, one value per particle (the scene only lists them when a
+                // material carries them).
+                Field::PlasticStrain => w.floats("plastic_strain", &parts.eps_p, 0)?,
+                Field::Damage => w.floats("damage", &parts.damage, 0)?,
             }
         }
         drop(file);
@@ -211,10 +215,19 @@ impl Snapshots {
                     Field::Velocity => ("velocity", "Vector", 3),
                     Field::Displacement => ("displacement", "Vector", 3),
                     Field::Stress => ("stress", "Tensor", 9),
+                    Field::PlasticStrain => ("plastic_strain", "Scalar", 0),
+                    Field::Damage => ("damage", "Scalar", 0),
+                };
+                let data = if cols == 0 {
+                    format!(
+                        "<DataItem Dimensions=\"{n}\" NumberType=\"Float\" Precision=\"8\" Format=\"HDF\">{}:/{name}</DataItem>",
+                        e.file()
+                    )
+                } else {
+                    item(name, cols)
                 };
                 x += &format!(
-                    "    <Attribute Name=\"{name}\" AttributeType=\"{ty}\" Center=\"Node\">{}</Attribute>\n",
-                    item(name, cols)
+                    "    <Attribute Name=\"{name}\" AttributeType=\"{ty}\" Center=\"Node\">{data}</Attribute>\n"
                 );
             }
             x += "   </Grid>\n";

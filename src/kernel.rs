@@ -9,9 +9,10 @@
 //! by halving down to [`GRAIN`], independent of the thread count as well.
 
 use crate::benchmark::Benchmark;
-use crate::material::Material;
+use crate::material::{Internal, Material};
 use crate::shape::{self, Alpha, Geom};
 use crate::tensor::{det, Mat, Vector};
+use nalgebra::Matrix3;
 
 /// Slab thickness in cells for the coloured scatter: a GIMP particle writes one node row
 /// beyond its cell on each side, so same-coloured slabs 2·SLAB apart stay disjoint
@@ -116,6 +117,9 @@ pub struct Slices<'a, const D: usize> {
     pub mat: &'a [u16],
     pub x0: &'a [Vector<D>],
     pub half: &'a [[f64; D]],
+    pub be: &'a mut [Matrix3<f64>],
+    pub eps_p: &'a mut [f64],
+    pub damage: &'a mut [f64],
 }
 
 fn split_mut<T>(s: &mut [T], mid: usize) -> (&mut [T], &mut [T]) {
@@ -155,6 +159,9 @@ impl<'a, const D: usize> Slices<'a, D> {
         let (t0, t1) = split(self.mat, mid);
         let (p0, p1) = split(self.x0, mid);
         let (h0, h1) = split(self.half, mid);
+        let (b0, b1) = split_mut(self.be, mid);
+        let (e0, e1) = split_mut(self.eps_p, mid);
+        let (g0, g1) = split_mut(self.damage, mid);
         (
             Slices {
                 x: x0,
@@ -168,6 +175,9 @@ impl<'a, const D: usize> Slices<'a, D> {
                 mat: t0,
                 x0: p0,
                 half: h0,
+                be: b0,
+                eps_p: e0,
+                damage: g0,
             },
             Slices {
                 x: x1,
@@ -181,6 +191,9 @@ impl<'a, const D: usize> Slices<'a, D> {
                 mat: t1,
                 x0: p1,
                 half: h1,
+                be: b1,
+                eps_p: e1,
+                damage: g1,
             },
         )
     }
@@ -290,7 +303,11 @@ fn deform<const D: usize>(
         s.def_grad[p] = f;
         f
     };
-    mat.update_stress(&mut s.stress[p], l, &f, dt);
+    let internal = Internal {
+        plastic: s.be.get_mut(p).zip(s.eps_p.get_mut(p)),
+        damage: s.damage.get_mut(p),
+    };
+    mat.update_stress(&mut s.stress[p], l, &f, dt, internal);
     j > 0.0 && s.vol[p].is_finite() && s.stress[p].iter().all(|x| x.is_finite())
 }
 

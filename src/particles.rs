@@ -4,9 +4,10 @@
 
 use crate::benchmark::Benchmark;
 use crate::material::Material;
-use crate::scene::{Scene, Shape};
+use crate::scene::{Model, Scene, Shape};
 use crate::shape::Geom;
 use crate::tensor::{det, vector, Mat, Vector};
+use nalgebra::Matrix3;
 
 #[derive(Clone, Debug, Default)]
 pub struct Particles<const D: usize> {
@@ -28,6 +29,12 @@ pub struct Particles<const D: usize> {
     pub x0: Vec<Vector<D>>,
     /// GIMP particle half-width per axis.
     pub half: Vec<[f64; D]>,
+    /// Elastic left Cauchy–Green tensor, always 3 × 3 (plasticity in plane strain
+    /// needs the out-of-plane stretch), and equivalent plastic strain (`j2_plastic`).
+    pub be: Vec<Matrix3<f64>>,
+    pub eps_p: Vec<f64>,
+    /// Damage, 0 intact or 1 failed (`brittle`).
+    pub damage: Vec<f64>,
 }
 
 /// Which optional arrays the particles carry.
@@ -36,6 +43,9 @@ pub struct Carries {
     pub def_grad: bool,
     pub x0: bool,
     pub half: bool,
+    /// `be` and `eps_p`.
+    pub plastic: bool,
+    pub damage: bool,
 }
 
 impl Carries {
@@ -53,6 +63,8 @@ impl Carries {
                     .as_ref()
                     .is_some_and(|o| o.fields.contains(&crate::scene::Field::Displacement)),
             half: scene.method.gradient == crate::scene::Gradient::Gimp,
+            plastic: scene.materials.iter().any(|m| m.model == Model::J2Plastic),
+            damage: scene.materials.iter().any(|m| m.model == Model::Brittle),
         }
     }
 }
@@ -80,6 +92,9 @@ impl<const D: usize> Particles<D> {
         self.id.clone_from(&other.id);
         self.x0.clone_from(&other.x0);
         self.half.clone_from(&other.half);
+        self.be.clone_from(&other.be);
+        self.eps_p.clone_from(&other.eps_p);
+        self.damage.clone_from(&other.damage);
     }
 
     /// Apply the permutation `perm` (new position k holds old particle `perm[k]`) to
@@ -107,6 +122,9 @@ impl<const D: usize> Particles<D> {
         apply(&mut self.def_grad, perm, scratch);
         apply(&mut self.x0, perm, scratch);
         apply(&mut self.half, perm, scratch);
+        apply(&mut self.be, perm, scratch);
+        apply(&mut self.eps_p, perm, scratch);
+        apply(&mut self.damage, perm, scratch);
         // Integer arrays: ids and materials fit exactly in f64 (ids < 2^53).
         scratch.clear();
         scratch.extend(perm.iter().map(|&p| self.id[p] as f64));
@@ -130,6 +148,8 @@ impl<const D: usize> Particles<D> {
             + if c.def_grad { d * d } else { 0 }
             + if c.x0 { d } else { 0 }
             + if c.half { d } else { 0 }
+            + if c.plastic { 10 } else { 0 }
+            + usize::from(c.damage)
     }
 
     /// Append particle `p` as a flat record (ids and material indices are exact in f64).
@@ -149,6 +169,13 @@ impl<const D: usize> Particles<D> {
         }
         if c.half {
             out.extend_from_slice(&self.half[p]);
+        }
+        if c.plastic {
+            out.extend_from_slice(self.be[p].as_slice());
+            out.push(self.eps_p[p]);
+        }
+        if c.damage {
+            out.push(self.damage[p]);
         }
     }
 
@@ -181,6 +208,13 @@ impl<const D: usize> Particles<D> {
             let h = take(d);
             self.half.push(std::array::from_fn(|a| h[a]));
         }
+        if c.plastic {
+            self.be.push(Matrix3::from_column_slice(take(9)));
+            self.eps_p.push(take(1)[0]);
+        }
+        if c.damage {
+            self.damage.push(take(1)[0]);
+        }
     }
 
     /// Keep the particles whose `keep` flag is set, in order.
@@ -209,6 +243,9 @@ impl<const D: usize> Particles<D> {
         ret(&mut self.id, keep);
         ret(&mut self.x0, keep);
         ret(&mut self.half, keep);
+        ret(&mut self.be, keep);
+        ret(&mut self.eps_p, keep);
+        ret(&mut self.damage, keep);
     }
 
     /// Seed the particles of every body whose current position falls in the owned
@@ -324,7 +361,11 @@ impl<const D: usize> Particles<D> {
                         p.vol.push(vol0 * j);
                         let mut st = Mat::<D>::zeros();
                         if mat.needs_def_grad() {
-                            mat.update_stress(&mut st, &Mat::<D>::zeros(), &f, 0.0);
+                            let none = crate::material::Internal {
+                                plastic: None,
+                                damage: None,
+                            };
+                            mat.update_stress(&mut st, &Mat::<D>::zeros(), &f, 0.0, none);
                         }
                         p.stress.push(st);
                         if needs_f {
@@ -334,6 +375,13 @@ impl<const D: usize> Particles<D> {
                         p.id.push(id_base + (lin * sub + s) as u64);
                         if carries.x0 {
                             p.x0.push(xr);
+                        }
+                        if carries.plastic {
+                            p.be.push(Matrix3::identity());
+                            p.eps_p.push(0.0);
+                        }
+                        if carries.damage {
+                            p.damage.push(0.0);
                         }
                         if gimp {
                             p.half
@@ -363,6 +411,10 @@ pub fn shape_bounds<const D: usize>(s: &Shape) -> ([f64; D], [f64; D]) {
             std::array::from_fn(|a| center[a] - outer),
             std::array::from_fn(|a| center[a] + outer),
         ),
+        Shape::Cylinder { center, radius, z } => (
+            std::array::from_fn(|a| if a < 2 { center[a] - radius } else { z[0] }),
+            std::array::from_fn(|a| if a < 2 { center[a] + radius } else { z[1] }),
+        ),
     }
 }
 
@@ -380,6 +432,11 @@ pub fn inside<const D: usize>(s: &Shape, x: &[f64; D]) -> bool {
         } => {
             let r2: f64 = (0..D).map(|a| (x[a] - center[a]).powi(2)).sum();
             r2 >= inner * inner && r2 <= outer * outer
+        }
+        Shape::Cylinder { center, radius, z } => {
+            (x[0] - center[0]).powi(2) + (x[1] - center[1]).powi(2) <= radius * radius
+                && x[2] >= z[0]
+                && x[2] <= z[1]
         }
     }
 }

@@ -80,11 +80,14 @@ pub struct EnergySummary {
     pub initial_total: f64,
     pub final_total: f64,
     /// max_t |E(t) − E(0)| / max(|E(0)|, max_t (kinetic + strain)), E = kinetic + strain
-    /// − external work.
+    /// + plastic work − external work.
     pub max_relative_drift: f64,
     pub final_kinetic: f64,
     pub final_strain: f64,
     pub external_work: f64,
+    /// Work dissipated by plastic flow (scenes with a `j2_plastic` material).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub plastic_work: Option<f64>,
 }
 
 #[derive(Serialize, Debug, Clone)]
@@ -235,6 +238,9 @@ impl History {
         if let Some((u, v)) = err {
             let _ = write!(l, ",{u:.17e},{v:.17e}");
         }
+        if s.carries().plastic {
+            let _ = write!(l, ",{:.17e}", tot.plastic_work);
+        }
         l.push('\n');
         self.write(&l);
     }
@@ -338,6 +344,9 @@ fn run_dim<const D: usize>(
                 }
                 if has_bench {
                     head += ",displacement_l2,velocity_l2";
+                }
+                if solver.carries().plastic {
+                    head += ",plastic_work";
                 }
                 history.write(&(head + "\n"));
             }
@@ -613,6 +622,7 @@ fn run_dim<const D: usize>(
             final_kinetic: last.kinetic,
             final_strain: last.strain,
             external_work: last.external_work,
+            plastic_work: solver.carries().plastic.then_some(last.plastic_work),
         },
         error: has_bench.then(|| {
             let (fu, fv) = st.last_err.unwrap_or((f64::NAN, f64::NAN));

@@ -185,6 +185,10 @@ pub struct GridSpec {
 pub enum Model {
     LinearElastic,
     NeoHookean,
+    /// J2 plasticity at finite strain with linear isotropic hardening.
+    J2Plastic,
+    /// Linear elastic with tensile failure.
+    Brittle,
 }
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
@@ -195,6 +199,12 @@ pub struct MaterialSpec {
     pub density: f64,
     pub youngs_modulus: f64,
     pub poisson_ratio: f64,
+    /// Initial yield stress (`j2_plastic`).
+    pub yield_stress: Option<f64>,
+    /// Linear isotropic hardening modulus (`j2_plastic`, default 0).
+    pub hardening: Option<f64>,
+    /// Largest principal stress before failure (`brittle`).
+    pub tensile_strength: Option<f64>,
 }
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
@@ -214,6 +224,12 @@ pub enum Shape {
         center: Vec<f64>,
         inner: f64,
         outer: f64,
+    },
+    /// A cylinder along z (3D): axis through `center` = [x, y], from `z[0]` to `z[1]`.
+    Cylinder {
+        center: Vec<f64>,
+        radius: f64,
+        z: Vec<f64>,
     },
 }
 
@@ -272,6 +288,10 @@ pub enum Field {
     Velocity,
     Stress,
     Displacement,
+    /// Equivalent plastic strain (scenes with a `j2_plastic` material).
+    PlasticStrain,
+    /// Damage (scenes with a `brittle` material).
+    Damage,
 }
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
@@ -872,6 +892,31 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
                 format!("must be in (-1, 0.5), got {}", m.poisson_ratio),
             ));
         }
+        // Each model's own parameters: required by it, rejected elsewhere.
+        let own = [
+            ("yield_stress", m.yield_stress, Model::J2Plastic, true),
+            ("hardening", m.hardening, Model::J2Plastic, false),
+            ("tensile_strength", m.tensile_strength, Model::Brittle, true),
+        ];
+        for (key, v, model, required) in own {
+            let name = variants::<Model>()[model as usize];
+            match v {
+                Some(_) if m.model != model => {
+                    return Err((k(key), format!("is a parameter of model = \"{name}\" only")))
+                }
+                Some(x) if key == "hardening" => {
+                    finite(&k(key), x)?;
+                    if x < 0.0 {
+                        return Err((k(key), format!("must be >= 0, got {x}")));
+                    }
+                }
+                Some(x) => positive(&k(key), x)?,
+                None if required && m.model == model => {
+                    return Err((k(key), format!("is required by model = \"{name}\"")))
+                }
+                None => {}
+            }
+        }
     }
     if s.bodies.is_empty() {
         return Err((
@@ -942,6 +987,24 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
                     center.iter().map(|c| c + radius).collect(),
                 )
             }
+            Shape::Cylinder { center, radius, z } => {
+                if d != 3 {
+                    return Err((k("shape.cylinder"), "a cylinder needs dim = 3".into()));
+                }
+                vector(&k("shape.cylinder.center"), center, 2)?;
+                positive(&k("shape.cylinder.radius"), *radius)?;
+                vector(&k("shape.cylinder.z"), z, 2)?;
+                if z[0] >= z[1] {
+                    return Err((
+                        k("shape.cylinder.z"),
+                        format!("must be [bottom, top] with bottom < top, got {z:?}"),
+                    ));
+                }
+                (
+                    vec![center[0] - radius, center[1] - radius, z[0]],
+                    vec![center[0] + radius, center[1] + radius, z[1]],
+                )
+            }
             Shape::Annulus {
                 center,
                 inner,
@@ -977,13 +1040,17 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
                     ),
                 ));
             }
-            if blo[a] < g.lower[a] - 1e-12 * (g.upper[a] - g.lower[a])
-                || bhi[a] > g.upper[a] + 1e-12 * (g.upper[a] - g.lower[a])
-            {
+            // A slip face may cut a body: it is a symmetry plane, and only the part
+            // inside the grid is modelled (a quarter of the Taylor bar).
+            let tol = 1e-12 * (g.upper[a] - g.lower[a]);
+            let out_lo = blo[a] < g.lower[a] - tol && g.boundary.face(a, false) != Face::Slip;
+            let out_hi = bhi[a] > g.upper[a] + tol && g.boundary.face(a, true) != Face::Slip;
+            if out_lo || out_hi {
                 return Err((
                     k("shape"),
                     format!(
-                        "the body sticks out of the grid on axis {a}: body [{}, {}], grid [{}, {}]",
+                        "the body sticks out of the grid on axis {a}: body [{}, {}], grid [{}, {}] \
+                         (only a slip face, a symmetry plane, may cut a body)",
                         blo[a], bhi[a], g.lower[a], g.upper[a]
                     ),
                 ));
@@ -1007,6 +1074,23 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
     }
     if let Some(o) = &s.output {
         positive("output.every", o.every)?;
+        for (i, f) in o.fields.iter().enumerate() {
+            let needs = match f {
+                Field::PlasticStrain => Some(Model::J2Plastic),
+                Field::Damage => Some(Model::Brittle),
+                _ => None,
+            };
+            if let Some(m) = needs.filter(|m| !s.materials.iter().any(|x| x.model == *m)) {
+                return Err((
+                    format!("output.fields[{i}]"),
+                    format!(
+                        "{:?} needs a material with model = \"{}\"; this scene has none",
+                        variants::<Field>()[*f as usize],
+                        variants::<Model>()[m as usize]
+                    ),
+                ));
+            }
+        }
     }
     if let Some(c) = &s.checkpoint {
         let given: Vec<&str> = [

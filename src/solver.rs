@@ -44,6 +44,9 @@ macro_rules! slices {
             mat: &$s.parts.mat,
             x0: &$s.parts.x0,
             half: &$s.parts.half,
+            be: &mut $s.parts.be,
+            eps_p: &mut $s.parts.eps_p,
+            damage: &mut $s.parts.damage,
         }
     };
 }
@@ -92,6 +95,8 @@ pub struct Totals {
     pub kinetic: f64,
     pub strain: f64,
     pub external_work: f64,
+    /// Work dissipated by plastic flow.
+    pub plastic_work: f64,
     pub particles: u64,
 }
 
@@ -99,7 +104,7 @@ impl Totals {
     /// Kinetic plus stored energy minus the work done by external forces: constant for
     /// an exact integrator.
     pub fn total_energy(&self) -> f64 {
-        self.kinetic + self.strain - self.external_work
+        self.kinetic + self.strain + self.plastic_work - self.external_work
     }
 }
 
@@ -814,7 +819,7 @@ impl<'c, const D: usize> Solver<'c, D> {
 
     /// Totals over all ranks.
     pub fn totals(&self) -> Totals {
-        let mut sums = vec![0.0; 4 + D];
+        let mut sums = vec![0.0; 5 + D];
         for p in 0..self.parts.len() {
             let m = self.parts.mass[p];
             let v = self.parts.v[p];
@@ -829,11 +834,15 @@ impl<'c, const D: usize> Solver<'c, D> {
             sums[2] += mat.strain_energy(
                 &self.parts.stress[p],
                 &f,
+                self.parts.be.get(p),
                 self.parts.vol[p],
                 self.parts.vol0[p],
             );
+            if let Some(&e) = self.parts.eps_p.get(p) {
+                sums[4] += mat.plastic_work(e, self.parts.vol0[p]);
+            }
             for a in 0..D {
-                sums[4 + a] += m * v[a];
+                sums[5 + a] += m * v[a];
             }
         }
         sums[3] = self.external_work;
@@ -845,7 +854,8 @@ impl<'c, const D: usize> Solver<'c, D> {
             kinetic: sums[1],
             strain: sums[2],
             external_work: sums[3],
-            momentum: sums[4..].to_vec(),
+            plastic_work: sums[4],
+            momentum: sums[5..].to_vec(),
             particles: n[0],
         }
     }

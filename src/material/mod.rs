@@ -9,11 +9,23 @@ pub mod neo_hookean;
 
 use crate::scene::{MaterialSpec, Model};
 use crate::tensor::Mat;
+use nalgebra::Matrix3;
 
 #[derive(Clone, Debug, PartialEq)]
 pub enum Material {
     LinearElastic(linear_elastic::LinearElastic),
     NeoHookean(neo_hookean::NeoHookean),
+    J2Plastic(j2_plastic::J2Plastic),
+    Brittle(brittle::Brittle),
+}
+
+/// A particle's internal variables, for the models that have them (empty slices of
+/// the particle arrays give `None`).
+pub struct Internal<'a> {
+    /// Elastic left Cauchy–Green tensor and equivalent plastic strain (`j2_plastic`).
+    pub plastic: Option<(&'a mut Matrix3<f64>, &'a mut f64)>,
+    /// Damage (`brittle`).
+    pub damage: Option<&'a mut f64>,
 }
 
 /// Lamé parameters from Young's modulus and Poisson's ratio.
@@ -37,6 +49,19 @@ impl Material {
                 mu,
                 density: s.density,
             }),
+            Model::J2Plastic => Material::J2Plastic(j2_plastic::J2Plastic {
+                lambda,
+                mu,
+                density: s.density,
+                yield_stress: s.yield_stress.expect("validated"),
+                hardening: s.hardening.unwrap_or(0.0),
+            }),
+            Model::Brittle => Material::Brittle(brittle::Brittle {
+                lambda,
+                mu,
+                density: s.density,
+                tensile_strength: s.tensile_strength.expect("validated"),
+            }),
         }
     }
 
@@ -44,6 +69,8 @@ impl Material {
         match self {
             Material::LinearElastic(m) => m.density,
             Material::NeoHookean(m) => m.density,
+            Material::J2Plastic(m) => m.density,
+            Material::Brittle(m) => m.density,
         }
     }
 
@@ -53,7 +80,8 @@ impl Material {
     }
 
     /// New Cauchy stress after a step with velocity gradient `l`, given the updated
-    /// deformation gradient `f` (meaningful only if [`Material::needs_def_grad`]).
+    /// deformation gradient `f` (meaningful only if [`Material::needs_def_grad`]) and
+    /// the particle's internal variables (present if the model has them).
     #[inline]
     pub fn update_stress<const D: usize>(
         &self,
@@ -61,10 +89,19 @@ impl Material {
         l: &Mat<D>,
         f: &Mat<D>,
         dt: f64,
+        internal: Internal<'_>,
     ) {
         match self {
             Material::LinearElastic(m) => m.update_stress(stress, l, dt),
             Material::NeoHookean(m) => *stress = m.stress(f),
+            Material::J2Plastic(m) => {
+                let (be, eps_p) = internal.plastic.expect("j2_plastic particles carry be");
+                *stress = m.update(be, eps_p, l, dt);
+            }
+            Material::Brittle(m) => {
+                let d = internal.damage.expect("brittle particles carry damage");
+                m.update_stress(stress, d, l, dt);
+            }
         }
     }
 
@@ -74,20 +111,35 @@ impl Material {
         match self {
             Material::LinearElastic(m) => ((m.lambda + 2.0 * m.mu) / m.density * j).sqrt(),
             Material::NeoHookean(m) => m.wave_speed(j),
+            Material::J2Plastic(m) => m.wave_speed(j),
+            Material::Brittle(m) => ((m.lambda + 2.0 * m.mu) / m.density * j).sqrt(),
         }
     }
 
-    /// Stored energy of a particle with current volume `vol` and reference volume `vol0`.
+    /// Stored energy of a particle with current volume `vol` and reference volume
+    /// `vol0`; `be` is its elastic left Cauchy–Green tensor where it carries one.
     pub fn strain_energy<const D: usize>(
         &self,
         stress: &Mat<D>,
         f: &Mat<D>,
+        be: Option<&Matrix3<f64>>,
         vol: f64,
         vol0: f64,
     ) -> f64 {
         match self {
             Material::LinearElastic(m) => vol * m.energy_density(stress),
             Material::NeoHookean(m) => vol0 * m.energy_density(f),
+            Material::J2Plastic(m) => vol0 * m.energy_density(be.expect("j2_plastic carries be")),
+            Material::Brittle(m) => vol * m.energy_density(stress),
+        }
+    }
+
+    /// Work dissipated by plastic flow in a particle of reference volume `vol0` with
+    /// equivalent plastic strain `eps_p`.
+    pub fn plastic_work(&self, eps_p: f64, vol0: f64) -> f64 {
+        match self {
+            Material::J2Plastic(m) => vol0 * m.plastic_work_density(eps_p),
+            _ => 0.0,
         }
     }
 }

@@ -115,3 +115,18 @@ pub fn snapshots(out: &std::path::Path, field: Option<&str>) -> Vec<Snapshot> {
         .map(|p| read_snapshot(p, field))
         .collect()
 }
+
+/// A scalar dataset of a snapshot (one value per particle, in file order).
+pub fn read_scalar(path: &std::path::Path, name: &str) -> Vec<f64> {
+    let f = hdf5::File::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    f.dataset(name).unwrap().read_raw().unwrap()
+}
+
+/// The 3 × 3 stress rows of a snapshot (row-major, padded with zeros below 3D).
+pub fn read_stress(path: &std::path::Path) -> Vec<[f64; 9]> {
+    let f = hdf5::File::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let v: Vec<f64> = f.dataset("stress").unwrap().read_raw().unwrap();
+    v.chunks_exact(9)
+        .map(|c| std::array::from_fn(|i| c[i]))
+        .collect()
+}
