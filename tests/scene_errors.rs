@@ -511,7 +511,7 @@ fn unknown_names_elsewhere() {
         edit(BAR, "model = \"linear_elastic\"", "model = \"rubber\""),
     )
     .key("materials[0].model")
-    .says("`linear_elastic` or `neo_hookean`");
+    .says("`linear_elastic`, `neo_hookean`, `j2_plastic`, `brittle`");
     check(
         "kind",
         edit(BAR, "kind = \"vibrating_bar\"", "kind = \"vortex\""),
@@ -866,4 +866,102 @@ fn checkpoint_table() {
         .key("checkpoint.keep_last")
         .at("keep_last")
         .says("unknown key `keep_last`");
+}
+
+/// 3D, `j2_plastic`, a `cylinder` cut by the slip symmetry planes.
+const TAYLOR: &str = include_str!("../inputs/taylor_bar.toml");
+/// 2D, `brittle`, `velocity_gradient`, a `damage` output.
+const BRITTLE: &str = include_str!("../inputs/brittle_bar.toml");
+
+#[test]
+fn hard_case_keys() {
+    check(
+        "yield_on_elastic",
+        edit(
+            DISKS,
+            "poisson_ratio = 0.3",
+            "poisson_ratio = 0.3\nyield_stress = 1.0",
+        ),
+    )
+    .key("materials[0].yield_stress")
+    .says("model = \"j2_plastic\" only");
+    check(
+        "j2_without_yield",
+        edit(TAYLOR, "yield_stress = 0.4e9\n", ""),
+    )
+    .key("materials[0].yield_stress")
+    .says("required by model = \"j2_plastic\"");
+    check(
+        "negative_hardening",
+        edit(TAYLOR, "hardening = 0.1e9", "hardening = -1.0"),
+    )
+    .key("materials[0].hardening")
+    .says(">= 0");
+    check(
+        "brittle_without_strength",
+        edit(BRITTLE, "tensile_strength = 27517.0\n", ""),
+    )
+    .key("materials[0].tensile_strength")
+    .says("required by model = \"brittle\"");
+    check(
+        "zero_strength",
+        edit(
+            BRITTLE,
+            "tensile_strength = 27517.0",
+            "tensile_strength = 0.0",
+        ),
+    )
+    .key("materials[0].tensile_strength")
+    .says("> 0");
+    check(
+        "plastic_strain_without_plasticity",
+        edit(BRITTLE, "\"damage\"]", "\"damage\", \"plastic_strain\"]"),
+    )
+    .key("output.fields[3]")
+    .says("no");
+    check(
+        "damage_without_brittle",
+        edit(
+            TAYLOR,
+            "\"plastic_strain\"]",
+            "\"plastic_strain\", \"damage\"]",
+        ),
+    )
+    .key("output.fields[3]")
+    .says("model = \"brittle\"");
+    check(
+        "cylinder_in_2d",
+        edit(
+            BRITTLE,
+            "shape = { box = { lower = [0.5, 0.0], upper = [1.5, 1.0] } }",
+            "shape = { cylinder = { center = [1.0, 0.5], radius = 0.2, z = [0.0, 1.0] } }",
+        ),
+    )
+    .key("bodies[0].shape.cylinder")
+    .says("dim = 3");
+    check(
+        "cylinder_upside_down",
+        edit(TAYLOR, "z = [0.0, 32.4e-3]", "z = [32.4e-3, 0.0]"),
+    )
+    .key("bodies[0].shape.cylinder.z")
+    .says("bottom < top");
+    // Only a slip face (a symmetry plane) may cut a body.
+    check(
+        "cut_by_fixed_face",
+        edit(TAYLOR, "x_lower = \"slip\"", "x_lower = \"fixed\""),
+    )
+    .key("bodies[0].shape")
+    .says("symmetry plane");
+    check(
+        "velocity_gradient_rows",
+        edit(BRITTLE, "[[1.0, 0.0], [0.0, 0.0]]", "[[1.0, 0.0]]"),
+    )
+    .key("bodies[0].velocity_gradient.value")
+    .says("2 rows");
+    check(
+        "velocity_gradient_about",
+        edit(BRITTLE, "about = [1.0, 0.0]", "about = [1.0]"),
+    )
+    .key("bodies[0].velocity_gradient.about")
+    .says("dim = 2");
 }
