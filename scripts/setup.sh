@@ -2,10 +2,11 @@
 # Installs what mpmcg needs to build and run on Debian 12 / Ubuntu: OpenMPI, parallel
 # HDF5, libclang (rsmpi's bindgen), and a Rust toolchain if there is none.
 # Idempotent: when everything is there it only checks and returns in a moment.
+# Extra Debian packages may be named as arguments (scripts/gallery.sh adds its Python).
 set -euo pipefail
 
 packages=(gcc libc6-dev pkg-config libclang-dev libopenmpi-dev openmpi-bin
-          libhdf5-openmpi-dev hdf5-tools)
+          libhdf5-openmpi-dev hdf5-tools "$@")
 missing=()
 for p in "${packages[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
