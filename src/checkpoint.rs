@@ -181,6 +181,18 @@ fn columns(d: usize, c: Carries) -> String {
     if c.half {
         vec(&mut cols, "half");
     }
+    if c.plastic {
+        // b_e is 3 × 3 whatever the dimension, column-major like the others.
+        for j in 0..3 {
+            for i in 0..3 {
+                cols.push(format!("be[{i}][{j}]"));
+            }
+        }
+        cols.push("eps_p".into());
+    }
+    if c.damage {
+        cols.push("damage".into());
+    }
     cols.join(" ")
 }
 

@@ -754,7 +754,7 @@ fn unusable_checkpoints_are_rejected() {
     }
     run(
         &future,
-        "checkpoint format version 99, but this mpmcg reads version 1",
+        "checkpoint format version 99, but this mpmcg reads version 2",
     );
     // Particle data changed in the middle of the file: the checksum notices.
     let flipped = put("flipped.h5", &bytes);
