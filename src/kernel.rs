@@ -63,7 +63,10 @@ impl<const D: usize> Ctx<'_, D> {
             idx: [0; N],
             s: [0.0; N],
             g: [[0.0; D]; N],
-            alpha: self.alpha.eval(&w.xi),
+            alpha: match self.alpha {
+                Alpha::ProductOfShapes => w.bubble,
+                Alpha::Constant(c) => c,
+            },
         };
         for n in 0..N {
             let mut r = n;
@@ -244,6 +247,20 @@ pub struct GatherMode {
     pub move_now: bool,
     /// The scheme uses grid-averaged gradients (`avg` holds L̄).
     pub two_step: bool,
+    /// Report the fastest signal speed (only the step's last particle pass needs to:
+    /// a wave speed costs a logarithm and a square root per particle).
+    pub speed: bool,
+}
+
+/// What a stress update reads and reports.
+#[derive(Clone, Copy, Debug)]
+pub struct StressMode {
+    /// Velocity slot of the grid record to differentiate.
+    pub slot: usize,
+    pub dt: f64,
+    pub two_step: bool,
+    /// Report the fastest signal speed (see [`GatherMode::speed`]).
+    pub speed: bool,
 }
 
 /// Velocity gradient at a particle from velocity slot `slot` and, for two-step
@@ -355,7 +372,9 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
             } else {
                 s.dx[p] = vn * m.dt;
             }
-            t.max_speed = t.max_speed.max(speed(ctx, &s, p));
+            if m.speed {
+                t.max_speed = t.max_speed.max(speed(ctx, &s, p));
+            }
         }
         t
     })
@@ -367,18 +386,18 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
     parts: Slices<'_, D>,
     vel: &[f64],
     avg: &[f64],
-    slot: usize,
-    dt: f64,
-    two_step: bool,
+    m: StressMode,
 ) -> Tally {
     par(parts, &|mut s: Slices<'_, D>| {
         let mut t = Tally::ZERO;
         for p in 0..s.len() {
             let half = if ctx.gimp { Some(&s.half[p]) } else { None };
             let k = ctx.kern::<NA, N>(&s.x[p], half);
-            let l = velocity_gradient(&k, vel, avg, slot, two_step);
-            t.ok &= deform(ctx, &mut s, p, &l, dt);
-            t.max_speed = t.max_speed.max(speed(ctx, &s, p));
+            let l = velocity_gradient(&k, vel, avg, m.slot, m.two_step);
+            t.ok &= deform(ctx, &mut s, p, &l, m.dt);
+            if m.speed {
+                t.max_speed = t.max_speed.max(speed(ctx, &s, p));
+            }
         }
         t
     })

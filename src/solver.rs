@@ -331,16 +331,20 @@ impl<'c, const D: usize> Solver<'c, D> {
     }
 
     /// Particle → grid: mass, momentum and, if `forces`, external and internal forces.
-    fn scatter(&mut self, forces: bool) {
+    /// `moved`: the particles moved since the last scatter, so their slab order must
+    /// be rebuilt (the second scatter of a USF or MUSL step sees the same positions).
+    fn scatter(&mut self, forces: bool, moved: bool) {
         let two = self.two_step();
         self.scat.iter_mut().for_each(|v| *v = 0.0);
         let last = D - 1;
-        self.slabs.build(
-            &self.geom,
-            &self.parts.x,
-            self.block.cell_lo[last],
-            self.block.cell_hi[last],
-        );
+        if moved {
+            self.slabs.build(
+                &self.geom,
+                &self.parts.x,
+                self.block.cell_lo[last],
+                self.block.cell_hi[last],
+            );
+        }
         let ctx = ctx!(self);
         let parts = kernel::ScatterParts {
             x: &self.parts.x,
@@ -603,7 +607,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         let mut ok = true;
         match self.update {
             Update::Usl => {
-                self.scatter(true);
+                self.scatter(true, true);
                 if self.two_step() {
                     self.averaged_force();
                 }
@@ -611,36 +615,36 @@ impl<'c, const D: usize> Solver<'c, D> {
                 if self.two_step() {
                     self.averaged_velocity_gradient(1);
                 }
-                ok &= self.gather(dt, true, true);
+                ok &= self.gather(dt, true, true, true);
             }
             Update::Usf => {
-                self.scatter(false);
+                self.scatter(false, true);
                 self.grid_velocity(0.0);
                 if self.two_step() {
                     self.averaged_velocity_gradient(0);
                 }
-                ok &= self.update_stress_from(0, dt);
-                self.scatter(true);
+                ok &= self.update_stress_from(0, dt, false);
+                self.scatter(true, false);
                 if self.two_step() {
                     self.averaged_force();
                 }
                 self.grid_velocity(dt);
-                ok &= self.gather(dt, false, true);
+                ok &= self.gather(dt, false, true, true);
             }
             Update::Musl => {
-                self.scatter(true);
+                self.scatter(true, true);
                 if self.two_step() {
                     self.averaged_force();
                 }
                 self.grid_velocity(dt);
-                ok &= self.gather(dt, false, false);
+                ok &= self.gather(dt, false, false, false);
                 // Remap the new particle momentum to the grid, still at the old positions.
-                self.scatter(false);
+                self.scatter(false, false);
                 self.grid_velocity(0.0);
                 if self.two_step() {
                     self.averaged_velocity_gradient(0);
                 }
-                ok &= self.update_stress_from(0, dt);
+                ok &= self.update_stress_from(0, dt, true);
                 for (x, dx) in self.parts.x.iter_mut().zip(&self.dx) {
                     *x += dx;
                 }
@@ -669,7 +673,9 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// Grid → particle: velocities (FLIP/PIC blend) and positions from slot 1, and if
     /// `stress` the velocity gradient, deformation and stress. If `!move_now`, the
     /// position increments are kept in `dx` for later (MUSL).
-    fn gather(&mut self, dt: f64, stress: bool, move_now: bool) -> bool {
+    /// `speed`: this is the step's last particle pass, which sets the signal speed the
+    /// next step size follows.
+    fn gather(&mut self, dt: f64, stress: bool, move_now: bool, speed: bool) -> bool {
         let n = self.parts.len();
         self.dx
             .resize(if move_now { 0 } else { n }, Vector::<D>::zeros());
@@ -679,6 +685,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             stress,
             move_now,
             two_step: self.two_step(),
+            speed,
         };
         let ctx = ctx!(self);
         let parts = slices!(self);
@@ -692,13 +699,20 @@ impl<'c, const D: usize> Solver<'c, D> {
             mode
         );
         self.external_work += t.work;
-        self.max_speed = t.max_speed;
+        if speed {
+            self.max_speed = t.max_speed;
+        }
         t.ok
     }
 
     /// Stress update from grid velocity slot `slot` at the current positions.
-    fn update_stress_from(&mut self, slot: usize, dt: f64) -> bool {
-        let two = self.two_step();
+    fn update_stress_from(&mut self, slot: usize, dt: f64, speed: bool) -> bool {
+        let m = kernel::StressMode {
+            slot,
+            dt,
+            two_step: self.two_step(),
+            speed,
+        };
         let ctx = ctx!(self);
         let parts = slices!(self);
         let t = by_nodes!(
@@ -708,11 +722,11 @@ impl<'c, const D: usize> Solver<'c, D> {
             parts,
             &self.vel,
             &self.avg,
-            slot,
-            dt,
-            two
+            m
         );
-        self.max_speed = t.max_speed;
+        if speed {
+            self.max_speed = t.max_speed;
+        }
         t.ok
     }
 
