@@ -145,19 +145,16 @@ fn restart_scene(
     let label = format!("{}:/scene", ckpt.display());
     let sc = scene::parse(&header.scene_text, &label).map_err(|e| e.to_string())?;
     if let Some(path) = scene_file {
-        let (_, text) = scene::load(path).map_err(|e| e.to_string())?;
+        let (given, text) = scene::load(path).map_err(|e| e.to_string())?;
         if text != header.scene_text {
-            let line = text
-                .lines()
-                .zip(header.scene_text.lines())
-                .position(|(a, b)| a != b)
-                .unwrap_or_else(|| text.lines().count().min(header.scene_text.lines().count()))
-                + 1;
-            return Err(format!(
-                "{}: scene does not match checkpoint {} (first difference at line {line}); restart without a scene to use the stored one",
-                path.display(),
-                ckpt.display()
-            ));
+            if let Some(key) = scene::restart_difference(&sc, &given) {
+                return Err(format!(
+                    "{}: key `{key}` differs from the scene of checkpoint {}; a restart may change only time.end, time.cfl, time.dt, output.every and [checkpoint] (restart without a scene to use the stored one)",
+                    path.display(),
+                    ckpt.display()
+                ));
+            }
+            return Ok((given, text));
         }
     }
     Ok((sc, header.scene_text))

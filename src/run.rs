@@ -286,7 +286,22 @@ fn set_up<'c, const D: usize>(
         step: s.step,
         time: s.t,
     };
-    Ok((solver, Some(restored.run), Some(info)))
+    let mut run = restored.run;
+    // A restart with an edited scene (longer, other step size, other output or
+    // checkpoint intervals: see scene::restart_difference) reschedules its output from
+    // the checkpoint's time; an unchanged scene keeps the stored schedule bit for bit.
+    if opts.scene_text.as_deref() != Some(header.scene_text.as_str()) {
+        let next = |every: f64| ((s.t / every + 1e-9).floor() + 1.0) * every;
+        run.next_snapshot = scene
+            .output
+            .as_ref()
+            .map_or(f64::INFINITY, |o| next(o.every));
+        run.next_checkpoint = match scene.checkpoint.as_ref().map(|c| c.schedule()) {
+            Some(CheckpointEvery::Time(every)) => next(every),
+            _ => f64::INFINITY,
+        };
+    }
+    Ok((solver, Some(run), Some(info)))
 }
 
 fn run_dim<const D: usize>(

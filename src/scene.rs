@@ -503,6 +503,61 @@ fn variants<T: serde::de::DeserializeOwned>() -> &'static [&'static str] {
     cell.get()
 }
 
+/// The first key (as `a.b[0].c`) in which scene `b` differs from `a` beyond what a
+/// restart may change: how long to run (`time.end`), the step size (`time.cfl`,
+/// `time.dt`), how often to write snapshots (`output.every`; their fields must stay,
+/// the XDMF index lists one set for the whole series) and the `[checkpoint]` table.
+pub fn restart_difference(a: &Scene, b: &Scene) -> Option<String> {
+    fn strip(s: &Scene) -> serde_json::Value {
+        let mut v = serde_json::to_value(s).expect("a scene serialises");
+        let o = v.as_object_mut().expect("a table");
+        o.remove("checkpoint");
+        if let Some(t) = o.get_mut("time").and_then(|t| t.as_object_mut()) {
+            for k in ["end", "cfl", "dt"] {
+                t.remove(k);
+            }
+        }
+        if let Some(t) = o.get_mut("output").and_then(|t| t.as_object_mut()) {
+            t.remove("every");
+        }
+        v
+    }
+    fn first(a: &serde_json::Value, b: &serde_json::Value, path: &str) -> Option<String> {
+        use serde_json::Value;
+        let join = |k: &str| {
+            if path.is_empty() {
+                k.to_string()
+            } else {
+                format!("{path}.{k}")
+            }
+        };
+        match (a, b) {
+            (Value::Object(x), Value::Object(y)) => {
+                let mut keys: Vec<&String> = x.keys().chain(y.keys()).collect();
+                keys.sort();
+                keys.dedup();
+                keys.into_iter().find_map(|k| match (x.get(k), y.get(k)) {
+                    (Some(p), Some(q)) => first(p, q, &join(k)),
+                    (None, Some(Value::Null)) | (Some(Value::Null), None) => None,
+                    _ => Some(join(k)),
+                })
+            }
+            (Value::Array(x), Value::Array(y)) if x.len() == y.len() => x
+                .iter()
+                .zip(y)
+                .enumerate()
+                .find_map(|(i, (p, q))| first(p, q, &format!("{path}[{i}]"))),
+            _ if a == b => None,
+            _ => Some(if path.is_empty() {
+                "(scene)".into()
+            } else {
+                path.into()
+            }),
+        }
+    }
+    first(&strip(a), &strip(b), "")
+}
+
 /// The variants allowed at a key path whose value is an enum (indices written `[]`).
 fn choices(key: &str) -> Option<&'static [&'static str]> {
     Some(match key {

@@ -6,7 +6,9 @@
 //! - a run killed with SIGKILL restarts from its last complete checkpoint and ends
 //!   like an uninterrupted run; SIGTERM ends a run cleanly with a final checkpoint,
 //!   status "interrupted" and exit status 4; a run that turns unstable checkpoints
-//!   its last good state;
+//!   its last good state, which continues with a smaller step;
+//! - a restart may run longer than planned (bit for bit like the longer run) and
+//!   refuses any other change to the scene, naming the key;
 //! - snapshots and the XDMF index read back;
 //! - unusable checkpoints end with exit status 2 and a message naming the file.
 
@@ -464,6 +466,111 @@ fn unstable_run_checkpoints_its_last_good_state() {
         ha == hb,
         "history.csv up to the failure differs after the restart"
     );
+    // Continued from the same state with a smaller step, the run completes.
+    let smaller = dir.join("smaller.toml");
+    std::fs::write(
+        &smaller,
+        std::fs::read_to_string(&sc)
+            .unwrap()
+            .replace("dt = 0.07", "dt = 0.02"),
+    )
+    .unwrap();
+    let rescued = dir.join("rescued");
+    ok(
+        2,
+        &[
+            "run",
+            s(&smaller),
+            "--restart",
+            s(&c[0]),
+            "--out",
+            s(&rescued),
+            "--quiet",
+        ],
+    );
+    let r = summary(&rescued);
+    assert_eq!(r["status"], "completed");
+    assert_eq!(r["restarted_from"]["step"].as_u64(), Some(good));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A restart may run longer (and change the step size, output interval, checkpoints):
+/// a run to t = 1.2 restarted from its checkpoint at 0.6 with the scene's end moved to
+/// 2.4 ends bit for bit like a run straight to 2.4. Anything else that differs is
+/// refused with exit 2, naming the key.
+#[test]
+fn restart_with_a_longer_end() {
+    let dir = temp_dir("restart-longer");
+    let short = crossing_scene(16, 1.2, "every = 0.6");
+    let long = short.replacen("end = 1.2", "end = 2.4", 1);
+    let (ss, sl) = (dir.join("short.toml"), dir.join("long.toml"));
+    std::fs::write(&ss, &short).unwrap();
+    std::fs::write(&sl, &long).unwrap();
+    let straight = dir.join("straight");
+    ok(2, &["run", s(&sl), "--out", s(&straight), "--quiet"]);
+    let first = dir.join("first");
+    ok(2, &["run", s(&ss), "--out", s(&first), "--quiet"]);
+    let c = files(&first, "checkpoint_");
+    assert_eq!(c.len(), 1, "{c:?}");
+    let longer = dir.join("longer");
+    ok(
+        2,
+        &[
+            "run",
+            s(&sl),
+            "--restart",
+            s(&c[0]),
+            "--out",
+            s(&longer),
+            "--quiet",
+        ],
+    );
+    let (a, b) = (
+        snapshot(&last_snapshot(&straight)),
+        snapshot(&last_snapshot(&longer)),
+    );
+    assert!(a == b, "final states differ");
+    let (ja, jb) = (summary(&straight), summary(&longer));
+    for k in ["steps", "time", "particles", "mass", "momentum"] {
+        assert_eq!(ja[k], jb[k], "summary `{k}`");
+    }
+    for (name, from, to, key) in [
+        (
+            "stiffer",
+            "youngs_modulus = 1000.0",
+            "youngs_modulus = 2000.0",
+            "materials[0].youngs_modulus",
+        ),
+        (
+            "fields",
+            "fields = [\"velocity\", \"stress\", \"displacement\"]",
+            "fields = [\"velocity\"]",
+            "output.fields",
+        ),
+        (
+            "scheme",
+            "gradient = \"mpmcg\"",
+            "gradient = \"mpm\"",
+            "method.gradient",
+        ),
+    ] {
+        let f = dir.join(format!("{name}.toml"));
+        std::fs::write(&f, long.replacen(from, to, 1)).unwrap();
+        let words = format!("key `{key}` differs from the scene of checkpoint");
+        rejected(
+            &[
+                "run",
+                s(&f),
+                "--restart",
+                s(&c[0]),
+                "--out",
+                s(&dir.join(name)),
+                "--quiet",
+            ],
+            &f,
+            &words,
+        );
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 
