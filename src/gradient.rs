@@ -423,14 +423,15 @@ pub fn gradient<const D: usize>(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::solver::cell_integral;
 
     type Pairs<const D: usize> = Vec<([i64; D], [f64; D])>;
 
-    /// splitmix64: deterministic pseudo-random numbers without a dependency.
-    struct Rng(u64);
+    /// splitmix64: deterministic pseudo-random numbers without a dependency (also
+    /// used by the solver's tests).
+    pub(crate) struct Rng(pub(crate) u64);
 
     impl Rng {
         fn next(&mut self) -> u64 {
@@ -440,7 +441,7 @@ mod tests {
             z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
             z ^ (z >> 31)
         }
-        fn f64(&mut self) -> f64 {
+        pub(crate) fn f64(&mut self) -> f64 {
             (self.next() >> 11) as f64 / (1u64 << 53) as f64
         }
         fn below(&mut self, n: usize) -> usize {

@@ -266,7 +266,7 @@ pub struct StressMode {
 /// Velocity gradient at a particle from velocity slot `slot` and, for two-step
 /// schemes, the nodal `L̄` in `avg`.
 #[inline(always)]
-fn velocity_gradient<const D: usize, const N: usize>(
+pub(crate) fn velocity_gradient<const D: usize, const N: usize>(
     k: &Kern<D, N>,
     vel: &[f64],
     avg: &[f64],
