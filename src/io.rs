@@ -192,9 +192,15 @@ impl Snapshots {
         );
         for e in &self.entries {
             let n = e.particles;
+            // `cols` 0: one value per particle.
             let item = |path: &str, cols: usize| {
+                let dims = if cols == 0 {
+                    n.to_string()
+                } else {
+                    format!("{n} {cols}")
+                };
                 format!(
-                    "<DataItem Dimensions=\"{n} {cols}\" NumberType=\"Float\" Precision=\"8\" Format=\"HDF\">{}:/{path}</DataItem>",
+                    "<DataItem Dimensions=\"{dims}\" NumberType=\"Float\" Precision=\"8\" Format=\"HDF\">{}:/{path}</DataItem>",
                     e.file()
                 )
             };
@@ -218,16 +224,9 @@ impl Snapshots {
                     Field::PlasticStrain => ("plastic_strain", "Scalar", 0),
                     Field::Damage => ("damage", "Scalar", 0),
                 };
-                let data = if cols == 0 {
-                    format!(
-                        "<DataItem Dimensions=\"{n}\" NumberType=\"Float\" Precision=\"8\" Format=\"HDF\">{}:/{name}</DataItem>",
-                        e.file()
-                    )
-                } else {
-                    item(name, cols)
-                };
                 x += &format!(
-                    "    <Attribute Name=\"{name}\" AttributeType=\"{ty}\" Center=\"Node\">{data}</Attribute>\n"
+                    "    <Attribute Name=\"{name}\" AttributeType=\"{ty}\" Center=\"Node\">{}</Attribute>\n",
+                    item(name, cols)
                 );
             }
             x += "   </Grid>\n";

@@ -260,7 +260,7 @@ fn set_up<'c, const D: usize>(
         return Ok((Solver::new(scene, comm, layout.clone()), None, None));
     };
     let geom = Solver::<D>::geometry(scene);
-    let carries = Solver::<D>::carries_for(scene);
+    let carries = crate::particles::Carries::for_scene(scene);
     let r = checkpoint::read_header(path).and_then(|h| {
         checkpoint::read::<D>(&h, comm.rank(), layout, &geom, carries).map(|x| (h, x))
     });

@@ -947,7 +947,8 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
                 format!("must be in (-1, 0.5), got {}", m.poisson_ratio),
             ));
         }
-        // Each model's own parameters: required by it, rejected elsewhere.
+        // Each model's own parameters: rejected elsewhere; a required one must be
+        // > 0, an optional one (default 0) >= 0.
         let own = [
             ("yield_stress", m.yield_stress, Model::J2Plastic, true),
             ("hardening", m.hardening, Model::J2Plastic, false),
@@ -959,13 +960,13 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
                 Some(_) if m.model != model => {
                     return Err((k(key), format!("is a parameter of model = \"{name}\" only")))
                 }
-                Some(x) if key == "hardening" => {
+                Some(x) if required => positive(&k(key), x)?,
+                Some(x) => {
                     finite(&k(key), x)?;
                     if x < 0.0 {
                         return Err((k(key), format!("must be >= 0, got {x}")));
                     }
                 }
-                Some(x) => positive(&k(key), x)?,
                 None if required && m.model == model => {
                     return Err((k(key), format!("is required by model = \"{name}\"")))
                 }

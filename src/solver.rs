@@ -199,13 +199,8 @@ impl<'c, const D: usize> Solver<'c, D> {
         )
     }
 
-    /// The optional particle arrays a scene needs.
-    pub fn carries_for(scene: &Scene) -> Carries {
-        Carries::for_scene(scene)
-    }
-
     /// A solver at t = 0 on the given particles of this rank's block (they must lie in
-    /// its cells and carry the arrays of [`Solver::carries_for`]).
+    /// its cells and carry the arrays of [`Carries::for_scene`]).
     pub fn with_particles(
         scene: &Scene,
         comm: &'c dyn Communicator,
@@ -219,7 +214,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         let block = Block::new(&layout, comm.rank());
         let materials: Vec<Material> = scene.materials.iter().map(Material::from_spec).collect();
         let benchmark = Benchmark::<D>::new(scene);
-        let carries = Self::carries_for(scene);
+        let carries = Carries::for_scene(scene);
         let migrator = Migrator::new(&layout, &block, Particles::<D>::record_width(carries));
         let gradient = scene.method.gradient;
         let alpha = match gradient {

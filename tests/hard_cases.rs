@@ -3,23 +3,9 @@
 //! what it measured (`cargo test --test hard_cases -- --nocapture`).
 
 mod common;
-use common::{history, snapshots, temp_dir, Snapshot};
-use mpmcg::run::{run, RunError, RunOptions, Summary};
+use common::{history, run_scene, snapshots, Snapshot};
+use mpmcg::run::RunError;
 use std::collections::HashMap;
-use std::path::PathBuf;
-
-/// Run scene text on one rank, keeping an unstable run's error instead of panicking.
-fn run_scene(text: &str, tag: &str) -> (Result<Summary, RunError>, PathBuf) {
-    let scene = mpmcg::scene::parse(text, tag).unwrap_or_else(|e| panic!("scene {tag}: {e}"));
-    let out = temp_dir(tag);
-    let opts = RunOptions {
-        out: out.clone(),
-        quiet: true,
-        threads: 1,
-        ..RunOptions::default()
-    };
-    (run(&scene, &decomposition::SerialComm, &opts), out)
-}
 
 fn with_gradient(text: &str, g: &str) -> String {
     let mut lines: Vec<String> = text.lines().map(String::from).collect();

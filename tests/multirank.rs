@@ -238,19 +238,6 @@ velocity = [1.0, 0.0]
     assert_eq!(summary(&out)["status"], "unstable");
 }
 
-/// Per id: position row and a scalar field of a snapshot.
-fn scalar_by_id(path: &Path, field: &str) -> Vec<(i64, [f64; 3], f64)> {
-    let f = hdf5::File::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let id: Vec<i64> = f.dataset("id").unwrap().read_raw().unwrap();
-    let x: Vec<f64> = f.dataset("position").unwrap().read_raw().unwrap();
-    let s: Vec<f64> = f.dataset(field).unwrap().read_raw().unwrap();
-    let mut rows: Vec<_> = (0..id.len())
-        .map(|i| (id[i], [x[3 * i], x[3 * i + 1], x[3 * i + 2]], s[i]))
-        .collect();
-    rows.sort_by_key(|r| r.0);
-    rows
-}
-
 /// The plastic state (elastic left Cauchy–Green tensor, plastic strain) travels with
 /// its particles: the coarse Taylor bar, cut short at 30 µs while the bar shortens by
 /// about 8 cells across the z-blocks, gives the same positions and plastic strains on
@@ -267,7 +254,7 @@ fn plastic_state_migrates_with_particles() {
         let out = dir.join(format!("r{n}"));
         let (code, err) = mpirun(n, &sc, &out);
         assert_eq!(code, 0, "taylor bar on {n} ranks: {err}");
-        scalar_by_id(&last_snapshot(&out), "plastic_strain")
+        common::scalar_by_id(&last_snapshot(&out), "plastic_strain")
     };
     let (a, b) = (run(1), run(3));
     assert_eq!(a.len(), b.len());

@@ -2,7 +2,7 @@
 //! read the files it writes.
 #![allow(dead_code)]
 
-use mpmcg::run::{run, RunOptions, Summary};
+use mpmcg::run::{run, RunError, RunOptions, Summary};
 use mpmcg::scene::parse;
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -15,8 +15,9 @@ pub fn temp_dir(tag: &str) -> PathBuf {
     d
 }
 
-/// Run scene text on one rank; returns the summary and the output folder.
-pub fn run_text(text: &str, tag: &str) -> (Summary, PathBuf) {
+/// Run scene text on one rank; returns the run's result (an unstable run's error
+/// too) and the output folder.
+pub fn run_scene(text: &str, tag: &str) -> (Result<Summary, RunError>, PathBuf) {
     let scene = parse(text, tag).unwrap_or_else(|e| panic!("scene {tag}: {e}"));
     let out = temp_dir(tag);
     let opts = RunOptions {
@@ -25,9 +26,14 @@ pub fn run_text(text: &str, tag: &str) -> (Summary, PathBuf) {
         threads: 1,
         ..RunOptions::default()
     };
-    let s =
-        run(&scene, &decomposition::SerialComm, &opts).unwrap_or_else(|e| panic!("run {tag}: {e}"));
-    (s, out)
+    (run(&scene, &decomposition::SerialComm, &opts), out)
+}
+
+/// Run scene text on one rank, which must complete; returns the summary and the
+/// output folder.
+pub fn run_text(text: &str, tag: &str) -> (Summary, PathBuf) {
+    let (r, out) = run_scene(text, tag);
+    (r.unwrap_or_else(|e| panic!("run {tag}: {e}")), out)
 }
 
 /// The rows of `history.csv` as column name → value.
@@ -129,4 +135,15 @@ pub fn read_stress(path: &std::path::Path) -> Vec<[f64; 9]> {
     v.chunks_exact(9)
         .map(|c| std::array::from_fn(|i| c[i]))
         .collect()
+}
+
+/// A snapshot's particles sorted by id: (id, position row, the scalar `field`).
+pub fn scalar_by_id(path: &std::path::Path, field: &str) -> Vec<(i64, [f64; 3], f64)> {
+    let sn = read_snapshot(path, None);
+    let s = read_scalar(path, field);
+    let mut rows: Vec<_> = (0..sn.id.len())
+        .map(|i| (sn.id[i], sn.x[i], s[i]))
+        .collect();
+    rows.sort_by_key(|r| r.0);
+    rows
 }
