@@ -147,3 +147,22 @@ pub fn scalar_by_id(path: &std::path::Path, field: &str) -> Vec<(i64, [f64; 3], 
     rows.sort_by_key(|r| r.0);
     rows
 }
+
+/// Two runs' [`scalar_by_id`] rows agree: the same ids, positions within 1e-12 of
+/// `length`, the scalar within 1e-12 of its peak (returned) in `a`.
+pub fn assert_rows_close(
+    a: &[(i64, [f64; 3], f64)],
+    b: &[(i64, [f64; 3], f64)],
+    length: f64,
+) -> f64 {
+    assert_eq!(a.len(), b.len(), "particle count");
+    let peak = a.iter().map(|r| r.2).fold(0.0, f64::max);
+    for (p, q) in a.iter().zip(b) {
+        assert_eq!(p.0, q.0);
+        for k in 0..3 {
+            assert!((p.1[k] - q.1[k]).abs() < 1e-12 * length, "{p:?} vs {q:?}");
+        }
+        assert!((p.2 - q.2).abs() < 1e-12 * peak, "{p:?} vs {q:?}");
+    }
+    peak
+}
