@@ -476,7 +476,8 @@ pub struct ScatterMode {
     pub sw: usize,
     /// Scatter external and internal forces (else mass and momentum only).
     pub forces: bool,
-    /// Also accumulate Σ(1−α) v σ S and the cell's particle count (two-step schemes).
+    /// Also accumulate Σ(1−α) v σ S and the nodes' covered volume Σ v S (two-step
+    /// schemes).
     pub two_step: bool,
     /// Local node row (last axis) of the first owned cell's lower corner.
     pub row0: usize,
@@ -577,16 +578,13 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
         let k = ctx.kern::<NA, N>(&parts.x[p], half);
         let mass = parts.mass[p];
         let mv = parts.v[p] * mass;
-        let vs = parts.stress[p] * parts.vol[p];
+        let vol = parts.vol[p];
+        let vs = parts.stress[p] * vol;
         let fe = if m.forces {
             ctx.accel(parts.x0, p) * mass
         } else {
             Vector::<D>::zeros()
         };
-        if m.two_step {
-            // The linear stencil's first node is the cell's lower corner.
-            window[k.idx[0] * sw - offset + sw - 1] += 1.0;
-        }
         for n in 0..N {
             let at = k.idx[n] * sw - offset;
             let rec = &mut window[at..at + sw];
@@ -594,6 +592,9 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
             rec[0] += mass * s;
             for a in 0..D {
                 rec[1 + a] += mv[a] * s;
+            }
+            if m.two_step {
+                rec[sw - 1] += vol * s;
             }
             if m.forces {
                 let g = &k.g[n];

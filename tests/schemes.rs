@@ -237,10 +237,10 @@ fn momentum_and_mass_conserved_3d() {
 }
 
 /// One USL step of the solver against the same step written out with the reference
-/// gradients of `mpmcg::gradient`, Ω = the cells holding particles:
+/// gradients of `mpmcg::gradient`, Ω the continuous cell weights of the particles:
 /// `f_i = −Σ_p v_p σ_p · G_i(x_p)`, `v_i' = v_i + dt f_i / m_i`,
 /// `L_p = Σ_i v_i' ⊗ G_i(x_p)`, FLIP velocity, PIC position, linear elastic stress.
-/// This checks the solver's two local steps (σ̄_j, L̄_j over occupied cells, node
+/// This checks the solver's two local steps (σ̄_j, L̄_j over weighted cells, node
 /// volumes, ghost handling) against the one-formula definition, including periodic
 /// seams and a body that leaves cells empty.
 // Index loops over tensor components read like the formulas they check.
@@ -252,18 +252,14 @@ fn check_step<const D: usize>(
     seed: u64,
 ) -> f64 {
     use mpmcg::gradient::{self as gr, Domain, Scheme};
-    use std::collections::{BTreeMap, BTreeSet};
+    use std::collections::BTreeMap;
     let mut s = solver_with_state::<D>(text, alpha.map(Alpha::Constant), seed);
     let geom = s.geom.clone();
     let n = s.parts.len();
     let x: Vec<[f64; D]> = (0..n)
         .map(|p| std::array::from_fn(|a| s.parts.x[p][a]))
         .collect();
-    let cells: BTreeSet<[i64; D]> = x
-        .iter()
-        .map(|xp| gr::wrap_node(&geom, gr::cell_of(&geom, xp).0))
-        .collect();
-    let omega = Domain::Cells(cells);
+    let omega = Domain::from_particles(&geom, &x, &s.parts.vol, mpmcg::solver::FULL_FILL);
     let half = s.parts.half.clone();
     let scheme = |p: usize| match (gradient, alpha) {
         (_, Some(c)) => Scheme::Mpmcg(Alpha::Constant(c)),
