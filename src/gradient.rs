@@ -1069,7 +1069,9 @@ pub(crate) mod tests {
                     })
                     .collect();
                 let vol = vec![geom.cell_volume() / (ppc.pow(D as u32)) as f64; total];
-                let Domain::Weighted(w) = Domain::from_particles(&geom, &x, &vol, 0.5) else {
+                let Domain::Weighted(w) =
+                    Domain::from_particles(&geom, &x, &vol, crate::solver::FULL_FILL)
+                else {
                     unreachable!()
                 };
                 let cells: usize = geom.cells.iter().product();

@@ -111,6 +111,82 @@ fn cantilever_does_not_separate() {
     }
 }
 
+/// The cantilever of `inputs/cantilever.toml` with another length, Young's modulus and
+/// particles per cell; the grid grows with the length so that the beam can hang down.
+fn cantilever_variant(length: f64, youngs: f64, ppc: usize) -> String {
+    let h = 0.25;
+    let text = include_str!("../inputs/cantilever.toml");
+    let cells_x = ((length + 1.0) / h).round() as usize;
+    let depth = length + 0.5;
+    let cells_y = ((depth + 1.5) / h).round() as usize;
+    let edits = [
+        (
+            "youngs_modulus = 1.0e6",
+            format!("youngs_modulus = {youngs:e}"),
+        ),
+        ("upper = [4.0, 1.0]", format!("upper = [{length:.1}, 1.0]")),
+        (
+            "lower = [0.0, -4.0]",
+            format!("lower = [0.0, {:.1}]", -depth),
+        ),
+        (
+            "upper = [5.0, 1.5]",
+            format!("upper = [{:.1}, 1.5]", length + 1.0),
+        ),
+        (
+            "cells = [20, 22]",
+            format!("cells = [{cells_x}, {cells_y}]"),
+        ),
+        (
+            "particles_per_cell = 4",
+            format!("particles_per_cell = {ppc}"),
+        ),
+    ];
+    let mut out = text.to_string();
+    for (from, to) in edits {
+        assert!(out.contains(from), "cantilever.toml has no `{from}`");
+        out = out.replacen(from, &to, 1);
+    }
+    out
+}
+
+/// The cantilever family at 3 × 3 particles per cell (h = 0.25 m, 4 cells through the
+/// thickness): beams of 3, 4, 5 and 6 m, E = 1–2 MPa, sagging by metres under gravity,
+/// stay in one piece under MPMCG with MUSL in every snapshot (particles closer than a
+/// cell are neighbours) and complete. Before the continuous domain weights the 4 m beam
+/// broke in two here; MPM keeps these whole as well. At 2 × 2 neither scheme is reliably
+/// whole (README, Hard cases; `scripts/cantilever_family.sh` measures both).
+#[test]
+fn cantilever_family_stays_whole_at_3x3() {
+    let h = 0.25;
+    for (length, youngs) in [(3.0, 2.0e6), (4.0, 1.0e6), (5.0, 1.0e6), (6.0, 2.0e6)] {
+        let tag = format!("family-{length}-{youngs:e}");
+        let (r, out) = run_scene(&cantilever_variant(length, youngs, 3), &tag);
+        let s = r.unwrap_or_else(|e| panic!("{tag}: {e}"));
+        let snaps = snapshots(&out, None);
+        assert!(snaps.len() > 50, "{} snapshots", snaps.len());
+        let mut worst = (1usize, 0.0f64, 0.0f64);
+        let mut lowest = f64::INFINITY;
+        for sn in &snaps {
+            let (groups, nn) = connectivity(&sn.x, h);
+            if (groups, nn) > (worst.0, worst.1) {
+                worst = (groups, nn, sn.time);
+            }
+            lowest = sn.x.iter().map(|p| p[1]).fold(lowest, f64::min);
+        }
+        eprintln!(
+            "cantilever {length} m, E = {youngs:e}, 3x3: {} group(s), largest gap {:.2} cells (t = {:.2}); lowest particle {lowest:.2} m; energy drift {:.2e}",
+            worst.0,
+            worst.1 / h,
+            worst.2,
+            s.energy.max_relative_drift
+        );
+        assert_eq!(worst.0, 1, "{tag}: the beam separated (t = {})", worst.2);
+        // A real large-deflection case: the beam hangs metres below its clamp.
+        assert!(lowest < -1.0, "{tag}: lowest particle at {lowest}");
+    }
+}
+
 /// Total energy lost, as a fraction of the initial kinetic energy, averaged over the
 /// last third of the run (a single sample would depend on the phase of the swing).
 fn energy_loss(out: &std::path::Path) -> f64 {
@@ -191,8 +267,8 @@ fn roughness(sn: &Snapshot, lattice: &HashMap<i64, (usize, usize)>, n: (usize, u
 }
 
 /// The averaged gradient (α ≡ 0) at large deformation: its odd–even velocity mode grows
-/// by more than two orders of magnitude until a particle inverts before the five
-/// periods are over; MPMCG's roughness stays below a quarter of the averaged scheme's
+/// by more than two orders of magnitude, until a particle inverts or with a
+/// displacement error ten times MPMCG's bound at the end; MPMCG's roughness stays below a quarter of the averaged scheme's
 /// and the run completes with a displacement error below 2e-3.
 #[test]
 fn averaged_zigzag_grows_mpmcg_stays_bounded() {
@@ -235,10 +311,14 @@ fn averaged_zigzag_grows_mpmcg_stays_bounded() {
         );
         match g {
             "averaged" => {
-                assert!(
-                    matches!(&r, Err(RunError::Unstable(m)) if m.contains("J <= 0")),
-                    "averaged: {outcome}"
-                );
+                // The mode grows until a particle inverts, or the run ends far off the
+                // exact solution (with continuous domain weights it may complete).
+                let wrecked = match &r {
+                    Err(RunError::Unstable(m)) => m.contains("J <= 0"),
+                    Ok(s) => s.error.as_ref().unwrap().displacement_l2 > 2e-2,
+                    Err(_) => false,
+                };
+                assert!(wrecked, "averaged: {outcome}");
                 assert!(max > 100.0 * rough[0], "averaged: no growth");
             }
             "mpmcg" => {
