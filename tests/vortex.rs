@@ -7,13 +7,13 @@
 //! Measured (displacement L2 error, maximum over the run; MUSL, FLIP, 2 particles per
 //! cell, CFL 0.4 — CFL 0.2 gives the same errors to 1 %):
 //!
-//! | cells |   mpm    |  mpmcg   |
-//! |-------|----------|----------|
-//! |  32   | 2.14e-2  | 2.50e-2  |
-//! |  64   | 1.06e-2  | 9.18e-3  |
-//! |  128  | 1.65e-2  | 2.13e-3  |
+//! | cells |   mpm    |  mpmcg   | mpmcg, occupied-cell domain |
+//! |-------|----------|----------|-----------------------------|
+//! |  32   | 2.14e-2  | 2.28e-2  | 2.50e-2                     |
+//! |  64   | 1.06e-2  | 8.84e-3  | 9.18e-3                     |
+//! |  128  | 1.65e-2  | 2.19e-3  | 2.13e-3                     |
 //!
-//! MPMCG converges at order 1.45 then 2.11; MPM stalls (order −0.64 from 64 to 128
+//! MPMCG converges at order 1.37 then 2.01; MPM stalls (order −0.64 from 64 to 128
 //! cells) as particles cross cells.
 
 mod common;
