@@ -123,6 +123,7 @@ pub struct Slices<'a, const D: usize> {
     pub be: &'a mut [Matrix3<f64>],
     pub eps_p: &'a mut [f64],
     pub damage: &'a mut [f64],
+    pub stress_zz: &'a mut [f64],
 }
 
 fn split_mut<T>(s: &mut [T], mid: usize) -> (&mut [T], &mut [T]) {
@@ -165,6 +166,7 @@ impl<'a, const D: usize> Slices<'a, D> {
         let (b0, b1) = split_mut(self.be, mid);
         let (e0, e1) = split_mut(self.eps_p, mid);
         let (g0, g1) = split_mut(self.damage, mid);
+        let (z0, z1) = split_mut(self.stress_zz, mid);
         (
             Slices {
                 x: x0,
@@ -181,6 +183,7 @@ impl<'a, const D: usize> Slices<'a, D> {
                 be: b0,
                 eps_p: e0,
                 damage: g0,
+                stress_zz: z0,
             },
             Slices {
                 x: x1,
@@ -197,6 +200,7 @@ impl<'a, const D: usize> Slices<'a, D> {
                 be: b1,
                 eps_p: e1,
                 damage: g1,
+                stress_zz: z1,
             },
         )
     }
@@ -323,6 +327,7 @@ fn deform<const D: usize>(
     let internal = Internal {
         plastic: s.be.get_mut(p).zip(s.eps_p.get_mut(p)),
         damage: s.damage.get_mut(p),
+        stress_zz: s.stress_zz.get_mut(p),
     };
     mat.update_stress(&mut s.stress[p], l, &f, dt, internal);
     j > 0.0 && s.vol[p].is_finite() && s.stress[p].iter().all(|x| x.is_finite())

@@ -47,6 +47,7 @@ macro_rules! slices {
             be: &mut $s.parts.be,
             eps_p: &mut $s.parts.eps_p,
             damage: &mut $s.parts.damage,
+            stress_zz: &mut $s.parts.stress_zz,
         }
     };
 }
