@@ -10,6 +10,7 @@
 
 use crate::benchmark::Benchmark;
 use crate::material::{Internal, Material};
+use crate::scene::Face;
 use crate::shape::{self, Alpha, Geom};
 use crate::tensor::{det, Mat, Vector};
 use nalgebra::Matrix3;
@@ -33,6 +34,8 @@ pub struct Ctx<'a, const D: usize> {
     /// The benchmark, if it applies a body force.
     pub body_force: Option<&'a Benchmark<D>>,
     pub t: f64,
+    /// Boundary condition of the lower and upper face per axis.
+    pub faces: [[Face; 2]; D],
 }
 
 /// Interpolation data of one particle over its `N` nodes.
@@ -41,6 +44,8 @@ pub struct Kern<const D: usize, const N: usize> {
     pub s: [f64; N],
     pub g: [[f64; D]; N],
     pub alpha: f64,
+    /// Per axis: the particle gives weight to a node on the lower / upper grid face.
+    pub ends: [[bool; 2]; D],
 }
 
 impl<const D: usize> Ctx<'_, D> {
@@ -67,7 +72,16 @@ impl<const D: usize> Ctx<'_, D> {
                 Alpha::ProductOfShapes => w.bubble,
                 Alpha::Constant(c) => c,
             },
+            ends: [[false; 2]; D],
         };
+        for a in 0..D {
+            for o in 0..NA {
+                let side = self.geom.end(a, w.base[a] + o as i64);
+                if side != 0 && w.w[a][o] > 0.0 {
+                    k.ends[a][usize::from(side > 0)] = true;
+                }
+            }
+        }
         for n in 0..N {
             let mut r = n;
             let mut o = [0usize; D];
@@ -364,7 +378,38 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
                 }
             }
             let old = s.v[p];
-            let new = (old + dv) * m.flip + vn * (1.0 - m.flip);
+            let mut new = (old + dv) * m.flip + vn * (1.0 - m.flip);
+            // At a fixed or slip wall the grid's normal velocity is zeroed before and
+            // after the force update alike, so FLIP's increment never tells a particle
+            // that the wall stopped it: particles kept their velocity into the wall
+            // (Taylor bar: -176 m/s at 0.1 mm from it at 80 µs). A particle that touches
+            // a wall node may therefore move into that wall no faster than the grid's
+            // velocity at its position (which vanishes at the wall and is what the
+            // particle moves with): its normal component is clipped to the grid's.
+            // Clipping, not PIC: PIC every step also damps the legitimate subgrid
+            // motion of material attached to a wall (bent beam clamped at a fixed
+            // wall, kinetic + strain energy lost in two periods: 0.4 % with no
+            // correction, 1.1 % clipping, 6 % with PIC of the normal component, 12 %
+            // of all). Tangential components are left to FLIP for the same reason:
+            // they do not point into the wall.
+            let free = new;
+            for a in 0..D {
+                for side in 0..2 {
+                    if k.ends[a][side] && matches!(ctx.faces[a][side], Face::Fixed | Face::Slip) {
+                        new[a] = if side == 0 {
+                            new[a].max(vn[a])
+                        } else {
+                            new[a].min(vn[a])
+                        };
+                    }
+                }
+            }
+            // The wall is an external force: its impulse m (new − free) does the work
+            // m (new − free)·(new + free)/2 by the midpoint rule gravity's work uses
+            // below, i.e. the kinetic energy the clip takes out. A wall at rest does no
+            // work on the continuum; this is what the discrete impact dissipates there,
+            // counted so that the balance keeps measuring the integrator.
+            t.work += 0.5 * s.mass[p] * (new.norm_squared() - free.norm_squared());
             t.work += m.dt * s.mass[p] * ctx.accel(s.x0, p).dot(&(old + new)) * 0.5;
             s.v[p] = new;
             t.ok &= new.iter().all(|x| x.is_finite());
