@@ -3,9 +3,10 @@
 
     scripts/render.py OUT -o final.png [--field F] [--time T] [--view xy|xz]
 
-F colours the particles: von_mises (from `stress`, the default when present),
-speed (from `velocity`), plastic_strain, damage, or any scalar dataset of the
-snapshot. 3D runs are drawn projected on the chosen plane (default xz: a side view).
+F colours the particles: von_mises or pressure (from `stress`, the full 3 x 3
+Cauchy stress, which in 2D includes the plane-strain sigma_zz; von_mises is the
+default when present), speed (from `velocity`), plastic_strain, damage, or any
+scalar dataset of the snapshot. 3D runs are drawn projected on the chosen plane (default xz: a side view).
 """
 import argparse
 import glob
@@ -20,10 +21,15 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 
 def colour(f, field):
+    # Both invariants need all three normal stresses: in plane strain sigma_zz is
+    # stored in the (3, 3) entry, without it pressure and von Mises are wrong.
     if field == "von_mises":
         s = f["stress"][:].reshape(-1, 3, 3)
         dev = s - np.trace(s, axis1=1, axis2=2)[:, None, None] / 3 * np.eye(3)
         return np.sqrt(1.5 * (dev**2).sum(axis=(1, 2))), "von Mises stress"
+    if field == "pressure":
+        s = f["stress"][:].reshape(-1, 3, 3)
+        return -np.trace(s, axis1=1, axis2=2) / 3, "pressure"
     if field == "speed":
         return np.linalg.norm(f["velocity"][:], axis=1), "speed"
     return f[field][:], field.replace("_", " ")

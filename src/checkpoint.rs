@@ -9,13 +9,14 @@
 //! crash during a write leaves the previous checkpoints intact. Then the oldest
 //! checkpoints beyond `keep` are deleted.
 //!
-//! # Format (version 1)
+//! # Format (version 3)
 //!
-//! Root attributes: `format` = "mpmcg-checkpoint", `version` = 1, `dim`, `step`,
+//! Root attributes: `format` = "mpmcg-checkpoint", `version` = 3, `dim`, `step`,
 //! `time`, `dt`, `max_speed` (fastest signal speed over all ranks after the step; the
 //! next step size follows from it), `ranks` and `blocks` (the writer's process grid),
 //! `cells`, `particles` (total), `record_width`, `carries_def_grad`, `carries_x0`,
-//! `carries_half`, `carries_plastic`, `carries_damage` (0/1), and the run loop's diagnostics: `initial_totals` and
+//! `carries_half`, `carries_plastic`, `carries_damage`, `carries_stress_zz` (0/1), and
+//! the run loop's diagnostics: `initial_totals` and
 //! `last_totals` (mass, kinetic, strain, external work, plastic work, momentum[dim]),
 //! `initial_particles`, `last_particles`, `energy_scale`, `max_energy_deviation`,
 //! `max_errors` (displacement, velocity), `has_last_errors`, `last_errors`,
@@ -45,8 +46,9 @@ use std::path::{Path, PathBuf};
 
 /// The `format` attribute of every checkpoint.
 pub const FORMAT: &str = "mpmcg-checkpoint";
-/// The format version this build writes and reads.
-pub const VERSION: u64 = 2;
+/// The format version this build writes and reads. 3: the record gained `stress_zz`
+/// (2D brittle particles) and the attribute `carries_stress_zz`.
+pub const VERSION: u64 = 3;
 
 /// Rows read at a time when every rank scans the whole file.
 const CHUNK_ROWS: usize = 1 << 16;
@@ -193,6 +195,9 @@ fn columns(d: usize, c: Carries) -> String {
     if c.damage {
         cols.push("damage".into());
     }
+    if c.stress_zz {
+        cols.push("stress_zz".into());
+    }
     cols.join(" ")
 }
 
@@ -273,6 +278,7 @@ pub fn write<const D: usize>(
         u("carries_half", u64::from(carries.half))?;
         u("carries_plastic", u64::from(carries.plastic))?;
         u("carries_damage", u64::from(carries.damage))?;
+        u("carries_stress_zz", u64::from(carries.stress_zz))?;
         fs("initial_totals", &totals_vec(&run.initial))?;
         u("initial_particles", run.initial.particles)?;
         fs("last_totals", &totals_vec(&run.last))?;
@@ -632,6 +638,7 @@ pub fn read<const D: usize>(
         half: attr_u64(&f, path, "carries_half")? != 0,
         plastic: attr_u64(&f, path, "carries_plastic")? != 0,
         damage: attr_u64(&f, path, "carries_damage")? != 0,
+        stress_zz: attr_u64(&f, path, "carries_stress_zz")? != 0,
     };
     let width = Particles::<D>::record_width(carries);
     if stored != carries || attr_u64(&f, path, "record_width")? != width as u64 {

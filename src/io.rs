@@ -5,8 +5,10 @@
 //!
 //! Every snapshot holds `id`, `rank` and `material` of each particle and its
 //! `position` (N × 3, padded with zeros below 3D, as ParaView expects), plus the
-//! fields the scene lists (`velocity` N × 3, `displacement` N × 3, `stress` N × 9).
+//! fields the scene lists (`velocity` N × 3, `displacement` N × 3, `stress` N × 9, the
+//! full 3 × 3 Cauchy stress: in 2D with the plane-strain σ_zz, in 1D σ_xx only).
 
+use crate::material::Material;
 use crate::particles::Particles;
 use crate::scene::Field;
 use decomposition::Communicator;
@@ -82,11 +84,13 @@ impl Snapshots {
     }
 
     /// Collective: write the particles of every rank at `step`, time `t`, then (rank 0)
-    /// rewrite the XDMF index.
+    /// rewrite the XDMF index. `materials` derive the stress components the particles
+    /// do not store (plane strain σ_zz).
     pub fn write<const D: usize>(
         &mut self,
         comm: &dyn Communicator,
         parts: &Particles<D>,
+        materials: &[Material],
         step: u64,
         t: f64,
     ) -> Result<(), IoError> {
@@ -147,10 +151,12 @@ impl Snapshots {
                 }
                 Field::Stress => {
                     self.buf.clear();
-                    for s in &parts.stress {
+                    for p in 0..parts.len() {
+                        let s = parts.stress3(p, materials);
+                        // Row-major; the stress is symmetric anyway.
                         for i in 0..3 {
                             for j in 0..3 {
-                                self.buf.push(if i < D && j < D { s[(i, j)] } else { 0.0 });
+                                self.buf.push(s[(i, j)]);
                             }
                         }
                     }

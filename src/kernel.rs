@@ -10,6 +10,7 @@
 
 use crate::benchmark::Benchmark;
 use crate::material::{Internal, Material};
+use crate::scene::Face;
 use crate::shape::{self, Alpha, Geom};
 use crate::tensor::{det, Mat, Vector};
 use nalgebra::Matrix3;
@@ -33,6 +34,8 @@ pub struct Ctx<'a, const D: usize> {
     /// The benchmark, if it applies a body force.
     pub body_force: Option<&'a Benchmark<D>>,
     pub t: f64,
+    /// Boundary condition of the lower and upper face per axis.
+    pub faces: [[Face; 2]; D],
 }
 
 /// Interpolation data of one particle over its `N` nodes.
@@ -41,6 +44,8 @@ pub struct Kern<const D: usize, const N: usize> {
     pub s: [f64; N],
     pub g: [[f64; D]; N],
     pub alpha: f64,
+    /// Per axis: the particle gives weight to a node on the lower / upper grid face.
+    pub ends: [[bool; 2]; D],
 }
 
 impl<const D: usize> Ctx<'_, D> {
@@ -67,7 +72,16 @@ impl<const D: usize> Ctx<'_, D> {
                 Alpha::ProductOfShapes => w.bubble,
                 Alpha::Constant(c) => c,
             },
+            ends: [[false; 2]; D],
         };
+        for a in 0..D {
+            for o in 0..NA {
+                let side = self.geom.end(a, w.base[a] + o as i64);
+                if side != 0 && w.w[a][o] > 0.0 {
+                    k.ends[a][usize::from(side > 0)] = true;
+                }
+            }
+        }
         for n in 0..N {
             let mut r = n;
             let mut o = [0usize; D];
@@ -123,6 +137,7 @@ pub struct Slices<'a, const D: usize> {
     pub be: &'a mut [Matrix3<f64>],
     pub eps_p: &'a mut [f64],
     pub damage: &'a mut [f64],
+    pub stress_zz: &'a mut [f64],
 }
 
 fn split_mut<T>(s: &mut [T], mid: usize) -> (&mut [T], &mut [T]) {
@@ -165,6 +180,7 @@ impl<'a, const D: usize> Slices<'a, D> {
         let (b0, b1) = split_mut(self.be, mid);
         let (e0, e1) = split_mut(self.eps_p, mid);
         let (g0, g1) = split_mut(self.damage, mid);
+        let (z0, z1) = split_mut(self.stress_zz, mid);
         (
             Slices {
                 x: x0,
@@ -181,6 +197,7 @@ impl<'a, const D: usize> Slices<'a, D> {
                 be: b0,
                 eps_p: e0,
                 damage: g0,
+                stress_zz: z0,
             },
             Slices {
                 x: x1,
@@ -197,6 +214,7 @@ impl<'a, const D: usize> Slices<'a, D> {
                 be: b1,
                 eps_p: e1,
                 damage: g1,
+                stress_zz: z1,
             },
         )
     }
@@ -323,6 +341,7 @@ fn deform<const D: usize>(
     let internal = Internal {
         plastic: s.be.get_mut(p).zip(s.eps_p.get_mut(p)),
         damage: s.damage.get_mut(p),
+        stress_zz: s.stress_zz.get_mut(p),
     };
     mat.update_stress(&mut s.stress[p], l, &f, dt, internal);
     j > 0.0 && s.vol[p].is_finite() && s.stress[p].iter().all(|x| x.is_finite())
@@ -359,7 +378,38 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
                 }
             }
             let old = s.v[p];
-            let new = (old + dv) * m.flip + vn * (1.0 - m.flip);
+            let mut new = (old + dv) * m.flip + vn * (1.0 - m.flip);
+            // At a fixed or slip wall the grid's normal velocity is zeroed before and
+            // after the force update alike, so FLIP's increment never tells a particle
+            // that the wall stopped it: particles kept their velocity into the wall
+            // (Taylor bar: -176 m/s at 0.1 mm from it at 80 µs). A particle that touches
+            // a wall node may therefore move into that wall no faster than the grid's
+            // velocity at its position (which vanishes at the wall and is what the
+            // particle moves with): its normal component is clipped to the grid's.
+            // Clipping, not PIC: PIC every step also damps the legitimate subgrid
+            // motion of material attached to a wall (bent beam clamped at a fixed
+            // wall, kinetic + strain energy lost in two periods: 0.4 % with no
+            // correction, 1.1 % clipping, 6 % with PIC of the normal component, 12 %
+            // of all). Tangential components are left to FLIP for the same reason:
+            // they do not point into the wall.
+            let free = new;
+            for a in 0..D {
+                for side in 0..2 {
+                    if k.ends[a][side] && matches!(ctx.faces[a][side], Face::Fixed | Face::Slip) {
+                        new[a] = if side == 0 {
+                            new[a].max(vn[a])
+                        } else {
+                            new[a].min(vn[a])
+                        };
+                    }
+                }
+            }
+            // The wall is an external force: its impulse m (new − free) does the work
+            // m (new − free)·(new + free)/2 by the midpoint rule gravity's work uses
+            // below, i.e. the kinetic energy the clip takes out. A wall at rest does no
+            // work on the continuum; this is what the discrete impact dissipates there,
+            // counted so that the balance keeps measuring the integrator.
+            t.work += 0.5 * s.mass[p] * (new.norm_squared() - free.norm_squared());
             t.work += m.dt * s.mass[p] * ctx.accel(s.x0, p).dot(&(old + new)) * 0.5;
             s.v[p] = new;
             t.ok &= new.iter().all(|x| x.is_finite());

@@ -1,6 +1,7 @@
 //! Particles as a structure of arrays. Optional state is an empty `Vec` unless the
 //! scene needs it: the deformation gradient only for materials that use it, the
-//! reference position only for benchmarks, the GIMP half-width only for `gimp`.
+//! reference position only for benchmarks, the GIMP half-width only for `gimp`, the
+//! out-of-plane stress only for `brittle` in 2D.
 
 use crate::benchmark::Benchmark;
 use crate::material::Material;
@@ -35,6 +36,9 @@ pub struct Particles<const D: usize> {
     pub eps_p: Vec<f64>,
     /// Damage, 0 intact or 1 failed (`brittle`).
     pub damage: Vec<f64>,
+    /// Plane-strain σ_zz (`brittle` in 2D, where failure makes it history-dependent;
+    /// the other models derive it, see [`Material::stress_zz`]).
+    pub stress_zz: Vec<f64>,
 }
 
 /// Which optional arrays the particles carry.
@@ -46,6 +50,7 @@ pub struct Carries {
     /// `be` and `eps_p`.
     pub plastic: bool,
     pub damage: bool,
+    pub stress_zz: bool,
 }
 
 impl Carries {
@@ -65,6 +70,7 @@ impl Carries {
             half: scene.method.gradient == crate::scene::Gradient::Gimp,
             plastic: scene.materials.iter().any(|m| m.model == Model::J2Plastic),
             damage: scene.materials.iter().any(|m| m.model == Model::Brittle),
+            stress_zz: scene.dim == 2 && scene.materials.iter().any(|m| m.model == Model::Brittle),
         }
     }
 }
@@ -95,6 +101,7 @@ impl<const D: usize> Particles<D> {
         self.be.clone_from(&other.be);
         self.eps_p.clone_from(&other.eps_p);
         self.damage.clone_from(&other.damage);
+        self.stress_zz.clone_from(&other.stress_zz);
     }
 
     /// Apply the permutation `perm` (new position k holds old particle `perm[k]`) to
@@ -125,6 +132,7 @@ impl<const D: usize> Particles<D> {
         apply(&mut self.be, perm, scratch);
         apply(&mut self.eps_p, perm, scratch);
         apply(&mut self.damage, perm, scratch);
+        apply(&mut self.stress_zz, perm, scratch);
         // Integer arrays: ids and materials fit exactly in f64 (ids < 2^53).
         scratch.clear();
         scratch.extend(perm.iter().map(|&p| self.id[p] as f64));
@@ -150,6 +158,7 @@ impl<const D: usize> Particles<D> {
             + if c.half { d } else { 0 }
             + if c.plastic { 10 } else { 0 }
             + usize::from(c.damage)
+            + usize::from(c.stress_zz)
     }
 
     /// Append particle `p` as a flat record (ids and material indices are exact in f64).
@@ -176,6 +185,9 @@ impl<const D: usize> Particles<D> {
         }
         if c.damage {
             out.push(self.damage[p]);
+        }
+        if c.stress_zz {
+            out.push(self.stress_zz[p]);
         }
     }
 
@@ -215,6 +227,30 @@ impl<const D: usize> Particles<D> {
         if c.damage {
             self.damage.push(take(1)[0]);
         }
+        if c.stress_zz {
+            self.stress_zz.push(take(1)[0]);
+        }
+    }
+
+    /// The full 3 × 3 Cauchy stress of particle `p` (for output): in 2D with the
+    /// plane-strain σ_zz, in 1D only σ_xx (the lateral stresses are not formed).
+    pub fn stress3(&self, p: usize, materials: &[Material]) -> Matrix3<f64> {
+        let s = &self.stress[p];
+        let mut m = Matrix3::from_fn(|i, j| if i < D && j < D { s[(i, j)] } else { 0.0 });
+        if D == 2 {
+            let f = self
+                .def_grad
+                .get(p)
+                .copied()
+                .unwrap_or_else(Mat::<D>::identity);
+            m[(2, 2)] = materials[self.mat[p] as usize].stress_zz(
+                s,
+                &f,
+                self.be.get(p),
+                self.stress_zz.get(p).copied(),
+            );
+        }
+        m
     }
 
     /// Keep the particles whose `keep` flag is set, in order.
@@ -246,6 +282,7 @@ impl<const D: usize> Particles<D> {
         ret(&mut self.be, keep);
         ret(&mut self.eps_p, keep);
         ret(&mut self.damage, keep);
+        ret(&mut self.stress_zz, keep);
     }
 
     /// Seed the particles of every body whose current position falls in the owned
@@ -364,6 +401,7 @@ impl<const D: usize> Particles<D> {
                             let none = crate::material::Internal {
                                 plastic: None,
                                 damage: None,
+                                stress_zz: None,
                             };
                             mat.update_stress(&mut st, &Mat::<D>::zeros(), &f, 0.0, none);
                         }
@@ -382,6 +420,9 @@ impl<const D: usize> Particles<D> {
                         }
                         if carries.damage {
                             p.damage.push(0.0);
+                        }
+                        if carries.stress_zz {
+                            p.stress_zz.push(0.0);
                         }
                         if gimp {
                             p.half

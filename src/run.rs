@@ -400,7 +400,7 @@ fn run_dim<const D: usize>(
         None => {
             let mut next_snapshot = f64::INFINITY;
             if let Some((sn, every)) = &mut snaps {
-                sn.write(comm, &solver.parts, 0, 0.0)
+                sn.write(comm, &solver.parts, &solver.materials, 0, 0.0)
                     .map_err(|e| RunError::Io(e.to_string()))?;
                 next_snapshot = *every;
                 output_seconds.snapshots += start.elapsed().as_secs_f64();
@@ -481,8 +481,14 @@ fn run_dim<const D: usize>(
             // Write when an output time is reached (to within a thousandth of a step).
             if solver.t >= st.next_snapshot - 1e-3 * solver.dt || solver.done() {
                 let t0 = Instant::now();
-                sn.write(comm, &solver.parts, solver.step, solver.t)
-                    .map_err(|e| RunError::Io(e.to_string()))?;
+                sn.write(
+                    comm,
+                    &solver.parts,
+                    &solver.materials,
+                    solver.step,
+                    solver.t,
+                )
+                .map_err(|e| RunError::Io(e.to_string()))?;
                 output_seconds.snapshots += t0.elapsed().as_secs_f64();
                 while st.next_snapshot <= solver.t + 1e-3 * solver.dt {
                     st.next_snapshot += *every;

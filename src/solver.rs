@@ -25,6 +25,7 @@ macro_rules! ctx {
             gravity: $s.gravity,
             body_force: $s.benchmark.as_ref().filter(|b| b.has_body_force()),
             t: $s.t,
+            faces: $s.faces,
         }
     };
 }
@@ -47,6 +48,7 @@ macro_rules! slices {
             be: &mut $s.parts.be,
             eps_p: &mut $s.parts.eps_p,
             damage: &mut $s.parts.damage,
+            stress_zz: &mut $s.parts.stress_zz,
         }
     };
 }
@@ -131,7 +133,7 @@ pub struct Solver<'c, const D: usize> {
     pub t: f64,
     pub step: u64,
     pub dt: f64,
-    /// Accumulated work of gravity and body forces (this rank's particles).
+    /// Accumulated work of gravity, body forces and walls (this rank's particles).
     external_work: f64,
     /// Maximum of wave speed + particle speed after the last update (this rank).
     max_speed: f64,

@@ -260,3 +260,70 @@ fn plastic_state_migrates_with_particles() {
     assert!(peak > 1.0, "the bar deformed plastically ({peak})");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The stored plane-strain σ_zz of brittle particles travels with them: the 2D crossing
+/// scene with a brittle material that fails where the disks meet gives the same
+/// stress (all nine entries, σ_zz included) and damage per particle on 3 ranks as on 1,
+/// to 1e-12 of the largest stress. Failed particles keep `σ_zz ≤ 0`, where the linear
+/// elastic relation `ν tr σ` no longer holds (that is why they store it); intact ones
+/// still satisfy it.
+#[test]
+fn brittle_sigma_zz_migrates_with_particles() {
+    let dir = temp_dir("ranks-brittle");
+    let sc = dir.join("scene.toml");
+    let text = scene(2, "mpmcg")
+        .replace(
+            "model = \"neo_hookean\"",
+            "model = \"brittle\"\ntensile_strength = 30.0",
+        )
+        .replace(
+            "fields = [\"velocity\"]",
+            "fields = [\"velocity\", \"stress\", \"damage\"]",
+        );
+    std::fs::write(&sc, text).unwrap();
+    let run = |n: usize| {
+        let out = dir.join(format!("r{n}"));
+        let (code, err) = mpirun(n, &sc, &out);
+        assert_eq!(code, 0, "brittle crossing on {n} ranks: {err}");
+        let last = last_snapshot(&out);
+        let sn = common::read_snapshot(&last, None);
+        let (stress, damage) = (
+            common::read_stress(&last),
+            common::read_scalar(&last, "damage"),
+        );
+        let mut rows: Vec<(i64, [f64; 9], f64)> = (0..sn.id.len())
+            .map(|i| (sn.id[i], stress[i], damage[i]))
+            .collect();
+        rows.sort_by_key(|r| r.0);
+        rows
+    };
+    let (a, b) = (run(1), run(3));
+    assert_eq!(a.len(), b.len());
+    let scale = a
+        .iter()
+        .flat_map(|r| r.1.iter())
+        .fold(0.0f64, |m, x| m.max(x.abs()));
+    let nu = 0.3;
+    let (mut failed, mut off) = (0, 0.0f64);
+    for (p, q) in a.iter().zip(&b) {
+        assert_eq!((p.0, p.2), (q.0, q.2));
+        for k in 0..9 {
+            assert!((p.1[k] - q.1[k]).abs() < 1e-12 * scale, "{p:?} vs {q:?}");
+        }
+        let s = p.1;
+        let rel = s[8] - nu * (s[0] + s[4]);
+        if p.2 == 0.0 {
+            assert!(rel.abs() < 1e-12 * scale, "intact: {s:?}");
+        } else {
+            failed += 1;
+            assert!(s[8] <= 0.0, "failed particles carry no tension: {s:?}");
+            off = off.max(rel.abs());
+        }
+    }
+    assert!(failed > 10, "the disks fail where they meet ({failed})");
+    assert!(
+        off > 1e-3 * scale,
+        "failure makes σ_zz history-dependent ({off:e} of {scale:e})"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -222,12 +222,20 @@ fields = ["velocity", "stress", "displacement"]
 }
 
 /// (a) Restart from the half-way checkpoint: 1→1 and 2→2 bit-identical to the
-/// uninterrupted run, 2→1 and 1→3 within 1e-12.
+/// uninterrupted run, 2→1 and 1→3 within 1e-12; for the MMS, the crossing disks, and
+/// the same disks brittle (failing, so their stored σ_zz matters).
 #[test]
 fn restart_continues_the_run() {
+    // The brittle crossing fails particles where the disks meet: their stored
+    // plane-strain σ_zz (the snapshot's stress entry 8) must restart too.
+    let brittle = crossing_scene(16, 1.2, "every = 0.6").replace(
+        "model = \"neo_hookean\"",
+        "model = \"brittle\"\ntensile_strength = 30.0",
+    );
     for (tag, text) in [
         ("mms", mms_scene()),
         ("crossing", crossing_scene(16, 1.2, "every = 0.6")),
+        ("brittle", brittle),
     ] {
         let dir = temp_dir(&format!("restart-{tag}"));
         let sc = dir.join("scene.toml");
@@ -281,6 +289,18 @@ fn restart_continues_the_run() {
             ],
         );
         assert_identical(&f1, &again, &format!("{tag} 1→1 with SCENE"));
+        if tag == "brittle" {
+            // Failed particles: σ_zz (row entry 14) off the intact relation ν tr σ.
+            let rows = snapshot(&last_snapshot(&f1));
+            let scale = rows.iter().fold(0.0f64, |m, r| m.max(r.1[6].abs()));
+            let off = rows.iter().fold(0.0f64, |m, r| {
+                m.max((r.1[14] - 0.3 * (r.1[6] + r.1[10])).abs())
+            });
+            assert!(
+                off > 1e-3 * scale,
+                "no failed particle: {off:e} of {scale:e}"
+            );
+        }
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
@@ -897,7 +917,7 @@ fn unusable_checkpoints_are_rejected() {
     }
     run(
         &future,
-        "checkpoint format version 99, but this mpmcg reads version 2",
+        "checkpoint format version 99, but this mpmcg reads version 3",
     );
     // Particle data changed in the middle of the file: the checksum notices.
     let flipped = put("flipped.h5", &bytes);

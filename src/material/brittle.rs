@@ -10,10 +10,13 @@
 //! in that same step), so no particle ever hands the grid a principal tension above
 //! `σ_t`.
 //!
-//! The test is on the D×D stress. In plane strain and uniaxial strain the untracked
-//! normal stresses of an intact particle, `λ tr ε`, never exceed the largest tracked
-//! principal stress σ₁ once that is tensile, for ν ≥ 0 (plane strain: `σ_zz =
-//! ν(σ₁ + σ₂) ≤ 2νσ₁ ≤ σ₁`; uniaxial: `λε ≤ (λ+2μ)ε`), so the check misses no failure.
+//! Plane strain (D = 2): the particle carries `σ_zz` (`σ̇_zz = λ tr D`, as `D_zz = 0`),
+//! since once a particle has failed its projection makes `σ_zz` depend on the history,
+//! not on the in-plane stress alone. `σ_zz` is a principal stress there, so the failure
+//! test takes the largest of `σ₁` and `σ_zz` (for ν ≥ 0 an intact particle has
+//! `σ_zz = ν(σ₁ + σ₂) ≤ σ₁` once σ₁ is tensile, so only ν < 0 changes the outcome),
+//! and the projection keeps `min(σ_zz, 0)`. In 1D the untracked lateral stresses `λε`
+//! never exceed `(λ+2μ)ε` when tensile, so the check on σ_xx misses no failure.
 
 use crate::material::linear_elastic::LinearElastic;
 use crate::tensor::Mat;
@@ -39,25 +42,36 @@ impl Brittle {
 
     /// Elastic update, failure check, and for a failed particle the projection onto
     /// compression. `damage` is 0 (intact) or 1 (failed; any nonzero value counts).
+    /// `stress_zz` is the plane-strain out-of-plane stress (2D particles carry it).
     #[inline]
     pub fn update_stress<const D: usize>(
         &self,
         stress: &mut Mat<D>,
         damage: &mut f64,
+        stress_zz: Option<&mut f64>,
         l: &Mat<D>,
         dt: f64,
     ) {
         self.elastic().update_stress(stress, l, dt);
-        if *damage == 0.0 && max_principal(stress) > self.tensile_strength {
+        let mut szz = stress_zz;
+        if let Some(z) = szz.as_deref_mut() {
+            *z += self.lambda * l.trace() * dt;
+        }
+        let zz = szz.as_deref().copied().unwrap_or(f64::NEG_INFINITY);
+        if *damage == 0.0 && max_principal(stress).max(zz) > self.tensile_strength {
             *damage = 1.0;
         }
         if *damage != 0.0 {
             *stress = negative_part(stress);
+            if let Some(z) = szz {
+                *z = z.min(0.0);
+            }
         }
     }
 
     /// Energy per current volume, as [`LinearElastic::energy_density`]; a failed
-    /// particle's stress is already its compressive part.
+    /// particle's stress is already its compressive part. In plane strain `ε_zz = 0`,
+    /// so `σ_zz` does no work and the in-plane stress alone gives the energy.
     pub fn energy_density<const D: usize>(&self, s: &Mat<D>) -> f64 {
         self.elastic().energy_density(s)
     }
@@ -139,7 +153,7 @@ mod tests {
     fn uniaxial<const D: usize>(m: &Brittle, s: &mut Mat<D>, d: &mut f64, de: f64) {
         let mut l = Mat::<D>::zeros();
         l[(0, 0)] = de;
-        m.update_stress(s, d, &l, 1.0);
+        m.update_stress(s, d, None, &l, 1.0);
     }
 
     fn check_uniaxial<const D: usize>() {
@@ -205,13 +219,13 @@ mod tests {
         let mut d = 0.0;
         let e = -0.01; // σ ≈ −0.5, far beyond the strength in magnitude
         for _ in 0..10 {
-            m.update_stress(&mut s, &mut d, &(Mat::<3>::identity() * e), 1.0);
+            m.update_stress(&mut s, &mut d, None, &(Mat::<3>::identity() * e), 1.0);
         }
         assert_eq!(d, 0.0);
         let x = (3.0 * m.lambda + 2.0 * m.mu) * 10.0 * e;
         assert!((s - Mat::<3>::identity() * x).norm() < 1e-14 * x.abs());
         let mut s2 = Mat::<2>::zeros();
-        m.update_stress(&mut s2, &mut d, &(Mat::<2>::identity() * e), 1.0);
+        m.update_stress(&mut s2, &mut d, None, &(Mat::<2>::identity() * e), 1.0);
         assert_eq!(d, 0.0);
         assert!((s2 - Mat::<2>::identity() * ((2.0 * m.lambda + 2.0 * m.mu) * e)).norm() < 1e-15);
     }
@@ -226,7 +240,7 @@ mod tests {
             let mut l = Mat::<D>::zeros();
             l[(0, 1)] = g;
             let (mut s, mut d) = (Mat::<D>::zeros(), 0.0);
-            m.update_stress(&mut s, &mut d, &l, 1.0);
+            m.update_stress(&mut s, &mut d, None, &l, 1.0);
             (s, d)
         };
         let g = 0.999 * gc;
@@ -251,6 +265,76 @@ mod tests {
     fn simple_shear_fails_at_strength_over_mu() {
         check_shear::<2>();
         check_shear::<3>();
+    }
+
+    /// Plane strain σ_zz: λε for intact uniaxial strain; zero after a shear failure
+    /// (isochoric shear gives none, and the projection keeps it), where the linear
+    /// elastic relation ν tr σ would claim −νμγ, which is why brittle particles store
+    /// it; compression after a tensile failure gives −λc. With ν < 0, in-plane
+    /// compression makes σ_zz = 2λe the largest principal stress: the particle fails
+    /// on it although both in-plane principal stresses are compressive.
+    #[test]
+    fn plane_strain_sigma_zz() {
+        let m = model();
+        let big = m.lambda + 2.0 * m.mu;
+        let eps_t = m.tensile_strength / big;
+        let step = |s: &mut Mat<2>, d: &mut f64, z: &mut f64, l: Mat<2>| {
+            m.update_stress(s, d, Some(z), &l, 1.0);
+        };
+        let (mut s, mut d, mut z) = (Mat::<2>::zeros(), 0.0, 0.0);
+        let e = 0.9 * eps_t;
+        step(&mut s, &mut d, &mut z, Mat::<2>::new(e, 0.0, 0.0, 0.0));
+        assert_eq!(d, 0.0);
+        assert!((z - m.lambda * e).abs() < 1e-15);
+        // Tensile failure, then compression by c.
+        step(
+            &mut s,
+            &mut d,
+            &mut z,
+            Mat::<2>::new(0.2 * eps_t, 0.0, 0.0, 0.0),
+        );
+        assert_eq!((d, z), (1.0, 0.0));
+        let c = 2.0 * eps_t;
+        step(&mut s, &mut d, &mut z, Mat::<2>::new(-c, 0.0, 0.0, 0.0));
+        assert!((z + m.lambda * c).abs() < 1e-15);
+
+        let (mut s, mut d, mut z) = (Mat::<2>::zeros(), 0.0, 0.0);
+        let g = 1.001 * m.tensile_strength / m.mu;
+        step(&mut s, &mut d, &mut z, Mat::<2>::new(0.0, g, 0.0, 0.0));
+        assert_eq!((d, z), (1.0, 0.0));
+        let nu = m.lambda / (2.0 * (m.lambda + m.mu));
+        assert!((nu * s.trace() + nu * m.mu * g).abs() < 1e-15);
+
+        let (lambda, mu) = lame(30.0, -0.5);
+        let aux = Brittle {
+            lambda,
+            mu,
+            ..model()
+        };
+        let e = -1.001 * aux.tensile_strength / (-2.0 * lambda);
+        let (mut s, mut d, mut z) = (Mat::<2>::zeros(), 0.0, 0.0);
+        aux.update_stress(
+            &mut s,
+            &mut d,
+            Some(&mut z),
+            &(Mat::<2>::identity() * e),
+            1.0,
+        );
+        assert!(max_principal(&s) < 0.0);
+        assert_eq!((d, z), (1.0, 0.0));
+        assert!((s - Mat::<2>::identity() * (2.0 * (lambda + mu) * e)).norm() < 1e-15);
+        // Just below, intact, with σ_zz = 2λe.
+        let e = -0.999 * aux.tensile_strength / (-2.0 * lambda);
+        let (mut s, mut d, mut z) = (Mat::<2>::zeros(), 0.0, 0.0);
+        aux.update_stress(
+            &mut s,
+            &mut d,
+            Some(&mut z),
+            &(Mat::<2>::identity() * e),
+            1.0,
+        );
+        assert_eq!(d, 0.0);
+        assert!((z - 2.0 * lambda * e).abs() < 1e-15);
     }
 
     /// The negative part of R diag(σ) Rᵀ is R diag(min(σ, 0)) Rᵀ, and the largest

@@ -77,6 +77,17 @@ impl J2Plastic {
         Mat::<D>::from_fn(|i, j| sigma[(i, j)])
     }
 
+    /// Plane strain (D = 2): the out-of-plane Cauchy stress from `b_e`, which holds the
+    /// out-of-plane elastic stretch. There `b_e` has no xz, yz entries (the step's `f`
+    /// has none, and the return keeps eigenvectors), so `ε_zz = ½ ln b_zz` is a
+    /// principal log strain: `τ_zz = K tr ε + 2μ (ε_zz − tr ε/3) = λ tr ε + 2μ ε_zz`,
+    /// `σ_zz = τ_zz / J` with `tr ε = ln J = ½ ln det b_e`. No extra state needed.
+    pub fn stress_zz(&self, be: &Matrix3<f64>) -> f64 {
+        let tr = 0.5 * be.determinant().ln();
+        let ezz = 0.5 * be[(2, 2)].ln();
+        (self.lambda * tr + 2.0 * self.mu * ezz) / tr.exp()
+    }
+
     /// Stored (elastic) energy per reference volume: `K/2 (tr ε)² + μ |dev ε|²`,
     /// `ε = ½ ln b_e`.
     pub fn energy_density(&self, be: &Matrix3<f64>) -> f64 {
@@ -410,6 +421,44 @@ mod tests {
         assert!((mises_of_be(&m, &be2) - q0).abs() < 1e-10 * q0);
         assert!((q0 - (m.yield_stress + m.hardening * ep2)).abs() < 1e-10 * q0);
         assert!((sig2_r - r2 * sig2 * r2.transpose()).norm() < 1e-12 * sig2.norm());
+    }
+
+    /// Plane strain σ_zz from b_e: along a plastic uniaxial-strain path in x it is the
+    /// closed form τ_yy / λ (= τ_zz by symmetry), and along a large in-plane shear with
+    /// volume change it equals the zz stress of the same path run in 3D (L with zero
+    /// third row and column), which carries τ_zz itself.
+    #[test]
+    fn plane_strain_sigma_zz_from_be() {
+        let m = model();
+        for &end in &[1.1f64, 0.9] {
+            let n = 40;
+            let (mut be, mut ep) = (Matrix3::identity(), 0.0);
+            let mut lam = 1.0;
+            for k in 1..=n {
+                let next = 1.0 + (end - 1.0) * k as f64 / n as f64;
+                let mut f = Mat::<2>::identity();
+                f[(0, 0)] = next / lam;
+                lam = next;
+                step(&m, &mut be, &mut ep, &f);
+                let (ep_x, _, tyy, _) = uniaxial_closed_form(&m, lam.ln());
+                assert!(close(m.stress_zz(&be) * lam, tyy, 1e-12), "λ = {lam}");
+                if k == n {
+                    assert!(ep_x > 0.0 && ep > 0.0, "the path ends plastic");
+                }
+            }
+        }
+        let l2 = Mat::<2>::new(0.05, 1.0, 0.3, -0.02);
+        let mut l3 = Mat::<3>::zeros();
+        l3.fixed_view_mut::<2, 2>(0, 0).copy_from(&l2);
+        let (mut be2, mut ep2) = (Matrix3::identity(), 0.0);
+        let (mut be3, mut ep3) = (Matrix3::identity(), 0.0);
+        let mut s3 = Mat::<3>::zeros();
+        for _ in 0..50 {
+            m.update(&mut be2, &mut ep2, &l2, 0.02);
+            s3 = m.update(&mut be3, &mut ep3, &l3, 0.02);
+        }
+        assert!(ep2 > 0.1);
+        assert!((m.stress_zz(&be2) - s3[(2, 2)]).abs() < 1e-12 * s3.norm());
     }
 
     /// Elastic uniaxial strain: W = ½ (K + 4μ/3) e² with the log strain e = ln λ.

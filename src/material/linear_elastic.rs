@@ -19,6 +19,14 @@ impl LinearElastic {
         *stress += (d * (2.0 * self.mu) + Mat::<D>::identity() * (self.lambda * tr)) * dt;
     }
 
+    /// Plane strain (D = 2): `σ_zz = λ/(2(λ + μ)) tr σ`, the in-plane trace scaled.
+    /// No state needed: with `D_zz = 0` the rate form gives `σ̇_zz = λ tr D` and
+    /// `(tr σ)˙ = 2(λ + μ) tr D`, and both start at zero (particles are seeded
+    /// stress-free), so the ratio holds at every step up to rounding.
+    pub fn stress_zz<const D: usize>(&self, s: &Mat<D>) -> f64 {
+        self.lambda / (2.0 * (self.lambda + self.mu)) * s.trace()
+    }
+
     /// `½ σ : ε` with `ε` recovered from `σ` through the compliance, so that no strain
     /// needs storing: `tr ε = tr σ / (Dλ + 2μ)`, `ε = (σ − λ tr ε I) / 2μ`.
     pub fn energy_density<const D: usize>(&self, s: &Mat<D>) -> f64 {
@@ -53,6 +61,49 @@ mod tests {
         assert!((s[(2, 2)] - lambda * eps).abs() < 1e-12);
         let w = m.energy_density(&s);
         assert!((w - 0.5 * (lambda + 2.0 * mu) * eps * eps).abs() < 1e-15);
+    }
+
+    /// Plane strain, uniaxial strain ε in x over many steps of random size, with an
+    /// in-plane shear on the way back: σ_zz integrated as `σ̇_zz = λ tr D` (what a
+    /// stored value would hold) equals the derived `λ/(2(λ+μ)) tr σ`, and for the pure
+    /// uniaxial state it is the closed form `λ ε`. The energy `½ σ:ε` over all three
+    /// directions has no zz term (`ε_zz = 0`), so the 2D compliance formula gives
+    /// `½ (λ+2μ) ε²` with σ_zz ≠ 0.
+    #[test]
+    fn plane_strain_sigma_zz() {
+        let (lambda, mu) = lame(200.0, 0.3);
+        let m = LinearElastic {
+            lambda,
+            mu,
+            density: 1.0,
+        };
+        let eps = 1e-3;
+        let mut s = Mat::<2>::zeros();
+        let mut szz = 0.0;
+        let mut done = 0.0;
+        let mut k = 1u64;
+        while done < eps {
+            // Uneven steps (a fixed linear congruential sequence).
+            k = k
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let de = ((k >> 11) as f64 / (1u64 << 53) as f64 * 2e-4).min(eps - done);
+            let mut l = Mat::<2>::zeros();
+            l[(0, 0)] = de;
+            m.update_stress(&mut s, &l, 1.0);
+            szz += lambda * l.trace();
+            done += de;
+        }
+        assert!((m.stress_zz(&s) - lambda * eps).abs() < 1e-13 * lambda * eps);
+        assert!((szz - lambda * eps).abs() < 1e-13 * lambda * eps);
+        assert!((m.energy_density(&s) - 0.5 * (lambda + 2.0 * mu) * eps * eps).abs() < 1e-15);
+        // A general in-plane path: the identity still holds.
+        let l = Mat::<2>::new(-3e-4, 2e-4, 5e-4, 7e-4);
+        for _ in 0..7 {
+            m.update_stress(&mut s, &l, 0.5);
+            szz += lambda * l.trace() * 0.5;
+        }
+        assert!((m.stress_zz(&s) - szz).abs() < 1e-13 * lambda * eps);
     }
 
     /// Simple shear γ: σ_xy = μ γ, no normal stress, energy ½ μ γ².

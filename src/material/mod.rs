@@ -26,6 +26,8 @@ pub struct Internal<'a> {
     pub plastic: Option<(&'a mut Matrix3<f64>, &'a mut f64)>,
     /// Damage (`brittle`).
     pub damage: Option<&'a mut f64>,
+    /// Plane-strain out-of-plane stress σ_zz (`brittle` in 2D).
+    pub stress_zz: Option<&'a mut f64>,
 }
 
 /// Lamé parameters from Young's modulus and Poisson's ratio.
@@ -100,8 +102,27 @@ impl Material {
             }
             Material::Brittle(m) => {
                 let d = internal.damage.expect("brittle particles carry damage");
-                m.update_stress(stress, d, l, dt);
+                m.update_stress(stress, d, internal.stress_zz, l, dt);
             }
+        }
+    }
+
+    /// Plane strain (D = 2): the out-of-plane normal stress σ_zz, which the D×D stress
+    /// lacks. Derived where the state determines it (linear elastic from the in-plane
+    /// stress, neo-Hookean from `F`, J2 from `b_e`); `stored` is the particle's own
+    /// value for the models whose σ_zz depends on history (`brittle`).
+    pub fn stress_zz<const D: usize>(
+        &self,
+        stress: &Mat<D>,
+        f: &Mat<D>,
+        be: Option<&Matrix3<f64>>,
+        stored: Option<f64>,
+    ) -> f64 {
+        match self {
+            Material::LinearElastic(m) => m.stress_zz(stress),
+            Material::NeoHookean(m) => m.stress_zz(f),
+            Material::J2Plastic(m) => m.stress_zz(be.expect("j2_plastic carries be")),
+            Material::Brittle(_) => stored.expect("2D brittle particles carry σ_zz"),
         }
     }
 

@@ -20,6 +20,13 @@ impl NeoHookean {
         (b * self.mu + Mat::<D>::identity() * (self.lambda * j.ln() - self.mu)) / j
     }
 
+    /// Plane strain (D = 2): the out-of-plane stress from `F` with `F₃₃ = 1`,
+    /// `σ_zz = [μ (1 − 1) + λ ln J] / J = λ ln J / J`. No state needed.
+    pub fn stress_zz<const D: usize>(&self, f: &Mat<D>) -> f64 {
+        let j = det(f);
+        self.lambda * j.ln() / j
+    }
+
     /// Energy per reference volume.
     pub fn energy_density<const D: usize>(&self, f: &Mat<D>) -> f64 {
         let j = det(f);
@@ -67,6 +74,24 @@ mod tests {
         let f1 = Mat::<1>::identity() * s;
         assert!((m.stress(&f1)[(0, 0)] - sig[(0, 0)]).abs() < 1e-14);
         assert!((m.energy_density(&f1) - w).abs() < 1e-14);
+    }
+
+    /// Plane strain: σ_zz = λ ln J / J for uniaxial stretch, and for a general in-plane
+    /// F it is the zz entry of the 3D model's stress at F embedded with F₃₃ = 1.
+    #[test]
+    fn plane_strain_sigma_zz() {
+        let m = model();
+        let s: f64 = 0.8;
+        let f = Mat::<2>::new(s, 0.0, 0.0, 1.0);
+        assert!((m.stress_zz(&f) - 5.0 * s.ln() / s).abs() < 1e-14);
+        let f = Mat::<2>::new(1.2, 0.3, -0.1, 0.9);
+        let mut f3 = Mat::<3>::identity();
+        f3.fixed_view_mut::<2, 2>(0, 0).copy_from(&f);
+        let j = det(&f);
+        assert!((m.stress_zz(&f) - 5.0 * j.ln() / j).abs() < 1e-14);
+        assert!((m.stress_zz(&f) - m.stress(&f3)[(2, 2)]).abs() < 1e-14);
+        // The in-plane block of the 3D stress is the plane-strain stress.
+        assert!((m.stress(&f3).fixed_view::<2, 2>(0, 0) - m.stress(&f)).norm() < 1e-14);
     }
 
     /// Simple shear F = I + γ e_x⊗e_y: J = 1, σ_xy = μγ, σ_xx = μγ², σ_yy = 0.
