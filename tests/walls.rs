@@ -1,12 +1,13 @@
-//! Particle velocities at slip and fixed walls. A wall zeroes the grid velocity on its
-//! nodes (slip: the normal component, fixed: all) before and after the force update
-//! alike, so FLIP's increment never told a particle about it: a body thrown at a wall
-//! kept its velocity into the wall. Now a particle that touches a wall node moves into
-//! the wall no faster than the grid's velocity at its position, the velocity it moves
-//! with, which vanishes at the wall: its normal component is clipped to the grid's.
+//! Particle velocities at slip walls. A slip wall zeroes the grid's normal velocity on
+//! its nodes before and after the force update alike, so FLIP's increment never told a
+//! particle about it: a body thrown at a wall kept its velocity into the wall. Now a
+//! particle that touches a slip wall's node moves into the wall no faster than the
+//! grid's velocity at its position, the velocity it moves with, which vanishes at the
+//! wall: its normal component is clipped to the grid's. (Fixed walls keep FLIP's
+//! velocity: clipping at a clamp pushed cantilevers out through it, see `kernel.rs`.)
 //!
 //! A block resting on the lower face of its last axis is thrown at it (normal speed 1,
-//! tangential 0.5 and 0.25), in 2D and 3D, with a slip and with a fixed wall.
+//! tangential 0.5 and 0.25), in 2D and 3D.
 
 use decomposition::{Layout, SerialComm};
 use mpmcg::scene::{self, Face};
@@ -75,11 +76,10 @@ fn solver<const D: usize>(text: &str) -> Solver<'static, D> {
 }
 
 /// The first step, in closed form. The block is stress-free, so every node with mass
-/// moves at the block's velocity u except the wall's nodes (normal component zero, or
-/// all components for a fixed wall); a particle at distance d < h from the wall gives
-/// the wall's nodes weight 1 − d/h, so the grid moves it towards the wall at u_n·d/h,
-/// and that is now its normal velocity (before: u_n, kept by FLIP). Its tangential
-/// components stay u, also at a fixed wall (FLIP's increment there is zero).
+/// moves at the block's velocity u except the wall's nodes (normal component zero); a
+/// particle at distance d < h from the wall gives the wall's nodes weight 1 − d/h, so
+/// the grid moves it towards the wall at u_n·d/h, and that is now its normal velocity
+/// (before: u_n, kept by FLIP). Its tangential components stay u.
 fn first_step<const D: usize>(wall: &str) {
     for update in ["musl", "usl"] {
         let mut s = solver::<D>(&scene_text(D, wall, "mpmcg", update));
@@ -111,17 +111,15 @@ fn first_step<const D: usize>(wall: &str) {
 
 #[test]
 fn first_step_at_a_wall_in_closed_form() {
-    for wall in ["slip", "fixed"] {
-        first_step::<2>(wall);
-        first_step::<3>(wall);
-    }
+    first_step::<2>("slip");
+    first_step::<3>("slip");
 }
 
 /// Through the impact (40 steps, while the compression wave crosses the block and
 /// back): after every step, no particle that touches a wall node has a normal velocity
 /// into the wall above the one it moved with in that step (its displacement over dt,
 /// the grid's velocity, which vanishes at the wall); those clipped have exactly it.
-/// For every scheme and both walls.
+/// For every scheme.
 fn through_impact<const D: usize>(wall: &str, gradient: &str) {
     let mut s = solver::<D>(&scene_text(D, wall, gradient, "musl"));
     // A GIMP particle (half-width h/4 at 2 per cell) reaches a node h + h/4 away.
@@ -155,10 +153,8 @@ fn through_impact<const D: usize>(wall: &str, gradient: &str) {
 
 #[test]
 fn wall_particles_move_with_the_grid_through_the_impact() {
-    for wall in ["slip", "fixed"] {
-        for g in ["mpm", "gimp", "mpmcg"] {
-            through_impact::<2>(wall, g);
-            through_impact::<3>(wall, g);
-        }
+    for g in ["mpm", "gimp", "mpmcg"] {
+        through_impact::<2>("slip", g);
+        through_impact::<3>("slip", g);
     }
 }
