@@ -1012,16 +1012,9 @@ particles_per_cell = 3
     /// `jitter` cells (partly filled cells, an irregular Ω) and a random grid velocity,
     /// with the boundary conditions applied to it if `bc`.
     fn powers(gradient: &str, x_lower: &str, jitter: f64, bc: bool, seed: u64) -> (f64, f64) {
-        let sc = scene::parse(&scene_text(gradient, x_lower), "adj").unwrap();
-        let layout = Layout::choose([20, 22], [false, false], 1).unwrap();
-        let mut s = Solver::<2>::new(&sc, &SerialComm, layout);
         let mut rng = Rng(seed);
-        let h = s.geom.h;
+        let mut s = beam(gradient, x_lower, jitter, &mut rng);
         for p in 0..s.parts.len() {
-            for a in 0..2 {
-                let x = s.parts.x[p][a] + jitter * h[a] * (rng.f64() - 0.5);
-                s.parts.x[p][a] = x.clamp(s.geom.lower[a], s.geom.upper[a]);
-            }
             let (a, b, c) = (rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5);
             s.parts.stress[p] = Mat::<2>::new(a, c, c, b) * 1e3;
             s.parts.vol[p] *= 0.5 + rng.f64();
@@ -1068,11 +1061,10 @@ particles_per_cell = 3
 
     /// A solver on the beam of [`scene_text`] with 3 × 3 particles per cell, positions
     /// jittered by up to `jitter` cells (partly filled surface cells).
-    fn beam(gradient: &str, jitter: f64, seed: u64) -> Solver<'static, 2> {
-        let sc = scene::parse(&scene_text(gradient, "free"), "adj").unwrap();
+    fn beam(gradient: &str, x_lower: &str, jitter: f64, rng: &mut Rng) -> Solver<'static, 2> {
+        let sc = scene::parse(&scene_text(gradient, x_lower), "adj").unwrap();
         let layout = Layout::choose([20, 22], [false, false], 1).unwrap();
         let mut s = Solver::<2>::new(&sc, &SerialComm, layout);
-        let mut rng = Rng(seed);
         let h = s.geom.h;
         for p in 0..s.parts.len() {
             for a in 0..2 {
@@ -1095,7 +1087,7 @@ particles_per_cell = 3
         let c = [2.0, -3.0];
         for g in ["mpm", "averaged", "mpmcg"] {
             for jitter in [0.0, 0.9] {
-                let mut s = beam(g, jitter, 99);
+                let mut s = beam(g, "free", jitter, &mut Rng(99));
                 s.scatter(false, true);
                 let mut vel = vec![0.0; s.block.num_nodes() * 4];
                 let mut owned = Vec::new();
@@ -1151,7 +1143,7 @@ particles_per_cell = 3
     #[test]
     fn surface_crossing_changes_forces_continuously() {
         for g in ["mpmcg", "averaged", "mpm"] {
-            let mut s = beam(g, 0.0, 5);
+            let mut s = beam(g, "free", 0.0, &mut Rng(5));
             let mut rng = Rng(17);
             for p in 0..s.parts.len() {
                 let (a, b, c) = (rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5);
