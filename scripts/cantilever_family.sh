@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
 # The cantilever family of the hard cases: beams of 3, 4, 5 and 6 m (E = 2, 1, 1, 2 MPa)
 # clamped at x = 0 and sagging under gravity, h = 0.25 m, at 2 × 2 and 3 × 3 particles
-# per cell, MPM and MPMCG (MUSL), plus the 4 m beam in 3D at 2 × 2 × 2 (1 m wide, free
-# sides). Prints, per run, the worst number of pieces over the snapshots and the largest
+# per cell, MPM and MPMCG (MUSL), plus the 4 m beam in 3D at 2 × 2 × 2 and 3 × 3 × 3
+# (1 m wide, free sides). Prints, per run, the worst number of pieces over the snapshots and the largest
 # gap to a nearest neighbour (scripts/connectivity.py, particles closer than one cell
-# are neighbours). About a minute on one core.
+# are neighbours). About two minutes on one core.
 # Usage: scripts/cantilever_family.sh [OUT]        (default out/cantilever_family)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -52,5 +52,6 @@ for g in mpm mpmcg; do
         variant "L6_E2e6_ppc${ppc}_$g" 6.0 2.0e6 "$ppc" "$g"
     done
     variant "3D_L4_E1e6_ppc2_$g" 4.0 1.0e6 2 "$g" 3
+    variant "3D_L4_E1e6_ppc3_$g" 4.0 1.0e6 3 "$g" 3
 done
 /usr/bin/python3 scripts/connectivity.py "$out"/*/ --quiet --radius 0.25

@@ -19,7 +19,7 @@ root=""
 [ "$(id -u)" -eq 0 ] && root="--allow-run-as-root"
 mpirun $root --oversubscribe -n "$ranks" target/release/mpmcg run "$scene" --out "$out"
 rm -f "$scene"
-python3 - "$out" "$n" <<'PY'
+/usr/bin/python3 - "$out" "$n" <<'PY'
 import glob, sys
 import h5py, numpy as np
 out, n = sys.argv[1], int(sys.argv[2])

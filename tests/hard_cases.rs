@@ -17,13 +17,13 @@ fn with_gradient(text: &str, g: &str) -> String {
     lines.join("\n") + "\n"
 }
 
-/// Connectivity of a particle cloud in the plane: particles closer than `r` are
-/// neighbours. Returns the number of connected groups and the largest distance from a
-/// particle to its nearest neighbour (capped at `r`: a particle with none closer is
+/// Connectivity of a particle cloud (2D clouds have z = 0): particles closer than `r`
+/// are neighbours. Returns the number of connected groups and the largest distance from
+/// a particle to its nearest neighbour (capped at `r`: a particle with none closer is
 /// cut off). Bins of width `r` make it linear in the particle count.
 fn connectivity(x: &[[f64; 3]], r: f64) -> (usize, f64) {
-    let key = |p: &[f64; 3]| ((p[0] / r).floor() as i64, (p[1] / r).floor() as i64);
-    let mut bins: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
+    let key = |p: &[f64; 3]| p.map(|c| (c / r).floor() as i64);
+    let mut bins: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
     for (i, p) in x.iter().enumerate() {
         bins.entry(key(p)).or_default().push(i);
     }
@@ -38,17 +38,17 @@ fn connectivity(x: &[[f64; 3]], r: f64) -> (usize, f64) {
     }
     let mut max_nn = 0.0f64;
     for (i, p) in x.iter().enumerate() {
-        let (bx, by) = key(p);
+        let b = key(p);
         let mut nn = r;
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for &j in bins.get(&(bx + dx, by + dy)).map_or(&[][..], |v| v) {
-                    let d = ((p[0] - x[j][0]).powi(2) + (p[1] - x[j][1]).powi(2)).sqrt();
-                    if j != i && d < r {
-                        nn = nn.min(d);
-                        let (a, b) = (root(&mut parent, i), root(&mut parent, j));
-                        parent[a] = b;
-                    }
+        for o in 0..27 {
+            let off = [o % 3 - 1, o / 3 % 3 - 1, o / 9 - 1];
+            let k = [b[0] + off[0], b[1] + off[1], b[2] + off[2]];
+            for &j in bins.get(&k).map_or(&[][..], |v| v) {
+                let d = (0..3).map(|a| (p[a] - x[j][a]).powi(2)).sum::<f64>().sqrt();
+                if j != i && d < r {
+                    nn = nn.min(d);
+                    let (a, b) = (root(&mut parent, i), root(&mut parent, j));
+                    parent[a] = b;
                 }
             }
         }
@@ -150,18 +150,61 @@ fn cantilever_variant(length: f64, youngs: f64, ppc: usize) -> String {
     out
 }
 
+/// The 4 m cantilever in 3D: 1 m wide, free sides (the grid reaches half a metre
+/// beyond them), `ppc` particles per cell per axis.
+fn cantilever_3d(ppc: usize) -> String {
+    let text = cantilever_variant(4.0, 1.0e6, ppc);
+    let edits = [
+        ("dim = 2", "dim = 3".to_string()),
+        (
+            "lower = [0.0, -4.5]",
+            "lower = [0.0, -4.5, -0.5]".to_string(),
+        ),
+        ("upper = [5.0, 1.5]", "upper = [5.0, 1.5, 1.5]".to_string()),
+        ("cells = [20, 24]", "cells = [20, 24, 8]".to_string()),
+        (
+            "y_upper = \"slip\" }",
+            "y_upper = \"slip\", z_lower = \"slip\", z_upper = \"slip\" }".to_string(),
+        ),
+        (
+            "value = [0.0, -10.0]",
+            "value = [0.0, -10.0, 0.0]".to_string(),
+        ),
+        (
+            "lower = [0.0, 0.0], upper = [4.0, 1.0]",
+            "lower = [0.0, 0.0, 0.0], upper = [4.0, 1.0, 1.0]".to_string(),
+        ),
+    ];
+    let mut out = text;
+    for (from, to) in edits {
+        assert!(out.contains(from), "3D cantilever: no `{from}`");
+        out = out.replacen(from, &to, 1);
+    }
+    out
+}
+
 /// The cantilever family at 3 × 3 particles per cell (h = 0.25 m, 4 cells through the
 /// thickness): beams of 3, 4, 5 and 6 m, E = 1–2 MPa, sagging by metres under gravity,
 /// stay in one piece under MPMCG with MUSL in every snapshot (particles closer than a
 /// cell are neighbours) and complete. Before the continuous domain weights the 4 m beam
 /// broke in two here; MPM keeps these whole as well. At 2 × 2 neither scheme is reliably
-/// whole (README, Hard cases; `scripts/cantilever_family.sh` measures both).
+/// whole (README, Hard cases; `scripts/cantilever_family.sh` measures both). The 4 m
+/// beam in 3D at 3 × 3 × 3 stays whole too.
 #[test]
 fn cantilever_family_stays_whole_at_3x3() {
     let h = 0.25;
-    for (length, youngs) in [(3.0, 2.0e6), (4.0, 1.0e6), (5.0, 1.0e6), (6.0, 2.0e6)] {
-        let tag = format!("family-{length}-{youngs:e}");
-        let (r, out) = run_scene(&cantilever_variant(length, youngs, 3), &tag);
+    let mut cases: Vec<(String, String)> = [(3.0, 2.0e6), (4.0, 1.0e6), (5.0, 1.0e6), (6.0, 2.0e6)]
+        .iter()
+        .map(|&(length, youngs)| {
+            (
+                format!("family-{length}-{youngs:e}"),
+                cantilever_variant(length, youngs, 3),
+            )
+        })
+        .collect();
+    cases.push(("family-3d".to_string(), cantilever_3d(3)));
+    for (tag, text) in cases {
+        let (r, out) = run_scene(&text, &tag);
         let s = r.unwrap_or_else(|e| panic!("{tag}: {e}"));
         let snaps = snapshots(&out, None);
         assert!(snaps.len() > 50, "{} snapshots", snaps.len());
@@ -175,7 +218,7 @@ fn cantilever_family_stays_whole_at_3x3() {
             lowest = sn.x.iter().map(|p| p[1]).fold(lowest, f64::min);
         }
         eprintln!(
-            "cantilever {length} m, E = {youngs:e}, 3x3: {} group(s), largest gap {:.2} cells (t = {:.2}); lowest particle {lowest:.2} m; energy drift {:.2e}",
+            "{tag}, 3x3: {} group(s), largest gap {:.2} cells (t = {:.2}); lowest particle {lowest:.2} m; energy drift {:.2e}",
             worst.0,
             worst.1 / h,
             worst.2,
