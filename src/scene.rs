@@ -825,7 +825,10 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
     if !(1..=3).contains(&d) {
         return Err(("dim".into(), format!("must be 1, 2 or 3, got {d}")));
     }
+    // A plain file name: `.` and `..` would put the output folder on `out/` itself or
+    // outside it, and a leading dot hides it.
     if s.name.trim().is_empty()
+        || s.name.starts_with('.')
         || s.name
             .chars()
             .any(|c| !(c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '.'))
@@ -833,7 +836,7 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
         return Err((
             "name".into(),
             format!(
-                "must be a non-empty name of letters, digits, `_`, `-` or `.` (it names the output folder), got {:?}",
+                "must be a plain file name of letters, digits, `_`, `-` and `.`, not starting with `.` (it names the output folder), got {:?}",
                 s.name
             ),
         ));

@@ -172,6 +172,10 @@ pub struct Solver<'c, const D: usize> {
 
 const SORT_EVERY: u64 = 20;
 
+/// The smallest CFL step as a share of the time left: below it the run would need more
+/// than 1e12 steps, which no real scene asks for; the signal speed has blown up.
+const MIN_STEP_SHARE: f64 = 1e-12;
+
 /// The share θ of a node's support that counts as full in the fill fraction
 /// `φ_k = min(1, Σ_p S_k(x_p) v_p / (θ ∫ S_k dv))`, the fraction of the support the
 /// particles cover. Below 1 by the particle quadrature's error in `Σ_p S_k v_p`, so
@@ -653,6 +657,18 @@ impl<'c, const D: usize> Solver<'c, D> {
     pub fn advance_with(&mut self, flags: &mut [f64]) -> Result<(), Failure> {
         assert!(flags.len() <= 3, "at most three flags per step");
         let dt = self.choose_dt();
+        // A signal speed that overflowed (or a blown-up velocity) gives a step of 0 or
+        // one so small that the run would never end: that is an instability, not a run
+        // to wait for. The step is the same on every rank, so all agree.
+        let left = self.end - self.t;
+        if dt.is_nan() || dt <= 0.0 || (self.fixed_dt.is_none() && dt < MIN_STEP_SHARE * left) {
+            return Err(Failure::Unstable(format!(
+                "the time step fell to {dt:e} at step {}, t = {:.6e} (more than {:e} steps to the end): the signal speed has blown up",
+                self.step,
+                self.t,
+                1.0 / MIN_STEP_SHARE
+            )));
+        }
         self.dt = dt;
         let mut ok = true;
         match self.update {

@@ -815,6 +815,24 @@ fn other_validation() {
     .key("name")
     .at("\"../bar\"")
     .says("output folder");
+    // `..` and `.` name a folder outside `out/` or `out/` itself.
+    for (tag, name) in [
+        ("name_dotdot", ".."),
+        ("name_dot", "."),
+        ("name_hidden", ".bar"),
+    ] {
+        check(
+            tag,
+            edit(
+                BAR,
+                "name = \"vibrating_bar\"",
+                &format!("name = \"{name}\""),
+            ),
+        )
+        .key("name")
+        .at(&format!("\"{name}\""))
+        .says("not starting with `.`");
+    }
     check("flip_range", edit(BAR, "flip = 1.0", "flip = 1.5"))
         .key("method.flip")
         .at("1.5")
