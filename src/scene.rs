@@ -820,6 +820,13 @@ fn vector(key: &str, v: &[f64], dim: usize) -> Result<(), Invalid> {
     Ok(())
 }
 
+/// The largest grid a scene may ask for, in nodes: 2^40, about 10^12, which at
+/// [`BYTES_PER_NODE`] is a few hundred terabytes of dense grid fields.
+const MAX_GRID_NODES: u64 = 1 << 40;
+/// Grid field bytes per node of a 3D MPMCG run (scatter record, velocities, σ̄/L̄,
+/// fill, weight and volume), for the message above.
+const BYTES_PER_NODE: u64 = 8 * (1 + 6 + 9 + 1 + 6 + 9 + 3);
+
 fn validate(s: &Scene) -> Result<(), Invalid> {
     let d = s.dim;
     if !(1..=3).contains(&d) {
@@ -875,6 +882,21 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
         return Err((
             "grid.cells".into(),
             format!("must have dim = {d} components, got {}", g.cells.len()),
+        ));
+    }
+    // The grid is stored dense per rank: a node count whose product overflows, or that
+    // no machine could hold, is an input error, not a crash in the allocator.
+    let nodes = g.cells.iter().try_fold(1u64, |n, &c| {
+        (c as u64).checked_add(1).and_then(|c1| n.checked_mul(c1))
+    });
+    if nodes.is_none_or(|n| n > MAX_GRID_NODES) {
+        let approx: f64 = g.cells.iter().map(|&c| c as f64 + 1.0).product();
+        return Err((
+            "grid.cells".into(),
+            format!(
+                "{approx:.3e} grid nodes (about {:.1e} bytes of grid fields) is beyond what a run can hold; at most {MAX_GRID_NODES:.0e} nodes",
+                approx * BYTES_PER_NODE as f64
+            ),
         ));
     }
     for a in 0..d {

@@ -815,6 +815,14 @@ fn other_validation() {
     .key("name")
     .at("\"../bar\"")
     .says("output folder");
+    // A grid whose node count overflows (or that no machine holds) is named, not a
+    // crash: 2^32 cells per axis in 3D used to panic with a capacity overflow.
+    check(
+        "huge_grid",
+        edit(BAR, "cells = [16]", "cells = [18446744073709551615]"),
+    )
+    .key("grid.cells")
+    .says("beyond what a run can hold");
     // `..` and `.` name a folder outside `out/` or `out/` itself.
     for (tag, name) in [
         ("name_dotdot", ".."),
