@@ -1,6 +1,6 @@
 //! What ParaView opens: `particles.xmf` of a small 2D run on 2 ranks and a 3D run on
-//! one. Always: the XDMF topology lists the vertices 0..N-1 of every snapshot and every
-//! item's dimensions are its dataset's. With `pvpython` on the PATH also: each of
+//! one. Always: the XDMF topology lists the vertices 0..N-1 of every snapshot, every
+//! item's dimensions are its dataset's, and the snapshots are at exact output times. With `pvpython` on the PATH also: each of
 //! ParaView's three XDMF readers loads N points, N cells and every field at every time
 //! step (`scripts/check_paraview.sh`).
 
@@ -159,6 +159,27 @@ fn check_xdmf(out: &Path, fields: &[&str]) {
     }
 }
 
+/// Snapshots at t = 0, k·every and the end, each time exact to round-off: the step
+/// that would pass an output time is shortened to land on it.
+fn check_times(out: &Path, every: f64, end: f64) {
+    let times: Vec<f64> = files(out, "particles_")
+        .iter()
+        .map(|p| {
+            let f = hdf5::File::open(p).unwrap();
+            f.attr("time").unwrap().read_scalar().unwrap()
+        })
+        .collect();
+    let k_end = (end / every).round() as usize;
+    assert_eq!(times.len(), k_end + 1, "{times:?}");
+    for (k, t) in times.iter().enumerate() {
+        let want = k as f64 * every;
+        assert!(
+            (t - want).abs() <= 1e-12 * want,
+            "snapshot {k} at t = {t:e}, not {want:e}: {times:?}"
+        );
+    }
+}
+
 #[test]
 fn paraview_reads_every_particle_in_2d_and_3d() {
     let dir = temp_dir("paraview");
@@ -170,6 +191,8 @@ fn paraview_reads_every_particle_in_2d_and_3d() {
     let out3 = run(SCENE_3D, 1, &d3);
     check_xdmf(&out2, &["velocity", "stress", "displacement"]);
     check_xdmf(&out3, &["velocity", "stress", "damage"]);
+    check_times(&out2, 0.0125, 0.05);
+    check_times(&out3, 0.01, 0.02);
 
     let has_pvpython = Command::new("sh")
         .args(["-c", "command -v pvpython"])
