@@ -293,8 +293,8 @@ fn set_up<'c, const D: usize>(
     if opts.scene_text.as_deref() != Some(header.scene_text.as_str()) {
         let next = |every: f64| ((s.t / every + 1e-9).floor() + 1.0) * every;
         run.next_snapshot = scene
-            .output
-            .as_ref()
+            .snapshot_plan()
+            .filter(|o| o.every.is_finite())
             .map_or(f64::INFINITY, |o| next(o.every));
         run.next_checkpoint = match scene.checkpoint.as_ref().map(|c| c.schedule()) {
             Some(CheckpointEvery::Time(every)) => next(every),
@@ -371,9 +371,9 @@ fn run_dim<const D: usize>(
         return Err(RunError::Io(m));
     }
 
+    // (writer, interval); an infinite interval writes the initial and final states.
     let mut snaps = scene
-        .output
-        .as_ref()
+        .snapshot_plan()
         .map(|o| (Snapshots::new(&opts.out, &o.fields), o.every));
     let start = Instant::now();
     let mut output_seconds = OutputSeconds::default();
