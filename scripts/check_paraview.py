@@ -1,5 +1,6 @@
 """Check that ParaView reads a run's particles.xmf as written (run by pvpython).
 
+    scripts/check_paraview.sh OUT...     (runs this under xvfb-run if there is no display)
     pvpython --force-offscreen-rendering scripts/check_paraview.py OUT... [--png-dir DIR]
 
 For every run folder OUT, open OUT/particles.xmf with each of ParaView's XDMF readers
