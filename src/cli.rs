@@ -34,12 +34,13 @@ enum Command {
         /// Threads per rank [default: 1 under mpirun with several ranks, else all cores].
         #[arg(long)]
         threads: Option<usize>,
-        /// No progress line.
+        /// No progress line (the last line, which names the output folder, stays).
         #[arg(long, short)]
         quiet: bool,
-        /// Continue from a checkpoint (OUT/checkpoint_NNNNNN.h5); the scene is the one
-        /// it stores, and SCENE, if given, must be identical to it. Output goes to the
-        /// checkpoint's folder unless --out says otherwise. Any rank count works.
+        /// Continue from a checkpoint (OUT/checkpoint_NNNNNN.h5) with the scene it
+        /// stores. SCENE, if given, may change only time.end, time.cfl, time.dt,
+        /// output.every and [checkpoint]. Output goes to the checkpoint's folder unless
+        /// --out says otherwise. Any rank count works.
         #[arg(long, value_name = "CHECKPOINT.h5")]
         restart: Option<PathBuf>,
     },
@@ -234,8 +235,9 @@ fn run_main(
         restart,
     };
     match run::run(&sc, &comm, &opts) {
+        // The last line says where the files are, with --quiet too.
         Ok(s) => {
-            if root && !quiet {
+            if root {
                 eprintln!(
                     "{}: completed {} steps to t = {:.6e} in {:.2} s ({:.3e} particle updates/s); output in {}",
                     s.scene,
@@ -250,8 +252,10 @@ fn run_main(
         }
         Err(e) => {
             if root {
+                let dir = opts.out.display();
                 match e {
-                    RunError::Interrupted(_) => eprintln!("interrupted: {e}"),
+                    RunError::Interrupted(_) => eprintln!("interrupted: {e}; output in {dir}"),
+                    RunError::Unstable(_) => eprintln!("error: {e}; output in {dir}"),
                     _ => eprintln!("error: {e}"),
                 }
             }

@@ -3,10 +3,11 @@
 //! exclusive scan of the local counts), and an XDMF file describing the time series
 //! so that ParaView opens it directly.
 //!
-//! Every snapshot holds `id`, `rank` and `material` of each particle and its
-//! `position` (N × 3, padded with zeros below 3D, as ParaView expects), plus the
-//! fields the scene lists (`velocity` N × 3, `displacement` N × 3, `stress` N × 9, the
-//! full 3 × 3 Cauchy stress: in 2D with the plane-strain σ_zz, in 1D σ_xx only).
+//! Every snapshot holds `id`, `rank` and `material` of each particle, the XDMF
+//! `connectivity` (0..N-1), its `position` (N × 3, padded with zeros below 3D, as
+//! ParaView expects), plus the fields the scene lists (`velocity` N × 3,
+//! `displacement` N × 3, `stress` N × 9, the full 3 × 3 Cauchy stress: in 2D with the
+//! plane-strain σ_zz, in 1D σ_xx only).
 
 use crate::material::Material;
 use crate::particles::Particles;
@@ -127,6 +128,11 @@ impl Snapshots {
         self.ibuf.clear();
         self.ibuf.extend(parts.mat.iter().map(|&m| i64::from(m)));
         w.ints("material", &self.ibuf)?;
+        // The XDMF topology's connectivity (0..N-1, one vertex per particle): the
+        // Xdmf3 readers, ParaView's default for `.xmf`, make no cells without it.
+        self.ibuf.clear();
+        self.ibuf.extend((offset..offset + n).map(|i| i as i64));
+        w.ints("connectivity", &self.ibuf)?;
         pad3(&mut self.buf, parts.x.iter().map(|x| x.as_slice()), D);
         w.floats("position", &self.buf, 3)?;
         for f in self.fields.clone() {
@@ -211,9 +217,10 @@ impl Snapshots {
                 )
             };
             x += &format!(
-                "   <Grid Name=\"{}\" GridType=\"Uniform\">\n    <Time Value=\"{:.17e}\"/>\n    <Topology TopologyType=\"Polyvertex\" NumberOfElements=\"{n}\" NodesPerElement=\"1\"/>\n    <Geometry GeometryType=\"XYZ\">{}</Geometry>\n",
+                "   <Grid Name=\"{}\" GridType=\"Uniform\">\n    <Time Value=\"{:.17e}\"/>\n    <Topology TopologyType=\"Polyvertex\" NumberOfElements=\"{n}\" NodesPerElement=\"1\"><DataItem Dimensions=\"{n}\" NumberType=\"Int\" Precision=\"8\" Format=\"HDF\">{}:/connectivity</DataItem></Topology>\n    <Geometry GeometryType=\"XYZ\">{}</Geometry>\n",
                 e.file(),
                 e.time,
+                e.file(),
                 item("position", 3)
             );
             for (name, ty) in [("id", "Int"), ("rank", "Int"), ("material", "Int")] {

@@ -64,8 +64,7 @@ impl Carries {
             // Benchmarks measure displacement errors; a displacement output needs it too.
             x0: scene.benchmark.is_some()
                 || scene
-                    .output
-                    .as_ref()
+                    .snapshot_plan()
                     .is_some_and(|o| o.fields.contains(&crate::scene::Field::Displacement)),
             half: scene.method.gradient == crate::scene::Gradient::Gimp,
             plastic: scene.materials.iter().any(|m| m.model == Model::J2Plastic),

@@ -293,8 +293,8 @@ fn set_up<'c, const D: usize>(
     if opts.scene_text.as_deref() != Some(header.scene_text.as_str()) {
         let next = |every: f64| ((s.t / every + 1e-9).floor() + 1.0) * every;
         run.next_snapshot = scene
-            .output
-            .as_ref()
+            .snapshot_plan()
+            .filter(|o| o.every.is_finite())
             .map_or(f64::INFINITY, |o| next(o.every));
         run.next_checkpoint = match scene.checkpoint.as_ref().map(|c| c.schedule()) {
             Some(CheckpointEvery::Time(every)) => next(every),
@@ -371,9 +371,9 @@ fn run_dim<const D: usize>(
         return Err(RunError::Io(m));
     }
 
+    // (writer, interval); an infinite interval writes the initial and final states.
     let mut snaps = scene
-        .output
-        .as_ref()
+        .snapshot_plan()
         .map(|o| (Snapshots::new(&opts.out, &o.fields), o.every));
     let start = Instant::now();
     let mut output_seconds = OutputSeconds::default();
@@ -444,6 +444,8 @@ fn run_dim<const D: usize>(
         let wall_due = root
             && matches!(schedule, Some(CheckpointEvery::Seconds(s))
                 if checkpoint_clock.elapsed().as_secs_f64() >= s);
+        // Snapshots at exact output times: the step that would pass one is shortened.
+        solver.stop_at = st.next_snapshot;
         let mut flags = [
             f64::from(signals::pending()),
             f64::from(u8::from(wall_due)),
@@ -478,7 +480,7 @@ fn run_dim<const D: usize>(
             history.row(&solver, &st.last, st.last_err);
         }
         if let Some((sn, every)) = &mut snaps {
-            // Write when an output time is reached (to within a thousandth of a step).
+            // Write when an output time is reached (the step landed on it, to round-off).
             if solver.t >= st.next_snapshot - 1e-3 * solver.dt || solver.done() {
                 let t0 = Instant::now();
                 sn.write(
@@ -490,8 +492,9 @@ fn run_dim<const D: usize>(
                 )
                 .map_err(|e| RunError::Io(e.to_string()))?;
                 output_seconds.snapshots += t0.elapsed().as_secs_f64();
+                // k·every by one multiplication: a sum of intervals would drift.
                 while st.next_snapshot <= solver.t + 1e-3 * solver.dt {
-                    st.next_snapshot += *every;
+                    st.next_snapshot = ((st.next_snapshot / *every).round() + 1.0) * *every;
                 }
             }
         }

@@ -297,10 +297,38 @@ pub enum Field {
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Output {
-    /// Simulated time between snapshots.
+    /// Simulated time between snapshots; `None`: only the initial and final states.
+    pub every: Option<f64>,
+    /// `None`: velocity and stress.
+    pub fields: Option<Vec<Field>>,
+    /// `Some(false)`: no snapshots at all (`every` and `fields` must then be absent).
+    pub snapshots: Option<bool>,
+}
+
+/// The snapshots a run writes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SnapshotPlan {
+    /// Simulated time between snapshots (infinite: the initial and final states only).
     pub every: f64,
-    #[serde(default)]
     pub fields: Vec<Field>,
+}
+
+impl Scene {
+    /// What the scene asks to write: `None` for `[output] snapshots = false`. Without
+    /// `[output]` a run still writes its initial and final states, so that every run
+    /// leaves something to look at.
+    pub fn snapshot_plan(&self) -> Option<SnapshotPlan> {
+        let o = self.output.as_ref();
+        if o.and_then(|o| o.snapshots) == Some(false) {
+            return None;
+        }
+        Some(SnapshotPlan {
+            every: o.and_then(|o| o.every).unwrap_or(f64::INFINITY),
+            fields: o
+                .and_then(|o| o.fields.clone())
+                .unwrap_or_else(|| vec![Field::Velocity, Field::Stress]),
+        })
+    }
 }
 
 /// When to write restart checkpoints: exactly one of `every` (simulated time),
@@ -517,7 +545,13 @@ pub fn restart_difference(a: &Scene, b: &Scene) -> Option<String> {
                 t.remove(k);
             }
         }
-        if let Some(t) = o.get_mut("output").and_then(|t| t.as_object_mut()) {
+        // No `[output]` table means `[output]` with its defaults: a restart may add
+        // an interval to a run that wrote only its initial and final states.
+        let out = o.entry("output").or_insert(serde_json::Value::Null);
+        if out.is_null() {
+            *out = serde_json::json!({});
+        }
+        if let Some(t) = out.as_object_mut() {
             t.remove("every");
         }
         v
@@ -1154,8 +1188,22 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
         vector("gravity.value", &gr.value, d)?;
     }
     if let Some(o) = &s.output {
-        positive("output.every", o.every)?;
-        for (i, f) in o.fields.iter().enumerate() {
+        if o.snapshots == Some(false) {
+            if let Some(k) = [("every", o.every.is_some()), ("fields", o.fields.is_some())]
+                .iter()
+                .find(|k| k.1)
+            {
+                return Err((
+                    format!("output.{}", k.0),
+                    "is given, but `snapshots = false` writes no snapshots: remove one of the two"
+                        .into(),
+                ));
+            }
+        }
+        if let Some(every) = o.every {
+            positive("output.every", every)?;
+        }
+        for (i, f) in o.fields.iter().flatten().enumerate() {
             let needs = match f {
                 Field::PlasticStrain => Some(Model::J2Plastic),
                 Field::Damage => Some(Model::Brittle),

@@ -130,6 +130,9 @@ pub struct Solver<'c, const D: usize> {
     cfl: Option<f64>,
     fixed_dt: Option<f64>,
     pub end: f64,
+    /// A time before `end` to land on exactly, like `end` (the next snapshot): the step
+    /// that would pass it is shortened. Ignored unless `t < stop_at < end`.
+    pub stop_at: f64,
     pub t: f64,
     pub step: u64,
     pub dt: f64,
@@ -263,6 +266,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             },
             fixed_dt: scene.time.dt,
             end: scene.time.end,
+            stop_at: f64::INFINITY,
             t: 0.0,
             step: 0,
             dt: 0.0,
@@ -614,8 +618,13 @@ impl<'c, const D: usize> Solver<'c, D> {
             (None, Some(c)) => c * self.geom.min_h() / s[0].max(1e-300),
             (None, None) => unreachable!("a CFL number is always set without dt"),
         };
-        // Land exactly on the end time rather than overshoot it.
-        let left = self.end - self.t;
+        // Land exactly on the end time (or the next snapshot's) rather than overshoot it.
+        let target = if self.stop_at > self.t && self.stop_at < self.end {
+            self.stop_at
+        } else {
+            self.end
+        };
+        let left = target - self.t;
         if dt > left || (left - dt) < 1e-9 * dt {
             left
         } else {

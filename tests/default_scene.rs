@@ -1,19 +1,37 @@
 //! `mpmcg run` with no scene runs the built-in default scene (two colliding elastic
-//! disks, MPMCG) through the real binary and writes its summary and history.
+//! disks, MPMCG) through the real binary and writes its summary, history and the
+//! snapshots of its initial and final states.
 
 mod common;
-use common::{history, temp_dir};
+use common::{files, history, temp_dir};
 use std::process::Command;
 
 #[test]
 fn default_scene_runs_collides_and_rebounds() {
     let out = temp_dir("default-scene");
-    let st = Command::new(env!("CARGO_BIN_EXE_mpmcg"))
+    let o = Command::new(env!("CARGO_BIN_EXE_mpmcg"))
         .args(["run", "--quiet", "--out"])
         .arg(&out)
-        .status()
+        .output()
         .unwrap();
-    assert!(st.success(), "exit status {st}");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "exit status {}: {err}", o.status);
+    // The last line says where the files are, even with --quiet.
+    assert!(
+        err.trim_end()
+            .ends_with(&format!("output in {}", out.display())),
+        "{err}"
+    );
+    // Something to look at: the initial and the final state (3000 steps of 1e-3).
+    let snaps = files(&out, "particles_");
+    assert_eq!(
+        snaps
+            .iter()
+            .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+            .collect::<Vec<_>>(),
+        ["particles_000000.h5", "particles_003000.h5"]
+    );
+    assert!(out.join("particles.xmf").is_file());
     let s: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(s["scene"], "colliding_disks");

@@ -813,8 +813,8 @@ fields = ["velocity", "stress", "displacement"]
     }
     assert_eq!(
         items,
-        5 * 7,
-        "position, id, rank, material and three fields per snapshot"
+        5 * 8,
+        "connectivity, position, id, rank, material and three fields per snapshot"
     );
     let times: Vec<f64> = xmf
         .split("<Time Value=\"")
