@@ -610,7 +610,7 @@ impl<'c, const D: usize> Solver<'c, D> {
     }
 
     /// Pick the step size: fixed, or the CFL number over the fastest signal anywhere.
-    fn choose_dt(&mut self) -> f64 {
+    fn choose_dt(&mut self) -> Result<f64, Failure> {
         let mut s = [self.max_speed];
         self.comm.max_f64(&mut s);
         let dt = match (self.fixed_dt, self.cfl) {
@@ -618,6 +618,20 @@ impl<'c, const D: usize> Solver<'c, D> {
             (None, Some(c)) => c * self.geom.min_h() / s[0].max(1e-300),
             (None, None) => unreachable!("a CFL number is always set without dt"),
         };
+        // A signal speed that overflowed (or a blown-up velocity) gives a CFL step of 0
+        // or one so small that the run would never end: that is an instability, not a
+        // run to wait for. The speed is the maximum over ranks, so all agree. (Checked
+        // before the step is shortened to land on an output or end time, which may
+        // legitimately leave a sliver.)
+        let collapsed = self.fixed_dt.is_none() && dt < MIN_STEP_SHARE * (self.end - self.t);
+        if dt.is_nan() || dt <= 0.0 || collapsed {
+            return Err(Failure::Unstable(format!(
+                "the time step fell to {dt:e} at step {}, t = {:.6e} (more than {:e} steps to the end): the signal speed has blown up",
+                self.step,
+                self.t,
+                1.0 / MIN_STEP_SHARE
+            )));
+        }
         // Land exactly on the end time (or the next snapshot's) rather than overshoot it.
         let target = if self.stop_at > self.t && self.stop_at < self.end {
             self.stop_at
@@ -625,11 +639,11 @@ impl<'c, const D: usize> Solver<'c, D> {
             self.end
         };
         let left = target - self.t;
-        if dt > left || (left - dt) < 1e-9 * dt {
+        Ok(if dt > left || (left - dt) < 1e-9 * dt {
             left
         } else {
             dt
-        }
+        })
     }
 
     /// What a restart needs besides the particles: this rank's accumulated external
@@ -665,19 +679,7 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// costs no extra message.
     pub fn advance_with(&mut self, flags: &mut [f64]) -> Result<(), Failure> {
         assert!(flags.len() <= 3, "at most three flags per step");
-        let dt = self.choose_dt();
-        // A signal speed that overflowed (or a blown-up velocity) gives a step of 0 or
-        // one so small that the run would never end: that is an instability, not a run
-        // to wait for. The step is the same on every rank, so all agree.
-        let left = self.end - self.t;
-        if dt.is_nan() || dt <= 0.0 || (self.fixed_dt.is_none() && dt < MIN_STEP_SHARE * left) {
-            return Err(Failure::Unstable(format!(
-                "the time step fell to {dt:e} at step {}, t = {:.6e} (more than {:e} steps to the end): the signal speed has blown up",
-                self.step,
-                self.t,
-                1.0 / MIN_STEP_SHARE
-            )));
-        }
+        let dt = self.choose_dt()?;
         self.dt = dt;
         let mut ok = true;
         match self.update {
