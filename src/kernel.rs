@@ -36,6 +36,8 @@ pub struct Ctx<'a, const D: usize> {
     pub t: f64,
     /// Boundary condition of the lower and upper face per axis.
     pub faces: [[Face; 2]; D],
+    /// Fill [`Kern::ends`] (the gather of a scene with slip walls sets it).
+    pub slip_walls: bool,
 }
 
 /// Interpolation data of one particle over its `N` nodes.
@@ -74,11 +76,15 @@ impl<const D: usize> Ctx<'_, D> {
             },
             ends: [[false; 2]; D],
         };
-        for a in 0..D {
-            for o in 0..NA {
-                let side = self.geom.end(a, w.base[a] + o as i64);
-                if side != 0 && w.w[a][o] > 0.0 {
-                    k.ends[a][usize::from(side > 0)] = true;
+        // Only the gather's slip-wall clip reads which grid faces the particle touches:
+        // the other passes skip this per-particle work.
+        if self.slip_walls {
+            for a in 0..D {
+                for o in 0..NA {
+                    let side = self.geom.end(a, w.base[a] + o as i64);
+                    if side != 0 && w.w[a][o] > 0.0 {
+                        k.ends[a][usize::from(side > 0)] = true;
+                    }
                 }
             }
         }

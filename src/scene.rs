@@ -861,16 +861,13 @@ const MAX_GRID_NODES: u64 = 1 << 40;
 /// fill, weight and volume), for the message above.
 const BYTES_PER_NODE: u64 = 8 * (1 + 6 + 9 + 1 + 6 + 9 + 3);
 
-fn validate(s: &Scene) -> Result<(), Invalid> {
-    let d = s.dim;
-    if !(1..=3).contains(&d) {
-        return Err(("dim".into(), format!("must be 1, 2 or 3, got {d}")));
-    }
+/// A scene name is a plain file name (it names the output folder).
+fn plain_name(name: &str) -> Result<(), Invalid> {
     // A plain file name: `.` and `..` would put the output folder on `out/` itself or
     // outside it, and a leading dot hides it.
-    if s.name.trim().is_empty()
-        || s.name.starts_with('.')
-        || s.name
+    if name.trim().is_empty()
+        || name.starts_with('.')
+        || name
             .chars()
             .any(|c| !(c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '.'))
     {
@@ -878,10 +875,39 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
             "name".into(),
             format!(
                 "must be a plain file name of letters, digits, `_`, `-` and `.`, not starting with `.` (it names the output folder), got {:?}",
-                s.name
+                name
             ),
         ));
     }
+    Ok(())
+}
+
+/// The grid is small enough to hold.
+fn grid_size(cells: &[usize]) -> Result<(), Invalid> {
+    // The grid is stored dense per rank: a node count whose product overflows, or that
+    // no machine could hold, is an input error, not a crash in the allocator.
+    let nodes = cells.iter().try_fold(1u64, |n, &c| {
+        (c as u64).checked_add(1).and_then(|c1| n.checked_mul(c1))
+    });
+    if nodes.is_none_or(|n| n > MAX_GRID_NODES) {
+        let approx: f64 = cells.iter().map(|&c| c as f64 + 1.0).product();
+        return Err((
+            "grid.cells".into(),
+            format!(
+                "{approx:.3e} grid nodes (about {:.1e} bytes of grid fields) is beyond what a run can hold; at most {MAX_GRID_NODES:.0e} nodes",
+                approx * BYTES_PER_NODE as f64
+            ),
+        ));
+    }
+    Ok(())
+}
+
+fn validate(s: &Scene) -> Result<(), Invalid> {
+    let d = s.dim;
+    if !(1..=3).contains(&d) {
+        return Err(("dim".into(), format!("must be 1, 2 or 3, got {d}")));
+    }
+    plain_name(&s.name)?;
     positive("time.end", s.time.end)?;
     match (s.time.cfl, s.time.dt) {
         (Some(_), Some(_)) => {
@@ -918,21 +944,7 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
             format!("must have dim = {d} components, got {}", g.cells.len()),
         ));
     }
-    // The grid is stored dense per rank: a node count whose product overflows, or that
-    // no machine could hold, is an input error, not a crash in the allocator.
-    let nodes = g.cells.iter().try_fold(1u64, |n, &c| {
-        (c as u64).checked_add(1).and_then(|c1| n.checked_mul(c1))
-    });
-    if nodes.is_none_or(|n| n > MAX_GRID_NODES) {
-        let approx: f64 = g.cells.iter().map(|&c| c as f64 + 1.0).product();
-        return Err((
-            "grid.cells".into(),
-            format!(
-                "{approx:.3e} grid nodes (about {:.1e} bytes of grid fields) is beyond what a run can hold; at most {MAX_GRID_NODES:.0e} nodes",
-                approx * BYTES_PER_NODE as f64
-            ),
-        ));
-    }
+    grid_size(&g.cells)?;
     for a in 0..d {
         if g.cells[a] == 0 {
             return Err((format!("grid.cells[{a}]"), "must be >= 1, got 0".into()));

@@ -26,6 +26,7 @@ macro_rules! ctx {
             body_force: $s.benchmark.as_ref().filter(|b| b.has_body_force()),
             t: $s.t,
             faces: $s.faces,
+            slip_walls: false,
         }
     };
 }
@@ -764,7 +765,8 @@ impl<'c, const D: usize> Solver<'c, D> {
             two_step: self.two_step(),
             speed,
         };
-        let ctx = ctx!(self);
+        let mut ctx = ctx!(self);
+        ctx.slip_walls = self.faces.iter().flatten().any(|f| *f == Face::Slip);
         let parts = slices!(self);
         let t = by_nodes!(
             self.gradient == Gradient::Gimp,
