@@ -3,7 +3,7 @@
 //! the output folder (`summary.json`, `history.csv`).
 
 use crate::checkpoint::{self, RunState, SolverState};
-use crate::io::Snapshots;
+use crate::io::{Labels, Snapshots};
 use crate::particles::Particles;
 use crate::progress::Progress;
 use crate::scene::{CheckpointEvery, Face, Scene};
@@ -125,6 +125,8 @@ pub struct Summary {
     pub gradient: String,
     pub update: String,
     pub flip: f64,
+    /// `SI`, or `dimensionless` for benchmark scenes (as in the snapshots).
+    pub units: String,
     /// `completed`, `unstable` or `interrupted`.
     pub status: String,
     pub message: Option<String>,
@@ -375,9 +377,12 @@ fn run_dim<const D: usize>(
     }
 
     // (writer, interval); an infinite interval writes the initial and final states.
-    let mut snaps = scene
-        .snapshot_plan()
-        .map(|o| (Snapshots::new(&opts.out, &o.fields), o.every));
+    let mut snaps = scene.snapshot_plan().map(|o| {
+        (
+            Snapshots::new(&opts.out, &o.fields, Labels::of::<D>(scene)),
+            o.every,
+        )
+    });
     let start = Instant::now();
     let mut output_seconds = OutputSeconds::default();
     let mut st = match restored {
@@ -612,6 +617,7 @@ fn run_dim<const D: usize>(
         gradient: scene.method.gradient.name().into(),
         update: scene.method.update.name().into(),
         flip: scene.method.flip,
+        units: Labels::of::<D>(scene).units,
         status: status.into(),
         message: message.clone(),
         ranks: comm.size(),
