@@ -1,5 +1,5 @@
 //! The command line. Exit status: 0 done, 2 bad input or usage (an unusable checkpoint
-//! included), 3 numerically unstable, 4 stopped by SIGTERM/SIGINT after writing a
+//! included), 3 numerically unstable, 4 stopped by SIGTERM/SIGINT/SIGUSR1 after writing a
 //! checkpoint, 1 any other failure (I/O, MPI).
 
 use crate::checkpoint;
@@ -229,7 +229,9 @@ fn run_main(
     }
     if let Err(m) = signals::install() {
         if root {
-            eprintln!("warning: {m}; SIGTERM and SIGINT will end the run without a checkpoint");
+            eprintln!(
+                "warning: {m}; SIGTERM, SIGINT and SIGUSR1 will end the run without a checkpoint"
+            );
         }
     }
     let default_out = match &restart {

@@ -117,7 +117,11 @@ fn slurm_script_adds_wall_clock_checkpoints_and_chains_from_the_newest() {
 
     // A completed run ends the chain; so does the job limit.
     let o = sbatch_dry(&dir, &sc, &out, &[("MPMCG_DRY_RUN_STATUS", "0")]);
-    assert!(o.status.success() && !text(&o).contains("sbatch "), "{}", text(&o));
+    assert!(
+        o.status.success() && !text(&o).contains("sbatch "),
+        "{}",
+        text(&o)
+    );
     let o = sbatch_dry(&dir, &sc, &out, &[("MPMCG_JOB", "20")]);
     assert_eq!(o.status.code(), Some(4), "{}", text(&o));
     assert!(!text(&o).contains("dry run: sbatch"), "{}", text(&o));
@@ -239,7 +243,10 @@ fn hostfile_script_stops_on_request_and_continues_when_rerun() {
     let t = text(&o);
     assert_eq!(o.status.code(), Some(4), "{t}");
     assert!(t.contains("stopped on request"), "{t}");
-    assert_eq!(summary(&out)["status"], "interrupted", "{t}");
+    let j = summary(&out);
+    assert_eq!(j["status"], "interrupted", "{t}");
+    // Through mpirun as SIGUSR1, which reaches the ranks at once.
+    assert!(j["message"].as_str().unwrap().contains("SIGUSR1"), "{j}");
     let stopped_at = summary(&out)["steps"].as_u64().unwrap();
 
     // The same command again continues from the final checkpoint.
@@ -247,6 +254,10 @@ fn hostfile_script_stops_on_request_and_continues_when_rerun() {
     assert!(o.status.success(), "{}", text(&o));
     let j = summary(&out);
     assert_eq!(j["status"], "completed");
-    assert_eq!(j["restarted_from"]["step"].as_u64(), Some(stopped_at), "{j}");
+    assert_eq!(
+        j["restarted_from"]["step"].as_u64(),
+        Some(stopped_at),
+        "{j}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -70,13 +70,15 @@ if [[ ! -f $chain_scene ]]; then
     mv "$chain_scene.tmp" "$chain_scene"
 fi
 
-# A stop request goes to mpirun, which forwards it to the ranks (they checkpoint).
+# A stop request goes to mpirun as SIGUSR1, which Open MPI forwards to every rank at
+# once (a SIGTERM reaches them only after odls_base_sigkill_timeout, and SIGKILL
+# follows as soon after); the ranks finish the step and write a final checkpoint.
 pid=
 stopping=0
 stop() {
     stopping=1
     if [[ -n $pid ]]; then
-        kill -TERM "$pid" 2>/dev/null || true
+        kill -USR1 "$pid" 2>/dev/null || true
     fi
 }
 trap stop TERM INT
@@ -102,8 +104,7 @@ while :; do
     if ((stopping)); then
         rc=0
         wait "$pid" || rc=$?
-        # mpirun reports 1 when it was signalled itself, whatever the ranks did.
-        echo "mpmcg: stopped on request (mpirun status $rc); rerun this command to continue from the newest checkpoint" >&2
+        echo "mpmcg: stopped on request (status $rc); rerun this command to continue from the newest checkpoint" >&2
         exit 4
     fi
     pid=
