@@ -172,8 +172,7 @@ impl Snapshots {
             .and_then(|_| file.new_attr::<u64>().create("step"))
             .and_then(|a| a.write_scalar(&step))
             .and_then(|_| file.new_attr::<u64>().create("dim"))
-            .and_then(|a| a.write_scalar(&(D as u64)))
-            .and_then(|_| self.write_labels(&file));
+            .and_then(|a| a.write_scalar(&(D as u64)));
         a.map_err(|e| h5err(&path, e))?;
 
         let w = Writer {
@@ -192,6 +191,8 @@ impl Snapshots {
         self.ibuf.clear();
         self.ibuf.extend(parts.mat.iter().map(|&m| i64::from(m)));
         w.ints("material", &self.ibuf)?;
+        // What the numbers mean: the names behind `material`, units, symmetry planes.
+        self.write_labels(&file).map_err(|e| h5err(&path, e))?;
         // The XDMF topology's connectivity (0..N-1, one vertex per particle): the
         // Xdmf3 readers, ParaView's default for `.xmf`, make no cells without it.
         self.ibuf.clear();
