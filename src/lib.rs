@@ -14,6 +14,7 @@ pub mod io;
 pub mod kernel;
 pub mod material;
 pub mod particles;
+pub mod progress;
 pub mod run;
 pub mod scene;
 pub mod shape;
