@@ -217,8 +217,6 @@ const DASHES: [&str; 2] = ["6 4", "2 3"];
 
 /// The SVG document of a log–log plot.
 pub fn loglog(plot: &Plot) -> String {
-    let (x0, x1) = (LEFT, WIDTH - RIGHT);
-    let (y0, y1) = (TOP, HEIGHT - BOTTOM);
     let refs: Vec<(&Reference, [(f64, f64); 2])> = plot
         .references
         .iter()
@@ -231,10 +229,49 @@ pub fn loglog(plot: &Plot) -> String {
             .flat_map(|s| s.points.iter().copied().filter(usable))
             .chain(refs.iter().flat_map(|(_, e)| e.iter().copied()))
     };
-    let xa = Axis::fit(pts().map(|p| p.0), x0, x1);
-    let ya = Axis::fit(pts().map(|p| p.1), y1, y0);
-
+    let f = Frame::new(|| pts().map(|p| p.0), || pts().map(|p| p.1));
     let mut s = String::new();
+    header(&mut s, plot, &f);
+    grid_and_ticks(&mut s, &f);
+    labels(&mut s, plot, &f);
+    reference_lines(&mut s, &refs, &f);
+    curves(&mut s, plot, &f);
+    legend(&mut s, plot, &refs, &f);
+    let _ = writeln!(s, "</svg>");
+    s
+}
+
+/// The plot area (`x0..x1` left to right, `y0..y1` top to bottom) and its two axes.
+struct Frame {
+    x0: f64,
+    x1: f64,
+    y0: f64,
+    y1: f64,
+    xa: Axis,
+    ya: Axis,
+}
+
+impl Frame {
+    fn new<X, Y>(xs: impl Fn() -> X, ys: impl Fn() -> Y) -> Self
+    where
+        X: Iterator<Item = f64>,
+        Y: Iterator<Item = f64>,
+    {
+        let (x0, x1) = (LEFT, WIDTH - RIGHT);
+        let (y0, y1) = (TOP, HEIGHT - BOTTOM);
+        Frame {
+            x0,
+            x1,
+            y0,
+            y1,
+            xa: Axis::fit(xs(), x0, x1),
+            ya: Axis::fit(ys(), y1, y0),
+        }
+    }
+}
+
+/// XML declaration, `svg` element, background and title.
+fn header(s: &mut String, plot: &Plot, f: &Frame) {
     let _ = writeln!(s, "<?xml version=\"1.0\" encoding=\"UTF-8\"?>");
     let _ = writeln!(
         s,
@@ -252,137 +289,136 @@ pub fn loglog(plot: &Plot) -> String {
         s,
         "<text x=\"{:.1}\" y=\"28\" text-anchor=\"middle\" font-size=\"16\" \
          font-weight=\"bold\">{title}</text>",
-        (x0 + x1) / 2.0
+        (f.x0 + f.x1) / 2.0
     );
+}
 
-    // Grid lines, ticks and tick labels.
+/// Vertical lines at `xs` from `ya` to `yb` and horizontal lines at `ys` from `xa` to
+/// `xb`, each with `attrs` (coordinates of the ends given as already formatted text).
+fn cross_lines(
+    s: &mut String,
+    f: &Frame,
+    (xs, ys): (&[f64], &[f64]),
+    (ya, yb, xa, xb): (&str, &str, &str, &str),
+    attrs: &str,
+) {
+    for &v in xs {
+        let x = f.xa.map(v);
+        let _ = writeln!(
+            s,
+            "<line x1=\"{x:.2}\" y1=\"{ya}\" x2=\"{x:.2}\" y2=\"{yb}\"{attrs}/>"
+        );
+    }
+    for &v in ys {
+        let y = f.ya.map(v);
+        let _ = writeln!(
+            s,
+            "<line x1=\"{xa}\" y1=\"{y:.2}\" x2=\"{xb}\" y2=\"{y:.2}\"{attrs}/>"
+        );
+    }
+}
+
+/// Grid lines (light at minor values, darker at decades), the frame, and tick marks.
+fn grid_and_ticks(s: &mut String, f: &Frame) {
+    let minors: (Vec<f64>, Vec<f64>) = (f.xa.minors().collect(), f.ya.minors().collect());
+    let decade = |a: &Axis| a.decades().map(|k| 10f64.powi(k)).collect::<Vec<f64>>();
+    let decades = (decade(&f.xa), decade(&f.ya));
+    let (x0, x1, y0, y1) = (
+        f.x0.to_string(),
+        f.x1.to_string(),
+        f.y0.to_string(),
+        f.y1.to_string(),
+    );
     let _ = writeln!(s, "<g class=\"grid\" stroke-width=\"1\">");
-    for v in xa.minors() {
-        let x = xa.map(v);
-        let _ = writeln!(
-            s,
-            "<line x1=\"{x:.2}\" y1=\"{y0}\" x2=\"{x:.2}\" y2=\"{y1}\" stroke=\"#eeeeee\"/>"
-        );
-    }
-    for v in ya.minors() {
-        let y = ya.map(v);
-        let _ = writeln!(
-            s,
-            "<line x1=\"{x0}\" y1=\"{y:.2}\" x2=\"{x1}\" y2=\"{y:.2}\" stroke=\"#eeeeee\"/>"
-        );
-    }
-    for k in xa.decades() {
-        let x = xa.map(10f64.powi(k));
-        let _ = writeln!(
-            s,
-            "<line x1=\"{x:.2}\" y1=\"{y0}\" x2=\"{x:.2}\" y2=\"{y1}\" stroke=\"#cccccc\"/>"
-        );
-    }
-    for k in ya.decades() {
-        let y = ya.map(10f64.powi(k));
-        let _ = writeln!(
-            s,
-            "<line x1=\"{x0}\" y1=\"{y:.2}\" x2=\"{x1}\" y2=\"{y:.2}\" stroke=\"#cccccc\"/>"
-        );
-    }
+    let across = (y0.as_str(), y1.as_str(), x0.as_str(), x1.as_str());
+    cross_lines(s, f, (&minors.0, &[]), across, " stroke=\"#eeeeee\"");
+    cross_lines(s, f, (&[], &minors.1), across, " stroke=\"#eeeeee\"");
+    cross_lines(s, f, (&decades.0, &[]), across, " stroke=\"#cccccc\"");
+    cross_lines(s, f, (&[], &decades.1), across, " stroke=\"#cccccc\"");
     let _ = writeln!(s, "</g>");
     let _ = writeln!(
         s,
-        "<rect x=\"{x0}\" y=\"{y0}\" width=\"{}\" height=\"{}\" fill=\"none\" stroke=\"black\"/>",
-        x1 - x0,
-        y1 - y0
+        "<rect x=\"{}\" y=\"{}\" width=\"{}\" height=\"{}\" fill=\"none\" stroke=\"black\"/>",
+        f.x0,
+        f.y0,
+        f.x1 - f.x0,
+        f.y1 - f.y0
     );
     let _ = writeln!(s, "<g class=\"ticks\" stroke=\"black\">");
-    for v in xa.minors() {
-        let x = xa.map(v);
-        let _ = writeln!(
-            s,
-            "<line x1=\"{x:.2}\" y1=\"{y1}\" x2=\"{x:.2}\" y2=\"{:.1}\"/>",
-            y1 - 4.0
-        );
-    }
-    for v in ya.minors() {
-        let y = ya.map(v);
-        let _ = writeln!(
-            s,
-            "<line x1=\"{x0}\" y1=\"{y:.2}\" x2=\"{:.1}\" y2=\"{y:.2}\"/>",
-            x0 + 4.0
-        );
-    }
-    for k in xa.decades() {
-        let x = xa.map(10f64.powi(k));
-        let _ = writeln!(
-            s,
-            "<line x1=\"{x:.2}\" y1=\"{y1}\" x2=\"{x:.2}\" y2=\"{:.1}\"/>",
-            y1 - 8.0
-        );
-    }
-    for k in ya.decades() {
-        let y = ya.map(10f64.powi(k));
-        let _ = writeln!(
-            s,
-            "<line x1=\"{x0}\" y1=\"{y:.2}\" x2=\"{:.1}\" y2=\"{y:.2}\"/>",
-            x0 + 8.0
-        );
+    for (len, (xs, ys)) in [(4.0, &minors), (8.0, &decades)] {
+        let (ye, xe) = (format!("{:.1}", f.y1 - len), format!("{:.1}", f.x0 + len));
+        let ends = (y1.as_str(), ye.as_str(), x0.as_str(), xe.as_str());
+        cross_lines(s, f, (xs, &[]), ends, "");
+        cross_lines(s, f, (&[], ys), ends, "");
     }
     let _ = writeln!(s, "</g>");
+}
+
+/// Tick labels and axis titles.
+fn labels(s: &mut String, plot: &Plot, f: &Frame) {
     let _ = writeln!(s, "<g class=\"tick-labels\">");
-    for (m, k) in xa.labelled() {
+    for (m, k) in f.xa.labelled() {
         let _ = writeln!(
             s,
             "<text x=\"{:.2}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text>",
-            xa.map(f64::from(m) * 10f64.powi(k)),
-            y1 + 20.0,
-            xa.label(m, k)
+            f.xa.map(f64::from(m) * 10f64.powi(k)),
+            f.y1 + 20.0,
+            f.xa.label(m, k)
         );
     }
-    for (m, k) in ya.labelled() {
+    for (m, k) in f.ya.labelled() {
         let _ = writeln!(
             s,
             "<text x=\"{:.1}\" y=\"{:.2}\" text-anchor=\"end\">{}</text>",
-            x0 - 8.0,
-            ya.map(f64::from(m) * 10f64.powi(k)) + 4.0,
-            ya.label(m, k)
+            f.x0 - 8.0,
+            f.ya.map(f64::from(m) * 10f64.powi(k)) + 4.0,
+            f.ya.label(m, k)
         );
     }
     let _ = writeln!(s, "</g>");
     let _ = writeln!(
         s,
         "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\" font-size=\"14\">{}</text>",
-        (x0 + x1) / 2.0,
+        (f.x0 + f.x1) / 2.0,
         HEIGHT - 22.0,
         escape(plot.x_label)
     );
-    let (lx, ly) = (24.0, (y0 + y1) / 2.0);
+    let (lx, ly) = (24.0, (f.y0 + f.y1) / 2.0);
     let _ = writeln!(
         s,
         "<text x=\"{lx}\" y=\"{ly:.1}\" transform=\"rotate(-90 {lx} {ly:.1})\" \
          text-anchor=\"middle\" font-size=\"14\">{}</text>",
         escape(plot.y_label)
     );
+}
 
-    // Reference slopes under the curves, then the curves, then the legend.
+/// Reference slopes, drawn first so that the curves lie on top.
+fn reference_lines(s: &mut String, refs: &[(&Reference, [(f64, f64); 2])], f: &Frame) {
     let _ = writeln!(s, "<g class=\"reference\" stroke=\"#777777\">");
     for (j, (r, [a, b])) in refs.iter().enumerate() {
         let _ = writeln!(
             s,
             "<line x1=\"{:.2}\" y1=\"{:.2}\" x2=\"{:.2}\" y2=\"{:.2}\" stroke-width=\"1.2\" stroke-dasharray=\"{}\"><title>{}</title></line>",
-            xa.map(a.0),
-            ya.map(a.1),
-            xa.map(b.0),
-            ya.map(b.1),
+            f.xa.map(a.0),
+            f.ya.map(a.1),
+            f.xa.map(b.0),
+            f.ya.map(b.1),
             DASHES[j % DASHES.len()],
             escape(&r.name)
         );
     }
     let _ = writeln!(s, "</g>");
+}
+
+/// One polyline with markers per series.
+fn curves(s: &mut String, plot: &Plot, f: &Frame) {
     for (i, ser) in plot.series.iter().enumerate() {
         let colour = COLOURS[i % COLOURS.len()];
         let name = escape(&ser.name);
         let shown: Vec<(f64, f64)> = ser.points.iter().copied().filter(usable).collect();
         let coords: Vec<String> = shown
             .iter()
-            .map(|&(x, y)| format!("{:.2},{:.2}", xa.map(x), ya.map(y)))
+            .map(|&(x, y)| format!("{:.2},{:.2}", f.xa.map(x), f.ya.map(y)))
             .collect();
         let _ = writeln!(s, "<g class=\"series\">");
         let _ = writeln!(
@@ -392,15 +428,19 @@ pub fn loglog(plot: &Plot) -> String {
         );
         for &(x, y) in &shown {
             let tip = format!("{}: x = {x:.4e}, y = {y:.4e}", ser.name);
-            let _ = writeln!(s, "{}", marker(i, xa.map(x), ya.map(y), colour, &tip));
+            let _ = writeln!(s, "{}", marker(i, f.xa.map(x), f.ya.map(y), colour, &tip));
         }
         let _ = writeln!(s, "</g>");
     }
+}
+
+/// The legend right of the plot: the series, then the reference slopes.
+fn legend(s: &mut String, plot: &Plot, refs: &[(&Reference, [(f64, f64); 2])], f: &Frame) {
     let _ = writeln!(s, "<g class=\"legend\">");
-    let lx = x1 + 16.0;
+    let lx = f.x1 + 16.0;
     for (i, ser) in plot.series.iter().enumerate() {
         let colour = COLOURS[i % COLOURS.len()];
-        let y = y0 + 14.0 + 22.0 * i as f64;
+        let y = f.y0 + 14.0 + 22.0 * i as f64;
         let _ = writeln!(
             s,
             "<line x1=\"{lx}\" y1=\"{y:.1}\" x2=\"{:.1}\" y2=\"{y:.1}\" stroke=\"{colour}\" stroke-width=\"2\"/>",
@@ -416,7 +456,7 @@ pub fn loglog(plot: &Plot) -> String {
         );
     }
     for (j, (r, _)) in refs.iter().enumerate() {
-        let y = y0 + 14.0 + 22.0 * (plot.series.len() + j) as f64;
+        let y = f.y0 + 14.0 + 22.0 * (plot.series.len() + j) as f64;
         let _ = writeln!(
             s,
             "<line x1=\"{lx}\" y1=\"{y:.1}\" x2=\"{:.1}\" y2=\"{y:.1}\" stroke=\"#777777\" stroke-width=\"1.2\" stroke-dasharray=\"{}\"/>",
@@ -432,8 +472,6 @@ pub fn loglog(plot: &Plot) -> String {
         );
     }
     let _ = writeln!(s, "</g>");
-    let _ = writeln!(s, "</svg>");
-    s
 }
 
 #[cfg(test)]
