@@ -40,6 +40,32 @@ pub struct Ctx<'a, const D: usize> {
     pub slip_walls: bool,
 }
 
+/// Layout of a node's scatter record, `width(two_step)` numbers per node: the mass, the
+/// momentum (D), the force (D), and for two-step schemes the averaged-stress sum
+/// `Σ_p (1 − α_p) v_p σ_p S_j(x_p)` (D × D, row-major) and the cover `Σ_p v_p S_j(x_p)`
+/// last. The records are summed over ranks as plain numbers (the ghost sum).
+pub struct NodeRecord<const D: usize>;
+
+impl<const D: usize> NodeRecord<D> {
+    pub const MASS: usize = 0;
+    pub const fn width(two_step: bool) -> usize {
+        1 + 2 * D + if two_step { D * D + 1 } else { 0 }
+    }
+    pub const fn momentum(a: usize) -> usize {
+        1 + a
+    }
+    pub const fn force(a: usize) -> usize {
+        1 + D + a
+    }
+    pub const fn stress_sum(a: usize, b: usize) -> usize {
+        1 + 2 * D + a * D + b
+    }
+    /// The cover, last in a record of `width`.
+    pub const fn cover(width: usize) -> usize {
+        width - 1
+    }
+}
+
 /// Interpolation data of one particle over its `N` nodes.
 pub struct Kern<const D: usize, const N: usize> {
     pub idx: [usize; N],
@@ -626,7 +652,7 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
         return;
     }
     let sw = m.sw;
-    let t0 = 1 + 2 * D;
+    type R<const D: usize> = NodeRecord<D>;
     for &p in &slabs.order[slabs.start[first]..slabs.start[first + 1]] {
         let p = p as usize;
         let half = if ctx.gimp { Some(&parts.half[p]) } else { None };
@@ -644,12 +670,12 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
             let at = k.idx[n] * sw - offset;
             let rec = &mut window[at..at + sw];
             let s = k.s[n];
-            rec[0] += mass * s;
+            rec[R::<D>::MASS] += mass * s;
             for a in 0..D {
-                rec[1 + a] += mv[a] * s;
+                rec[R::<D>::momentum(a)] += mv[a] * s;
             }
             if m.two_step {
-                rec[sw - 1] += vol * s;
+                rec[R::<D>::cover(sw)] += vol * s;
             }
             if m.forces {
                 let g = &k.g[n];
@@ -658,13 +684,13 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
                     for b in 0..D {
                         sg += vs[(a, b)] * g[b];
                     }
-                    rec[1 + D + a] += fe[a] * s - k.alpha * sg;
+                    rec[R::<D>::force(a)] += fe[a] * s - k.alpha * sg;
                 }
                 if m.two_step {
                     let c = (1.0 - k.alpha) * s;
                     for a in 0..D {
                         for b in 0..D {
-                            rec[t0 + a * D + b] += c * vs[(a, b)];
+                            rec[R::<D>::stress_sum(a, b)] += c * vs[(a, b)];
                         }
                     }
                 }

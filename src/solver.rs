@@ -4,7 +4,7 @@
 //! node→node stencils, migration after the position update).
 
 use crate::benchmark::Benchmark;
-use crate::kernel::{self, SlabOrder};
+use crate::kernel::{self, NodeRecord, SlabOrder};
 use crate::material::Material;
 use crate::particles::{Carries, Particles};
 use crate::scene::{Face, Gradient, Scene, Update};
@@ -145,7 +145,7 @@ pub struct Solver<'c, const D: usize> {
     max_speed: f64,
     // Grid fields, node-major over the local node box.
     strides: [usize; D],
-    /// Scatter record per node: mass, momentum (D), force (D), [Σ(1−α) v σ S (D×D), Σ v S].
+    /// Scatter records, `sw` numbers per node laid out as [`NodeRecord`] says.
     scat: Vec<f64>,
     sw: usize,
     /// Per node: velocity before (D) and after (D) the force update.
@@ -450,7 +450,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         }
         self.strides = st;
         let two = self.two_step();
-        self.sw = 1 + 2 * D + if two { D * D + 1 } else { 0 };
+        self.sw = NodeRecord::<D>::width(two);
         self.scat = vec![0.0; nn * self.sw];
         self.vel = vec![0.0; nn * 2 * D];
         if two {
@@ -568,7 +568,7 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// `∫ w S_j ∇S_i`.
     fn domain_weights(&mut self) {
         let sw = self.sw;
-        let col = sw - 1;
+        let col = NodeRecord::<D>::cover(sw);
         let mut fill = std::mem::take(&mut self.fill);
         self.for_owned(|n, c| {
             let g: [i64; D] = std::array::from_fn(|a| self.block.node_lo[a] + c[a] as i64);
@@ -611,14 +611,13 @@ impl<'c, const D: usize> Solver<'c, D> {
     fn averaged_force(&mut self) {
         let sw = self.sw;
         let dd = D * D;
-        let t0 = 1 + 2 * D;
         // σ̄_j = T_j / V_j on owned nodes, then to the ghosts.
         let mut avg = std::mem::take(&mut self.avg);
         self.for_owned(|n, _| {
             let v = self.node_vol[n];
             for c in 0..dd {
                 avg[n * dd + c] = if v > 0.0 {
-                    self.scat[n * sw + t0 + c] / v
+                    self.scat[n * sw + NodeRecord::<D>::stress_sum(0, 0) + c] / v
                 } else {
                     0.0
                 };
@@ -641,7 +640,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                 }
             });
             for a in 0..D {
-                scat[i * sw + 1 + D + a] -= f[a];
+                scat[i * sw + NodeRecord::<D>::force(a)] -= f[a];
             }
         });
         self.scat = scat;
@@ -655,12 +654,12 @@ impl<'c, const D: usize> Solver<'c, D> {
         let mut vel = std::mem::take(&mut self.vel);
         self.for_owned(|n, c| {
             let rec = &self.scat[n * sw..(n + 1) * sw];
-            let m = rec[0];
+            let m = rec[NodeRecord::<D>::MASS];
             let v = &mut vel[n * 2 * D..(n + 1) * 2 * D];
             if m > self.mass_floor {
                 for a in 0..D {
-                    v[a] = rec[1 + a] / m;
-                    v[D + a] = v[a] + dt * rec[1 + D + a] / m;
+                    v[a] = rec[NodeRecord::<D>::momentum(a)] / m;
+                    v[D + a] = v[a] + dt * rec[NodeRecord::<D>::force(a)] / m;
                 }
                 self.apply_bc(c, v);
             } else {
@@ -1159,7 +1158,7 @@ particles_per_cell = 3
         s.for_owned(|n, c| owned.push((n, c)));
         for &(n, c) in &owned {
             let v = &mut vel[n * 4..n * 4 + 4];
-            if s.scat[n * s.sw] > s.mass_floor {
+            if s.scat[n * s.sw + NodeRecord::<2>::MASS] > s.mass_floor {
                 v[0] = rng.f64() - 0.5;
                 v[1] = rng.f64() - 0.5;
                 v[2] = v[0];
@@ -1174,7 +1173,7 @@ particles_per_cell = 3
         let mut fv = 0.0;
         for &(n, _) in &owned {
             for a in 0..2 {
-                fv += s.scat[n * s.sw + 3 + a] * s.vel[n * 4 + 2 + a];
+                fv += s.scat[n * s.sw + NodeRecord::<2>::force(a)] * s.vel[n * 4 + 2 + a];
             }
         }
         if s.two_step() {
@@ -1224,7 +1223,7 @@ particles_per_cell = 3
                 let mut owned = Vec::new();
                 s.for_owned(|n, c| owned.push((n, c)));
                 for &(n, ci) in &owned {
-                    if s.scat[n * s.sw] > s.mass_floor {
+                    if s.scat[n * s.sw + NodeRecord::<2>::MASS] > s.mass_floor {
                         let node = std::array::from_fn(|a| s.block.node_lo[a] + ci[a] as i64);
                         let x = s.geom.node_position(node);
                         for a in 0..2 {
@@ -1263,7 +1262,11 @@ particles_per_cell = 3
             s.averaged_force();
         }
         let mut f = Vec::new();
-        s.for_owned(|n, _| f.extend_from_slice(&s.scat[n * s.sw + 3..n * s.sw + 5]));
+        s.for_owned(|n, _| {
+            f.extend_from_slice(
+                &s.scat[n * s.sw + NodeRecord::<2>::force(0)..n * s.sw + NodeRecord::<2>::force(2)],
+            )
+        });
         f
     }
 
