@@ -36,7 +36,7 @@
 //! chunks and keeps those in its cells: O(N) reading per rank, fine for the sizes of a
 //! few nodes but not for thousands of ranks.
 
-use crate::io::{self, h5err, Entry, IoError, Writer};
+use crate::io::{self, h5err, lockstep, Entry, IoError, Writer};
 use crate::particles::{Carries, Particles};
 use crate::shape::Geom;
 use crate::solver::{Solver, Totals};
@@ -230,37 +230,38 @@ pub fn write<const D: usize>(
 
     let file = io::create(comm, &tmp)?;
     let result = (|| -> Result<(), IoError> {
-        let e = |e: hdf5::Error| h5err(&tmp, e);
+        // Every step agreed over all ranks (see `io::lockstep`).
+        let e = |r: hdf5::Result<()>| lockstep(comm, r.map_err(|e| h5err(&tmp, e)));
         let format: VarLenUnicode = FORMAT.parse().expect("ASCII");
-        file.new_attr::<VarLenUnicode>()
+        e(file
+            .new_attr::<VarLenUnicode>()
             .create("format")
-            .and_then(|a| a.write_scalar(&format))
-            .map_err(e)?;
+            .and_then(|a| a.write_scalar(&format)))?;
         let u = |name: &str, v: u64| {
-            file.new_attr::<u64>()
+            e(file
+                .new_attr::<u64>()
                 .create(name)
-                .and_then(|a| a.write_scalar(&v))
-                .map_err(e)
+                .and_then(|a| a.write_scalar(&v)))
         };
         let f = |name: &str, v: f64| {
-            file.new_attr::<f64>()
+            e(file
+                .new_attr::<f64>()
                 .create(name)
-                .and_then(|a| a.write_scalar(&v))
-                .map_err(e)
+                .and_then(|a| a.write_scalar(&v)))
         };
         let fs = |name: &str, v: &[f64]| {
-            file.new_attr_builder()
+            e(file
+                .new_attr_builder()
                 .with_data(v)
                 .create(name)
-                .map(|_| ())
-                .map_err(e)
+                .map(|_| ()))
         };
         let us = |name: &str, v: &[u64]| {
-            file.new_attr_builder()
+            e(file
+                .new_attr_builder()
                 .with_data(v)
                 .create(name)
-                .map(|_| ())
-                .map_err(e)
+                .map(|_| ()))
         };
         u("version", VERSION)?;
         u("dim", D as u64)?;
@@ -305,6 +306,7 @@ pub fn write<const D: usize>(
             buf.extend_from_slice(&rec);
         }
         let rows = Writer {
+            comm,
             file: &file,
             path: &tmp,
             offset,
@@ -314,16 +316,15 @@ pub fn write<const D: usize>(
         rows.floats("particles", &buf, width)?;
         drop(buf);
         crash_for_tests(step);
-        file.dataset("particles")
-            .and_then(|ds| {
-                let cols: VarLenUnicode = columns(D, carries).parse().expect("ASCII");
-                ds.new_attr::<VarLenUnicode>()
-                    .create("columns")
-                    .and_then(|a| a.write_scalar(&cols))
-            })
-            .map_err(e)?;
+        e(file.dataset("particles").and_then(|ds| {
+            let cols: VarLenUnicode = columns(D, carries).parse().expect("ASCII");
+            ds.new_attr::<VarLenUnicode>()
+                .create("columns")
+                .and_then(|a| a.write_scalar(&cols))
+        }))?;
         // One value per writer rank.
         let per_rank = Writer {
+            comm,
             file: &file,
             path: &tmp,
             offset: comm.rank() as u64,
@@ -335,6 +336,7 @@ pub fn write<const D: usize>(
         per_rank.u64s("checksum", &[hash])?;
         // Data rank 0 writes alone (the others take part with empty selections).
         let only_root = |len: usize| Writer {
+            comm,
             file: &file,
             path: &tmp,
             offset: 0,
@@ -344,6 +346,7 @@ pub fn write<const D: usize>(
         let pick = |b: &[u8]| if root { b.to_vec() } else { Vec::new() };
         only_root(scene_text.len()).bytes("scene", &pick(scene_text.as_bytes()))?;
         let hist = Writer {
+            comm,
             file: &file,
             path: &tmp,
             offset: 0,
@@ -361,15 +364,14 @@ pub fn write<const D: usize>(
         only_root(k).u64s("snapshot_particles", &mine(counts))?;
         Ok(())
     })();
-    // Closing is collective: after it every rank's rows are in the file.
-    drop(file);
-    let failed = result.as_ref().err().map(|e| e.0.clone());
-    if let Some(m) = agree(comm, failed) {
-        if root {
-            let _ = std::fs::remove_file(&tmp);
-        }
-        return Err(IoError(m));
-    }
+    // Closing is collective: after it every rank's rows are in the file. On failure
+    // the partial file is gone and the earlier checkpoints are untouched.
+    io::close(comm, file, &tmp, result).map_err(|e| {
+        IoError(format!(
+            "cannot write checkpoint {}: {e}; its partial file is deleted",
+            path.display()
+        ))
+    })?;
     // Rank 0 makes the complete file durable, then gives it its name.
     let renamed = if root {
         finish(&tmp, &path, out, keep).err()
@@ -395,10 +397,16 @@ fn crash_for_tests(step: u64) {
 /// Rank 0: fsync the temporary file, rename it, fsync the folder, delete old ones.
 fn finish(tmp: &Path, path: &Path, out: &Path, keep: usize) -> Result<(), String> {
     let io = |p: &Path, e: std::io::Error| format!("{}: {e}", p.display());
-    std::fs::File::open(tmp)
+    // A file system may report a full disk only when the data is flushed: then the
+    // temporary file goes too.
+    let renamed = std::fs::File::open(tmp)
         .and_then(|f| f.sync_all())
-        .map_err(|e| io(tmp, e))?;
-    std::fs::rename(tmp, path).map_err(|e| io(path, e))?;
+        .map_err(|e| io(tmp, e))
+        .and_then(|()| std::fs::rename(tmp, path).map_err(|e| io(path, e)));
+    if let Err(m) = renamed {
+        let _ = std::fs::remove_file(tmp);
+        return Err(m);
+    }
     if let Ok(d) = std::fs::File::open(out) {
         let _ = d.sync_all();
     }

@@ -102,6 +102,52 @@ impl Snapshots {
         comm.sum_u64(&mut tot);
         let total = tot[0];
         let file = create(comm, &path)?;
+        let written = self.datasets(
+            comm,
+            &file,
+            &path,
+            parts,
+            materials,
+            (step, t),
+            offset,
+            total,
+        );
+        close(comm, file, &path, written)?;
+        // A restarted run may write a step again: replace its entry.
+        self.entries.retain(|e| e.step < step);
+        self.entries.push(Entry {
+            step,
+            time: t,
+            particles: total,
+        });
+        let xdmf = if comm.rank() == 0 {
+            self.write_xdmf().err()
+        } else {
+            None
+        };
+        // Rank 0 alone writes the index: let every rank know if that failed.
+        if comm.any(xdmf.is_some()) {
+            return Err(
+                xdmf.unwrap_or_else(|| IoError("writing particles.xmf failed on rank 0".into()))
+            );
+        }
+        Ok(())
+    }
+
+    /// The attributes and datasets of a snapshot, in lock-step over all ranks.
+    #[allow(clippy::too_many_arguments)]
+    fn datasets<const D: usize>(
+        &mut self,
+        comm: &dyn Communicator,
+        file: &hdf5::File,
+        path: &Path,
+        parts: &Particles<D>,
+        materials: &[Material],
+        (step, t): (u64, f64),
+        offset: u64,
+        total: u64,
+    ) -> Result<(), IoError> {
+        let n = parts.len() as u64;
         let a = file
             .new_attr::<f64>()
             .create("time")
@@ -110,11 +156,12 @@ impl Snapshots {
             .and_then(|a| a.write_scalar(&step))
             .and_then(|_| file.new_attr::<u64>().create("dim"))
             .and_then(|a| a.write_scalar(&(D as u64)));
-        a.map_err(|e| h5err(&path, e))?;
+        lockstep(comm, a.map_err(|e| h5err(path, e)))?;
 
         let w = Writer {
-            file: &file,
-            path: &path,
+            comm,
+            file,
+            path,
             offset,
             count: n,
             total,
@@ -174,25 +221,6 @@ impl Snapshots {
                 Field::Damage => w.floats("damage", &parts.damage, 0)?,
             }
         }
-        drop(file);
-        // A restarted run may write a step again: replace its entry.
-        self.entries.retain(|e| e.step < step);
-        self.entries.push(Entry {
-            step,
-            time: t,
-            particles: total,
-        });
-        let xdmf = if comm.rank() == 0 {
-            self.write_xdmf().err()
-        } else {
-            None
-        };
-        // Rank 0 alone writes the index: let every rank know if that failed.
-        if comm.any(xdmf.is_some()) {
-            return Err(
-                xdmf.unwrap_or_else(|| IoError("writing particles.xmf failed on rank 0".into()))
-            );
-        }
         Ok(())
     }
 
@@ -249,7 +277,11 @@ impl Snapshots {
         let tmp = self.out.join(".particles.xmf.tmp");
         std::fs::write(&tmp, x)
             .and_then(|_| std::fs::rename(&tmp, &path))
-            .map_err(|e| IoError(format!("{}: {e}", path.display())))
+            .map_err(|e| {
+                // A full disk must not leave a half-written temporary file behind.
+                let _ = std::fs::remove_file(&tmp);
+                IoError(format!("{}: {e}", path.display()))
+            })
     }
 }
 
@@ -279,9 +311,93 @@ pub(crate) fn create(comm: &dyn Communicator, path: &Path) -> Result<hdf5::File,
     r.map_err(|e| h5err(path, e))
 }
 
+/// Collective: every rank's outcome of a step all ranks took, agreed over all ranks:
+/// `Err` on every rank if it failed on any, so that all ranks leave the write
+/// together. A rank where the step succeeded gets an empty message: the failure is
+/// another rank's, whose message [`close`] reports.
+pub(crate) fn lockstep<T>(comm: &dyn Communicator, r: Result<T, IoError>) -> Result<T, IoError> {
+    if !comm.any(r.is_err()) {
+        return r;
+    }
+    Err(r.err().unwrap_or_else(|| IoError(String::new())))
+}
+
+/// Collective: close a file every rank wrote, after `written` (each rank's outcome,
+/// agreed with [`lockstep`]). On failure the partial file is deleted and rank 0's
+/// message is the first failing rank's, with the operating system's reason.
+///
+/// HDF5 and MPI-IO report only that a write failed ("H5Dwrite failed"); the reason
+/// (a full disk, a quota, a file size limit, an I/O error) is found by writing to the
+/// file once more with plain file I/O. The partial file is then truncated before it is
+/// closed: closing flushes HDF5's metadata, which fails on a full disk and leaves the
+/// file open inside HDF5, whose clean-up at MPI_Finalize then crashes (HDF5 1.10).
+/// The truncation frees the file's blocks, so the few kilobytes of metadata fit.
+pub(crate) fn close(
+    comm: &dyn Communicator,
+    file: hdf5::File,
+    path: &Path,
+    written: Result<(), IoError>,
+) -> Result<(), IoError> {
+    let root = comm.rank() == 0;
+    // Metadata is written when the file is flushed: a full disk may fail here first.
+    let written = written.and_then(|()| {
+        lockstep(
+            comm,
+            file.flush()
+                .map_err(|e| IoError(format!("{}: flushing: {e}", path.display()))),
+        )
+    });
+    let failed = written.is_err();
+    let mut mine = written.err().map(|e| e.0).filter(|m| !m.is_empty());
+    let mut cause = None;
+    if failed && root {
+        cause = os_cause(path);
+        let _ = std::fs::OpenOptions::new()
+            .write(true)
+            .open(path)
+            .and_then(|f| f.set_len(0));
+    }
+    // No rank closes (and writes metadata) before rank 0 has made room.
+    comm.any(false);
+    let closed = file
+        .close()
+        .map_err(|e| format!("{}: closing: {e}", path.display()));
+    if let Err(m) = closed {
+        mine.get_or_insert(m);
+    }
+    let any = comm.any(failed || mine.is_some());
+    if (failed || any) && root {
+        let _ = std::fs::remove_file(path);
+    }
+    if !any {
+        return Ok(());
+    }
+    let m = crate::checkpoint::agree(comm, mine)
+        .unwrap_or_else(|| format!("{}: writing failed", path.display()));
+    Err(IoError(match cause {
+        Some(c) if root => format!("{m}: {c}"),
+        _ => m,
+    }))
+}
+
+/// Why writing `path` fails, as the operating system says it: append 64 KiB and sync.
+/// `None` if that works (the cause was something else, or has gone).
+fn os_cause(path: &Path) -> Option<std::io::Error> {
+    use std::io::Write;
+    let probe = std::fs::OpenOptions::new()
+        .append(true)
+        .open(path)
+        .and_then(|mut f| f.write_all(&[0u8; 1 << 16]).and_then(|_| f.sync_data()));
+    probe.err()
+}
+
 /// Collective writes of this rank's rows `[offset, offset + count)` of datasets with
-/// `total` rows.
+/// `total` rows. Every dataset ends with an agreement over all ranks ([`lockstep`]):
+/// with collective MPI-IO only the aggregating ranks touch the disk, so a full disk
+/// fails the write on some ranks and not on others, and a rank that went on alone
+/// would wait for ever in the next collective call.
 pub(crate) struct Writer<'a> {
+    pub comm: &'a dyn Communicator,
     pub file: &'a hdf5::File,
     pub path: &'a Path,
     pub offset: u64,
@@ -291,27 +407,23 @@ pub(crate) struct Writer<'a> {
 
 impl Writer<'_> {
     pub fn u64s(&self, name: &str, data: &[u64]) -> Result<(), IoError> {
-        let ds = self
+        assert_eq!(data.len() as u64, self.count);
+        let r = self
             .file
             .new_dataset::<u64>()
             .shape([self.total as usize])
-            .create(name)
-            .map_err(|e| h5err(self.path, e))?;
-        assert_eq!(data.len() as u64, self.count);
-        self.raw_write(&ds, data.as_ptr().cast(), 0, *h5t::H5T_NATIVE_UINT64)
-            .map_err(|m| IoError(format!("{}: writing {name}: {m}", self.path.display())))
+            .create(name);
+        self.write(name, r, data.as_ptr().cast(), 0, *h5t::H5T_NATIVE_UINT64)
     }
 
     pub fn bytes(&self, name: &str, data: &[u8]) -> Result<(), IoError> {
-        let ds = self
+        assert_eq!(data.len() as u64, self.count);
+        let r = self
             .file
             .new_dataset::<u8>()
             .shape([self.total as usize])
-            .create(name)
-            .map_err(|e| h5err(self.path, e))?;
-        assert_eq!(data.len() as u64, self.count);
-        self.raw_write(&ds, data.as_ptr().cast(), 0, *h5t::H5T_NATIVE_UINT8)
-            .map_err(|m| IoError(format!("{}: writing {name}: {m}", self.path.display())))
+            .create(name);
+        self.write(name, r, data.as_ptr().cast(), 0, *h5t::H5T_NATIVE_UINT8)
     }
 
     /// A dataset of `total × cols` values, or of `total` values if `cols == 0`.
@@ -321,28 +433,37 @@ impl Writer<'_> {
         } else {
             vec![self.total as usize, cols]
         };
-        let ds = self
-            .file
-            .new_dataset::<f64>()
-            .shape(shape)
-            .create(name)
-            .map_err(|e| h5err(self.path, e))?;
         // The selection of `raw_write` covers `count × max(cols, 1)` elements.
         assert_eq!(data.len() as u64, self.count * cols.max(1) as u64);
-        self.raw_write(&ds, data.as_ptr().cast(), cols, *h5t::H5T_NATIVE_DOUBLE)
-            .map_err(|m| IoError(format!("{}: writing {name}: {m}", self.path.display())))
+        let r = self.file.new_dataset::<f64>().shape(shape).create(name);
+        self.write(name, r, data.as_ptr().cast(), cols, *h5t::H5T_NATIVE_DOUBLE)
     }
 
     pub fn ints(&self, name: &str, data: &[i64]) -> Result<(), IoError> {
-        let ds = self
+        assert_eq!(data.len() as u64, self.count);
+        let r = self
             .file
             .new_dataset::<i64>()
             .shape([self.total as usize])
-            .create(name)
-            .map_err(|e| h5err(self.path, e))?;
-        assert_eq!(data.len() as u64, self.count);
-        self.raw_write(&ds, data.as_ptr().cast(), 0, *h5t::H5T_NATIVE_INT64)
-            .map_err(|m| IoError(format!("{}: writing {name}: {m}", self.path.display())))
+            .create(name);
+        self.write(name, r, data.as_ptr().cast(), 0, *h5t::H5T_NATIVE_INT64)
+    }
+
+    /// Write a created dataset (unless its creation failed), then agree with the other
+    /// ranks on the outcome.
+    fn write(
+        &self,
+        name: &str,
+        created: hdf5::Result<hdf5::Dataset>,
+        ptr: *const std::ffi::c_void,
+        cols: usize,
+        ty: hdf5_sys::h5i::hid_t,
+    ) -> Result<(), IoError> {
+        let r = created
+            .map_err(|e| e.to_string())
+            .and_then(|ds| self.raw_write(&ds, ptr, cols, ty))
+            .map_err(|m| IoError(format!("{}: writing `{name}`: {m}", self.path.display())));
+        lockstep(self.comm, r)
     }
 
     /// Collective (with MPI-IO) write of this rank's rows `[offset, offset + count)`;
@@ -361,10 +482,9 @@ impl Writer<'_> {
             (vec![self.offset, 0], vec![self.count, cols as u64])
         };
         let id = ds.id();
-        let parallel = matches!(
-            self.file.access_plist().map(|p| p.driver()),
-            Ok(hdf5::plist::file_access::FileDriver::Mpio(_))
-        );
+        // `create` opens files with MPI-IO exactly when there is an MPI communicator
+        // (asking the file instead duplicates the communicator, a collective call).
+        let parallel = self.comm.raw_mpi().is_some();
         hdf5::sync::sync(|| {
             // SAFETY: every id is created here and closed before returning; the memory
             // space has exactly `count` rows of `cols` values, matching the caller's buffer.

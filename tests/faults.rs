@@ -4,16 +4,29 @@
 
 mod common;
 use common::temp_dir;
+use std::path::{Path, PathBuf};
 use std::process::Output;
+use std::time::{Duration, Instant};
 
-const BIN: &str = env!("CARGO_BIN_EXE_mpmcg");
+/// The binary under test: this build's, or `MPMCG_TEST_BIN` (to show that a case
+/// fails on another build, e.g. one from before its fix).
+fn bin() -> String {
+    std::env::var("MPMCG_TEST_BIN").unwrap_or_else(|_| env!("CARGO_BIN_EXE_mpmcg").into())
+}
 
 /// Run `mpmcg ARGS` on `ranks` ranks (1: no mpirun).
 fn mpmcg(ranks: usize, args: &[&str]) -> Output {
     if ranks == 1 {
-        std::process::Command::new(BIN).args(args).output().unwrap()
+        std::process::Command::new(bin())
+            .args(args)
+            .output()
+            .unwrap()
     } else {
-        common::mpirun(ranks).arg(BIN).args(args).output().unwrap()
+        common::mpirun(ranks)
+            .arg(bin())
+            .args(args)
+            .output()
+            .unwrap()
     }
 }
 
@@ -54,5 +67,149 @@ fn overflowing_velocity_ends_as_unstable() {
         );
         let summary = std::fs::read_to_string(out.join("summary.json")).unwrap();
         assert!(summary.contains("\"unstable\""), "{summary}");
+    }
+}
+
+/// The default scene, shortened to `end`, with `extra` tables appended.
+fn short_scene(end: f64, extra: &str) -> String {
+    let text =
+        include_str!("../inputs/default.toml").replacen("end = 3.0", &format!("end = {end}"), 1);
+    assert!(text.contains(&format!("end = {end}")));
+    format!("{text}\n{extra}\n")
+}
+
+fn is_root() -> bool {
+    std::process::Command::new("id")
+        .arg("-u")
+        .output()
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
+        .unwrap_or(false)
+}
+
+/// A size-limited tmpfs, unmounted when dropped (also when a test panics).
+struct SmallDisk(PathBuf);
+
+impl SmallDisk {
+    /// `None` (with the reason printed) when this process may not mount.
+    fn mount(dir: &Path, size: &str) -> Option<Self> {
+        if !is_root() {
+            eprintln!("skipped: mounting a small tmpfs needs root");
+            return None;
+        }
+        std::fs::create_dir_all(dir).unwrap();
+        let o = std::process::Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
+            .arg(dir)
+            .output()
+            .unwrap();
+        if !o.status.success() {
+            eprintln!(
+                "skipped: cannot mount a tmpfs: {}",
+                String::from_utf8_lossy(&o.stderr)
+            );
+            return None;
+        }
+        Some(Self(dir.to_path_buf()))
+    }
+}
+
+impl Drop for SmallDisk {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount").arg(&self.0).status();
+    }
+}
+
+fn names(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+/// A disk that fills up while checkpoints (and, in a second scene, snapshots) are
+/// written: on 1 rank this used to segfault at MPI_Finalize (HDF5 closing a file it had
+/// failed to flush), on 2 ranks to hang (the aggregating rank failed alone), and to
+/// leave the `.tmp` file, with "H5Dwrite failed" as the only reason. Now every rank
+/// ends promptly with exit 1 and one message naming the file and the OS's reason, no
+/// partial file is left, and the newest checkpoint left restarts.
+#[test]
+fn full_disk_ends_cleanly_and_keeps_the_last_checkpoint() {
+    let dir = temp_dir("full-disk");
+    // 200 KiB hold about three 56 KiB checkpoints or snapshots; the scenes write 25.
+    let Some(disk) = SmallDisk::mount(&dir.join("disk"), "200k") else {
+        return;
+    };
+    let checkpoints = dir.join("checkpoints.toml");
+    std::fs::write(
+        &checkpoints,
+        short_scene(
+            0.5,
+            "[output]\nsnapshots = false\n[checkpoint]\nevery_steps = 20\nkeep = 5",
+        ),
+    )
+    .unwrap();
+    let snapshots = dir.join("snapshots.toml");
+    std::fs::write(&snapshots, short_scene(0.5, "[output]\nevery = 0.02")).unwrap();
+    for ranks in [1, 2] {
+        for (scene, file) in [(&checkpoints, "checkpoint_"), (&snapshots, "particles_")] {
+            let out = disk.0.join(format!("out{ranks}"));
+            let start = Instant::now();
+            let o = mpmcg(
+                ranks,
+                &[
+                    "run",
+                    scene.to_str().unwrap(),
+                    "--out",
+                    out.to_str().unwrap(),
+                    "--quiet",
+                ],
+            );
+            let err = String::from_utf8_lossy(&o.stderr);
+            let what = format!("{ranks} rank(s), {file}: {err}");
+            assert!(start.elapsed() < Duration::from_secs(60), "no hang: {what}");
+            assert_eq!(o.status.code(), Some(1), "{what}");
+            let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+            assert_eq!(lines.len(), 1, "one message: {what}");
+            assert!(lines[0].contains("No space left on device"), "{what}");
+            assert!(
+                lines[0].contains(&format!("{}/{file}", out.display())),
+                "{what}"
+            );
+            let left = names(&out);
+            assert!(!left.iter().any(|n| n.ends_with(".tmp")), "{left:?}");
+            let bad = lines[0].split(file).nth(1).expect("a step")[..6].to_string();
+            assert!(
+                !left.contains(&format!("{file}{bad}.h5")),
+                "the partial file {file}{bad}.h5 is deleted: {left:?}"
+            );
+            if file == "checkpoint_" {
+                // The newest checkpoint left is complete: a run continues from it.
+                let last = common::files(&out, "checkpoint_")
+                    .pop()
+                    .expect("a checkpoint");
+                let again = dir.join(format!("again{ranks}"));
+                let o = mpmcg(
+                    1,
+                    &[
+                        "run",
+                        "--restart",
+                        last.to_str().unwrap(),
+                        "--out",
+                        again.to_str().unwrap(),
+                        "--quiet",
+                    ],
+                );
+                assert_eq!(
+                    o.status.code(),
+                    Some(0),
+                    "restart from {}: {}",
+                    last.display(),
+                    String::from_utf8_lossy(&o.stderr)
+                );
+            }
+            std::fs::remove_dir_all(&out).unwrap();
+        }
     }
 }
