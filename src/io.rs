@@ -407,23 +407,21 @@ pub(crate) struct Writer<'a> {
 
 impl Writer<'_> {
     pub fn u64s(&self, name: &str, data: &[u64]) -> Result<(), IoError> {
-        assert_eq!(data.len() as u64, self.count);
         let r = self
             .file
             .new_dataset::<u64>()
             .shape([self.total as usize])
             .create(name);
-        self.write(name, r, data.as_ptr().cast(), 0, *h5t::H5T_NATIVE_UINT64)
+        self.write(name, r, data, 0, *h5t::H5T_NATIVE_UINT64)
     }
 
     pub fn bytes(&self, name: &str, data: &[u8]) -> Result<(), IoError> {
-        assert_eq!(data.len() as u64, self.count);
         let r = self
             .file
             .new_dataset::<u8>()
             .shape([self.total as usize])
             .create(name);
-        self.write(name, r, data.as_ptr().cast(), 0, *h5t::H5T_NATIVE_UINT8)
+        self.write(name, r, data, 0, *h5t::H5T_NATIVE_UINT8)
     }
 
     /// A dataset of `total × cols` values, or of `total` values if `cols == 0`.
@@ -433,46 +431,43 @@ impl Writer<'_> {
         } else {
             vec![self.total as usize, cols]
         };
-        // The selection of `raw_write` covers `count × max(cols, 1)` elements.
-        assert_eq!(data.len() as u64, self.count * cols.max(1) as u64);
         let r = self.file.new_dataset::<f64>().shape(shape).create(name);
-        self.write(name, r, data.as_ptr().cast(), cols, *h5t::H5T_NATIVE_DOUBLE)
+        self.write(name, r, data, cols, *h5t::H5T_NATIVE_DOUBLE)
     }
 
     pub fn ints(&self, name: &str, data: &[i64]) -> Result<(), IoError> {
-        assert_eq!(data.len() as u64, self.count);
         let r = self
             .file
             .new_dataset::<i64>()
             .shape([self.total as usize])
             .create(name);
-        self.write(name, r, data.as_ptr().cast(), 0, *h5t::H5T_NATIVE_INT64)
+        self.write(name, r, data, 0, *h5t::H5T_NATIVE_INT64)
     }
 
     /// Write a created dataset (unless its creation failed), then agree with the other
     /// ranks on the outcome.
-    fn write(
+    fn write<T: Copy>(
         &self,
         name: &str,
         created: hdf5::Result<hdf5::Dataset>,
-        ptr: *const std::ffi::c_void,
+        data: &[T],
         cols: usize,
         ty: hdf5_sys::h5i::hid_t,
     ) -> Result<(), IoError> {
         let r = created
             .map_err(|e| e.to_string())
-            .and_then(|ds| self.raw_write(&ds, ptr, cols, ty))
+            .and_then(|ds| self.raw_write(&ds, data, cols, ty))
             .map_err(|m| IoError(format!("{}: writing `{name}`: {m}", self.path.display())));
         lockstep(self.comm, r)
     }
 
-    /// Collective (with MPI-IO) write of this rank's rows `[offset, offset + count)`;
-    /// `cols == 0` means a 1-D dataset. A rank without rows takes part with an empty
-    /// selection.
-    fn raw_write(
+    /// Collective (with MPI-IO) write of this rank's rows `[offset, offset + count)`
+    /// from `data`; `cols == 0` means a 1-D dataset. A rank without rows takes part with
+    /// an empty selection. `ty` is the HDF5 memory type of `T` (its size is checked).
+    fn raw_write<T: Copy>(
         &self,
         ds: &hdf5::Dataset,
-        ptr: *const std::ffi::c_void,
+        data: &[T],
         cols: usize,
         ty: hdf5_sys::h5i::hid_t,
     ) -> Result<(), String> {
@@ -481,47 +476,82 @@ impl Writer<'_> {
         } else {
             (vec![self.offset, 0], vec![self.count, cols as u64])
         };
+        // HDF5 reads `count × max(cols, 1)` values of `ty` from the buffer.
+        let values = self.count as usize * cols.max(1);
+        if data.len() != values {
+            return Err(format!("{} values for a selection of {values}", data.len()));
+        }
         let id = ds.id();
         // `create` opens files with MPI-IO exactly when there is an MPI communicator
         // (asking the file instead duplicates the communicator, a collective call).
         let parallel = self.comm.raw_mpi().is_some();
+        let check = |r: i64, what: &str| {
+            if r < 0 {
+                Err(format!("{what} failed"))
+            } else {
+                Ok(())
+            }
+        };
         hdf5::sync::sync(|| {
-            // SAFETY: every id is created here and closed before returning; the memory
-            // space has exactly `count` rows of `cols` values, matching the caller's buffer.
+            // SAFETY: `ty` is a type id whose size is checked to be that of `T`, so the
+            // `values` elements HDF5 reads from `data` (checked above) lie inside it;
+            // every other id is created here and closed by its `Owned` guard.
             unsafe {
-                let fspace = h5d::H5Dget_space(id);
-                if fspace < 0 {
-                    return Err("no dataspace".to_string());
+                let size = h5t::H5Tget_size(ty);
+                if size != std::mem::size_of::<T>() {
+                    return Err(format!(
+                        "memory type of {size} bytes for values of {}",
+                        std::mem::size_of::<T>()
+                    ));
                 }
-                let dxpl = h5p::H5Pcreate(*h5p::H5P_CLS_DATASET_XFER);
+                let fspace = Owned(h5d::H5Dget_space(id), h5s::H5Sclose);
+                check(fspace.0, "H5Dget_space")?;
+                let dxpl = Owned(h5p::H5Pcreate(*h5p::H5P_CLS_DATASET_XFER), h5p::H5Pclose);
+                check(dxpl.0, "H5Pcreate")?;
                 if parallel {
-                    h5p::H5Pset_dxpl_mpio(dxpl, h5p::H5FD_mpio_xfer_t::H5FD_MPIO_COLLECTIVE);
+                    let r =
+                        h5p::H5Pset_dxpl_mpio(dxpl.0, h5p::H5FD_mpio_xfer_t::H5FD_MPIO_COLLECTIVE);
+                    check(r.into(), "H5Pset_dxpl_mpio")?;
                 }
-                let mspace =
-                    h5s::H5Screate_simple(count.len() as i32, count.as_ptr(), std::ptr::null());
+                let mspace = Owned(
+                    h5s::H5Screate_simple(count.len() as i32, count.as_ptr(), std::ptr::null()),
+                    h5s::H5Sclose,
+                );
+                check(mspace.0, "H5Screate_simple")?;
                 if self.count == 0 {
-                    h5s::H5Sselect_none(fspace);
-                    h5s::H5Sselect_none(mspace);
+                    check(h5s::H5Sselect_none(fspace.0).into(), "H5Sselect_none")?;
+                    check(h5s::H5Sselect_none(mspace.0).into(), "H5Sselect_none")?;
                 } else {
-                    h5s::H5Sselect_hyperslab(
-                        fspace,
+                    let r = h5s::H5Sselect_hyperslab(
+                        fspace.0,
                         h5s::H5S_seloper_t::H5S_SELECT_SET,
                         start.as_ptr(),
                         std::ptr::null(),
                         count.as_ptr(),
                         std::ptr::null(),
                     );
+                    check(r.into(), "H5Sselect_hyperslab")?;
                 }
-                let r = h5d::H5Dwrite(id, ty, mspace, fspace, dxpl, ptr);
-                h5s::H5Sclose(mspace);
-                h5s::H5Sclose(fspace);
-                h5p::H5Pclose(dxpl);
-                if r < 0 {
-                    Err("H5Dwrite failed".to_string())
-                } else {
-                    Ok(())
-                }
+                let r = h5d::H5Dwrite(id, ty, mspace.0, fspace.0, dxpl.0, data.as_ptr().cast());
+                check(r.into(), "H5Dwrite")
             }
         })
+    }
+}
+
+/// An HDF5 id, closed with its close function when dropped (ids < 0 are failures
+/// and not closed).
+struct Owned(
+    hdf5_sys::h5i::hid_t,
+    unsafe extern "C" fn(hdf5_sys::h5i::hid_t) -> hdf5_sys::h5::herr_t,
+);
+
+impl Drop for Owned {
+    fn drop(&mut self) {
+        if self.0 >= 0 {
+            // SAFETY: the id was returned by the HDF5 call that created it, is owned by
+            // this guard alone, and its close function is the one for its kind.
+            unsafe { (self.1)(self.0) };
+        }
     }
 }

@@ -321,6 +321,24 @@ fn run_dim<const D: usize>(
     if let Some(m) = checkpoint::agree(comm, made) {
         return Err(RunError::Io(m));
     }
+    // One run at a time in a folder; the lock goes when `_lock` is dropped, on every
+    // path out of this function.
+    let (_lock, locked) = match root.then(|| crate::lock::acquire(&opts.out)) {
+        Some(Ok(l)) => (Some(l), None),
+        Some(Err(e)) => (None, Some(e)),
+        None => (None, None),
+    };
+    let held = matches!(locked, Some(crate::lock::LockError::Held(_)));
+    let message = locked.map(|e| match e {
+        crate::lock::LockError::Held(m) | crate::lock::LockError::Io(m) => m,
+    });
+    if let Some(m) = checkpoint::agree(comm, message) {
+        return Err(if comm.any(held) {
+            RunError::Input(m)
+        } else {
+            RunError::Io(m)
+        });
+    }
     let scene_text = match &opts.scene_text {
         Some(t) => t.clone(),
         None => toml::to_string(scene).unwrap_or_default(),

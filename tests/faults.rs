@@ -8,6 +8,8 @@ use std::path::{Path, PathBuf};
 use std::process::Output;
 use std::time::{Duration, Instant};
 
+const LOCK: &str = "mpmcg.lock";
+
 /// The binary under test: this build's, or `MPMCG_TEST_BIN` (to show that a case
 /// fails on another build, e.g. one from before its fix).
 fn bin() -> String {
@@ -67,6 +69,10 @@ fn overflowing_velocity_ends_as_unstable() {
         );
         let summary = std::fs::read_to_string(out.join("summary.json")).unwrap();
         assert!(summary.contains("\"unstable\""), "{summary}");
+        assert!(
+            !out.join(LOCK).exists(),
+            "the lock is released after exit 3"
+        );
     }
 }
 
@@ -179,6 +185,10 @@ fn full_disk_ends_cleanly_and_keeps_the_last_checkpoint() {
             );
             let left = names(&out);
             assert!(!left.iter().any(|n| n.ends_with(".tmp")), "{left:?}");
+            assert!(
+                !left.iter().any(|n| n == LOCK),
+                "the lock is released: {left:?}"
+            );
             let bad = lines[0].split(file).nth(1).expect("a step")[..6].to_string();
             assert!(
                 !left.contains(&format!("{file}{bad}.h5")),
@@ -212,4 +222,136 @@ fn full_disk_ends_cleanly_and_keeps_the_last_checkpoint() {
             std::fs::remove_dir_all(&out).unwrap();
         }
     }
+}
+
+/// Wait until `path` exists (at most `secs` seconds).
+fn wait_for(path: &Path, secs: u64) -> bool {
+    let t = Instant::now();
+    while t.elapsed() < Duration::from_secs(secs) {
+        if path.exists() {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    false
+}
+
+/// A second run into the folder of a running one (a rerun, or two jobs with the same
+/// --out): it used to interleave history.csv, prune the first run's checkpoints and
+/// list its snapshots. Now it is refused with exit 2 and one message naming the holder,
+/// on 1 rank and under mpirun, and leaves the first run's lock and files alone; the
+/// first run, stopped by SIGTERM, releases the lock.
+#[test]
+fn second_run_on_a_locked_folder_is_refused() {
+    let dir = temp_dir("locked");
+    let long = dir.join("long.toml");
+    std::fs::write(&long, short_scene(1000.0, "[output]\nsnapshots = false")).unwrap();
+    let other = dir.join("other.toml");
+    std::fs::write(&other, short_scene(0.1, "")).unwrap();
+    let out = dir.join("out");
+    let mut first = std::process::Command::new(bin())
+        .args([
+            "run",
+            long.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--quiet",
+        ])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    assert!(
+        wait_for(&out.join(LOCK), 60),
+        "the first run locks its folder"
+    );
+    let lock = std::fs::read_to_string(out.join(LOCK)).unwrap();
+    assert!(lock.contains(&format!("pid = {}", first.id())), "{lock}");
+    for ranks in [1, 2] {
+        let o = mpmcg(
+            ranks,
+            &[
+                "run",
+                other.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+                "--quiet",
+            ],
+        );
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{ranks} rank(s): {err}");
+        let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+        assert_eq!(lines.len(), 1, "one message: {err}");
+        assert!(
+            lines[0].contains("in use by another run")
+                && lines[0].contains(&format!("pid {}", first.id()))
+                && lines[0].contains(LOCK),
+            "{err}"
+        );
+        assert_eq!(std::fs::read_to_string(out.join(LOCK)).unwrap(), lock);
+        assert!(
+            !out.join("particles_000000.h5").exists(),
+            "the second run wrote nothing"
+        );
+    }
+    // SIGTERM: the first run checkpoints, ends with status 4 and unlocks.
+    let killed = std::process::Command::new("kill")
+        .args(["-TERM", &first.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let status = first.wait().unwrap();
+    assert_eq!(status.code(), Some(4));
+    assert!(!out.join(LOCK).exists(), "released after SIGTERM");
+    assert!(!common::files(&out, "checkpoint_").is_empty());
+}
+
+/// A lock left by a killed run (this host, a pid that is gone) is taken over, and
+/// released at the end; a lock of another host is not (its pid cannot be checked).
+#[test]
+fn stale_lock_is_taken_over() {
+    let dir = temp_dir("stale");
+    let scene = dir.join("short.toml");
+    std::fs::write(&scene, short_scene(0.05, "")).unwrap();
+    let out = dir.join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    // A pid that has just ended (and is not reused within the test).
+    let mut gone = std::process::Command::new("true").spawn().unwrap();
+    let dead = gone.id();
+    gone.wait().unwrap();
+    let host = mpmcg::lock::hostname();
+    std::fs::write(
+        out.join(LOCK),
+        format!("mpmcg run lock\nhost = {host}\npid = {dead}\nstarted = 0\n"),
+    )
+    .unwrap();
+    let args = [
+        "run",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ];
+    let o = mpmcg(1, &args);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(out.join("summary.json").exists());
+    assert!(!out.join(LOCK).exists(), "released at the end");
+
+    std::fs::write(
+        out.join(LOCK),
+        "mpmcg run lock\nhost = some-other-node\npid = 1\nstarted = 0\n",
+    )
+    .unwrap();
+    let o = mpmcg(2, &args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("host some-other-node") && err.contains("another host"),
+        "{err}"
+    );
+    assert!(out.join(LOCK).exists(), "another host's lock stays");
 }
