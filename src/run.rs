@@ -246,8 +246,14 @@ impl History {
     }
 }
 
-/// The solver and, after a restart, the run state and where it came from.
-type SetUp<'c, const D: usize> = (Solver<'c, D>, Option<RunState>, Option<RestartSummary>);
+/// The solver and, after a restart, the run state, where it came from and the
+/// checkpoint's lineage.
+type SetUp<'c, const D: usize> = (
+    Solver<'c, D>,
+    Option<RunState>,
+    Option<RestartSummary>,
+    Option<String>,
+);
 
 /// A fresh solver, or one continuing from `opts.restart` (every rank agrees on errors).
 fn set_up<'c, const D: usize>(
@@ -257,7 +263,7 @@ fn set_up<'c, const D: usize>(
     opts: &RunOptions,
 ) -> Result<SetUp<'c, D>, RunError> {
     let Some(path) = &opts.restart else {
-        return Ok((Solver::new(scene, comm, layout.clone()), None, None));
+        return Ok((Solver::new(scene, comm, layout.clone()), None, None, None));
     };
     let geom = Solver::<D>::geometry(scene);
     let carries = crate::particles::Carries::for_scene(scene);
@@ -301,7 +307,7 @@ fn set_up<'c, const D: usize>(
             _ => f64::INFINITY,
         };
     }
-    Ok((solver, Some(run), Some(info)))
+    Ok((solver, Some(run), Some(info), header.lineage))
 }
 
 fn run_dim<const D: usize>(
@@ -345,7 +351,26 @@ fn run_dim<const D: usize>(
     };
     let schedule = scene.checkpoint.as_ref().map(|c| c.schedule());
     let keep = scene.checkpoint.as_ref().map_or(2, |c| c.keep);
-    let (mut solver, restored, restarted_from) = set_up::<D>(scene, comm, &layout, opts)?;
+    let (mut solver, restored, restarted_from, stored) = set_up::<D>(scene, comm, &layout, opts)?;
+    // Pruning deletes only checkpoints of this run and the runs it continues.
+    let id = match stored {
+        Some(id) => id,
+        None => {
+            let fresh = checkpoint::Lineage::fresh(keep).id;
+            String::from_utf8_lossy(&comm.broadcast_bytes(fresh.as_bytes())).into_owned()
+        }
+    };
+    let mut lineage = checkpoint::Lineage::continued(id, keep);
+    if root {
+        let others = lineage.scan(&opts.out);
+        if let (Some(first), Some(last)) = (others.first(), others.last()) {
+            eprintln!(
+                "warning: {} holds {} checkpoint(s) of another run ({first} ... {last}); this run does not delete them",
+                opts.out.display(),
+                others.len()
+            );
+        }
+    }
     let has_bench = solver.benchmark.is_some();
     let diag_dt = scene.time.end / 1000.0;
 
@@ -537,7 +562,8 @@ fn run_dim<const D: usize>(
                 .as_ref()
                 .map_or_else(Vec::new, |(sn, _)| sn.entries().to_vec());
             let t0 = Instant::now();
-            let written = checkpoint::write(comm, &opts.out, &solver, &st, &scene_text, keep);
+            let written =
+                checkpoint::write(comm, &opts.out, &solver, &st, &scene_text, &mut lineage);
             output_seconds.checkpoints += t0.elapsed().as_secs_f64();
             history.text = std::mem::take(&mut st.history);
             last_checkpoint = Some(written.map_err(|e| RunError::Io(e.to_string()))?);
@@ -578,7 +604,8 @@ fn run_dim<const D: usize>(
                 .map_or_else(Vec::new, |(sn, _)| sn.entries().to_vec());
             st.snapshots.retain(|e| e.step <= rescue.solver.step);
             let t0 = Instant::now();
-            let written = checkpoint::write(comm, &opts.out, &solver, &st, &scene_text, keep);
+            let written =
+                checkpoint::write(comm, &opts.out, &solver, &st, &scene_text, &mut lineage);
             output_seconds.checkpoints += t0.elapsed().as_secs_f64();
             history.text = std::mem::take(&mut st.history);
             last_checkpoint = Some(written.map_err(|e| RunError::Io(e.to_string()))?);

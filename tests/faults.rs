@@ -224,6 +224,31 @@ fn full_disk_ends_cleanly_and_keeps_the_last_checkpoint() {
     }
 }
 
+/// A child process, killed (and reaped) if the test ends before it does.
+struct Killed(std::process::Child);
+
+impl Killed {
+    fn id(&self) -> u32 {
+        self.0.id()
+    }
+
+    /// Send `sig` and wait for the process to end.
+    fn stop(&mut self, sig: i32) -> std::process::ExitStatus {
+        // SAFETY: kill(2) on the pid of a child this test started and has not reaped.
+        unsafe { libc::kill(self.0.id() as i32, sig) };
+        self.0.wait().unwrap()
+    }
+}
+
+impl Drop for Killed {
+    fn drop(&mut self) {
+        if let Ok(None) = self.0.try_wait() {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+}
+
 /// Wait until `path` exists (at most `secs` seconds).
 fn wait_for(path: &Path, secs: u64) -> bool {
     let t = Instant::now();
@@ -249,17 +274,19 @@ fn second_run_on_a_locked_folder_is_refused() {
     let other = dir.join("other.toml");
     std::fs::write(&other, short_scene(0.1, "")).unwrap();
     let out = dir.join("out");
-    let mut first = std::process::Command::new(bin())
-        .args([
-            "run",
-            long.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--quiet",
-        ])
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut first = Killed(
+        std::process::Command::new(bin())
+            .args([
+                "run",
+                long.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+                "--quiet",
+            ])
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
     assert!(
         wait_for(&out.join(LOCK), 60),
         "the first run locks its folder"
@@ -294,12 +321,7 @@ fn second_run_on_a_locked_folder_is_refused() {
         );
     }
     // SIGTERM: the first run checkpoints, ends with status 4 and unlocks.
-    let killed = std::process::Command::new("kill")
-        .args(["-TERM", &first.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(killed.success());
-    let status = first.wait().unwrap();
+    let status = first.stop(libc::SIGTERM);
     assert_eq!(status.code(), Some(4));
     assert!(!out.join(LOCK).exists(), "released after SIGTERM");
     assert!(!common::files(&out, "checkpoint_").is_empty());
@@ -354,4 +376,62 @@ fn stale_lock_is_taken_over() {
         "{err}"
     );
     assert!(out.join(LOCK).exists(), "another host's lock stays");
+}
+
+/// A run in a folder that holds an earlier, unrelated run's checkpoints prunes only
+/// its own (it used to delete the earlier run's of lower step numbers), says that the
+/// others are there, and a restart goes on pruning the checkpoints of the run it
+/// continues, not the unrelated ones.
+#[test]
+fn pruning_deletes_only_this_runs_checkpoints() {
+    let dir = temp_dir("prune");
+    let out = dir.join("out");
+    let scene = |end: f64, every: u64| {
+        short_scene(
+            end,
+            &format!("[output]\nsnapshots = false\n[checkpoint]\nevery_steps = {every}\nkeep = 2"),
+        )
+    };
+    let (a, b) = (dir.join("a.toml"), dir.join("b.toml"));
+    std::fs::write(&a, scene(0.03, 10)).unwrap();
+    std::fs::write(&b, scene(0.1, 7)).unwrap();
+    let run = |args: &[&str]| {
+        let o = mpmcg(1, args);
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert_eq!(o.status.code(), Some(0), "{args:?}: {err}");
+        err
+    };
+    let o = out.to_str().unwrap();
+    run(&["run", a.to_str().unwrap(), "--out", o, "--quiet"]);
+    let ckpt = |s: u64| format!("checkpoint_{s:06}.h5");
+    let has = |steps: &[u64]| {
+        let names = names(&out);
+        let got: Vec<&String> = names
+            .iter()
+            .filter(|n| n.starts_with("checkpoint_"))
+            .collect();
+        let want: Vec<String> = steps.iter().map(|&s| ckpt(s)).collect();
+        assert_eq!(got, want.iter().collect::<Vec<_>>());
+    };
+    has(&[10, 20]);
+    let err = run(&["run", b.to_str().unwrap(), "--out", o, "--quiet"]);
+    assert!(
+        err.contains(
+            "holds 2 checkpoint(s) of another run (checkpoint_000010.h5 ... checkpoint_000020.h5)"
+        ),
+        "{err}"
+    );
+    // b's newest two, and a's untouched.
+    has(&[10, 20, 91, 98]);
+    // A restart of b (run longer) prunes b's, not a's.
+    std::fs::write(&b, scene(0.12, 7)).unwrap();
+    let from = out.join(ckpt(98));
+    run(&[
+        "run",
+        b.to_str().unwrap(),
+        "--restart",
+        from.to_str().unwrap(),
+        "--quiet",
+    ]);
+    has(&[10, 20, 112, 119]);
 }
