@@ -81,16 +81,40 @@ struct SweepArgs {
 }
 
 fn scene_error(e: &SceneError) -> ExitCode {
-    eprintln!("error: {e}");
+    if !launched_as_other_rank() {
+        eprintln!("error: {e}");
+    }
     ExitCode::from(2)
 }
+
+/// Whether the MPI launcher started this process as a rank other than 0 (read from
+/// the environment of Open MPI, MPICH/Intel MPI, PMIx and Slurm): errors found before
+/// MPI starts (usage, scene) are then left to rank 0, so that `mpirun -n 3` prints
+/// them once, not three times.
+fn launched_as_other_rank() -> bool {
+    [
+        "OMPI_COMM_WORLD_RANK",
+        "PMIX_RANK",
+        "PMI_RANK",
+        "SLURM_PROCID",
+    ]
+    .iter()
+    .find_map(|k| std::env::var(k).ok())
+    .and_then(|r| r.trim().parse::<u64>().ok())
+    .is_some_and(|r| r != 0)
+}
+
+/// The most threads per rank `--threads` may ask for.
+const MAX_THREADS: usize = 1024;
 
 pub fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
         Ok(c) => c,
         Err(e) => {
             let code = if e.use_stderr() { 2 } else { 0 };
-            let _ = e.print();
+            if !launched_as_other_rank() {
+                let _ = e.print();
+            }
             return ExitCode::from(code);
         }
     };
@@ -202,9 +226,9 @@ fn run_main(
     } else {
         std::thread::available_parallelism().map_or(1, |n| n.get())
     });
-    if threads == 0 {
+    if threads == 0 || threads > MAX_THREADS {
         if root {
-            eprintln!("error: --threads must be >= 1");
+            eprintln!("error: --threads must be between 1 and {MAX_THREADS} (threads per rank), got {threads}");
         }
         return ExitCode::from(2);
     }

@@ -274,6 +274,16 @@ fn set_up<'c, const D: usize>(
         return Err(RunError::Input(m));
     }
     let (header, restored) = r.expect("agreed: no rank failed");
+    // Every rank read the same header, so every rank decides alike.
+    if header.time >= scene.time.end {
+        return Err(RunError::Input(format!(
+            "time.end = {:e} is not after the time of checkpoint {} (t = {:e}, step {}): nothing to run; restart with a scene whose time.end is later",
+            scene.time.end,
+            path.display(),
+            header.time,
+            header.step
+        )));
+    }
     let mut count = [restored.parts.len() as u64];
     comm.sum_u64(&mut count);
     if count[0] != header.particles {
@@ -537,7 +547,8 @@ fn run_dim<const D: usize>(
                 output_seconds.snapshots += t0.elapsed().as_secs_f64();
                 // k·every by one multiplication: a sum of intervals would drift.
                 while st.next_snapshot <= solver.t + 1e-3 * solver.dt {
-                    st.next_snapshot = ((st.next_snapshot / *every).round() + 1.0) * *every;
+                    let next = ((st.next_snapshot / *every).round() + 1.0) * *every;
+                    st.next_snapshot = past(st.next_snapshot, next, solver.t, *every);
                 }
             }
         }
@@ -553,7 +564,8 @@ fn run_dim<const D: usize>(
         if due && !solver.done() {
             if let Some(CheckpointEvery::Time(every)) = schedule {
                 while st.next_checkpoint <= solver.t + 1e-3 * solver.dt {
-                    st.next_checkpoint += every;
+                    let next = st.next_checkpoint + every;
+                    st.next_checkpoint = past(st.next_checkpoint, next, solver.t, every);
                 }
             }
             history.flush();
@@ -723,6 +735,18 @@ fn run_dim<const D: usize>(
         (Some(_), _) => Err(RunError::Unstable(message.unwrap_or_default())),
         (None, 0) => Ok(summary),
         (None, _) => Err(RunError::Interrupted(message.unwrap_or_default())),
+    }
+}
+
+/// The next output time `next` after `last` on a grid of `every`, or, where `every`
+/// is too small against the time to advance it in floating point (scene validation
+/// bounds the number of outputs, so only a hand-made checkpoint gets here), the first
+/// representable time after `t`: the schedule loops always end.
+fn past(last: f64, next: f64, t: f64, every: f64) -> f64 {
+    if next > last {
+        next
+    } else {
+        (t + every).max(t.next_up())
     }
 }
 

@@ -435,3 +435,244 @@ fn pruning_deletes_only_this_runs_checkpoints() {
     ]);
     has(&[10, 20, 112, 119]);
 }
+
+/// Run `mpmcg ARGS` on `ranks` ranks (its own process group), killed if it has not
+/// ended after `secs` seconds (then the status has no code).
+fn mpmcg_within(ranks: usize, args: &[&str], secs: u64) -> Output {
+    use std::os::unix::process::CommandExt;
+    let mut cmd = if ranks == 1 {
+        std::process::Command::new(bin())
+    } else {
+        let mut c = common::mpirun(ranks);
+        c.arg(bin());
+        c
+    };
+    cmd.args(args)
+        .process_group(0)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped());
+    let mut child = cmd.spawn().unwrap();
+    let t = Instant::now();
+    while child.try_wait().unwrap().is_none() && t.elapsed() < Duration::from_secs(secs) {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    if child.try_wait().unwrap().is_none() {
+        // SAFETY: kill(2) on the process group of a child this test started.
+        unsafe { libc::kill(-(child.id() as i32), libc::SIGKILL) };
+    }
+    child.wait_with_output().unwrap()
+}
+
+/// `output.every` or `checkpoint.every` of 1e-300 used to run for ever (a snapshot
+/// every step of 1e-300 s; a checkpoint schedule loop that never advanced, deaf to
+/// SIGTERM), and a `time.dt` of 1e-300 asks for 1e300 steps: each is now refused
+/// with exit 2 and one message naming the key and the bound, also under mpirun.
+#[test]
+fn absurd_intervals_are_refused() {
+    let dir = temp_dir("intervals");
+    let cases = [
+        ("[output]\nevery = 1e-300", "output.every", "snapshots"),
+        (
+            "[checkpoint]\nevery = 1e-300",
+            "checkpoint.every",
+            "checkpoints",
+        ),
+    ];
+    for (i, (extra, key, what)) in cases.iter().enumerate() {
+        let scene = dir.join(format!("s{i}.toml"));
+        std::fs::write(&scene, short_scene(1.0, extra)).unwrap();
+        for ranks in [1, 2] {
+            let out = dir.join(format!("out{i}-{ranks}"));
+            let o = mpmcg_within(
+                ranks,
+                &[
+                    "run",
+                    scene.to_str().unwrap(),
+                    "--out",
+                    out.to_str().unwrap(),
+                    "--quiet",
+                ],
+                30,
+            );
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert_eq!(o.status.code(), Some(2), "{key}, {ranks} rank(s): {err}");
+            let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+            assert_eq!(lines.len(), 1, "one message: {err}");
+            assert!(
+                lines[0].contains(&format!("key `{key}`"))
+                    && lines[0].contains(&format!("1.000e300 {what}"))
+                    && lines[0].contains("at most 1e6"),
+                "{err}"
+            );
+        }
+    }
+    let scene = dir.join("dt.toml");
+    std::fs::write(
+        &scene,
+        short_scene(1.0, "").replacen("dt = 1.0e-3", "dt = 1.0e-300", 1),
+    )
+    .unwrap();
+    let o = mpmcg_within(1, &["check", scene.to_str().unwrap()], 30);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("key `time.dt`") && err.contains("1.000e300 steps"),
+        "{err}"
+    );
+}
+
+/// SIGTERM ends a run within a step even when the scene writes a snapshot and a
+/// checkpoint at every step (the most outputs validation allows): exit 4, a final
+/// checkpoint, status "interrupted", the lock released. (A regression guard: the
+/// intervals that used to make runs deaf to SIGTERM are refused above.)
+#[test]
+fn sigterm_is_honoured_within_a_step_at_the_highest_output_rate() {
+    let dir = temp_dir("sigterm");
+    let scene = dir.join("busy.toml");
+    // dt = 1e-3 and output.every = end / 1e6 = 1e-3: a snapshot every step.
+    std::fs::write(
+        &scene,
+        short_scene(
+            1000.0,
+            "[output]\nevery = 1.0e-3\n[checkpoint]\nevery_steps = 1\nkeep = 1",
+        ),
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let mut run = Killed(
+        std::process::Command::new(bin())
+            .args([
+                "run",
+                scene.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+                "--quiet",
+            ])
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    assert!(
+        wait_for(&out.join("particles_000005.h5"), 60),
+        "the run writes snapshots"
+    );
+    let t = Instant::now();
+    let status = run.stop(libc::SIGTERM);
+    let took = t.elapsed();
+    assert_eq!(status.code(), Some(4));
+    assert!(
+        took < Duration::from_secs(20),
+        "ended {took:?} after SIGTERM"
+    );
+    let summary = std::fs::read_to_string(out.join("summary.json")).unwrap();
+    assert!(summary.contains("\"interrupted\""), "{summary}");
+    assert_eq!(common::files(&out, "checkpoint_").len(), 1, "keep = 1");
+    assert!(!out.join(LOCK).exists());
+}
+
+/// Smaller faults, each with exit 2 and one clear message: a scene read from a device
+/// without end, an impossible thread count, a restart with nothing to run, an error
+/// that quotes megabytes of input, and an error under `mpirun -n 3` (printed by every
+/// rank before).
+#[test]
+fn small_input_faults_end_with_exit_2() {
+    let dir = temp_dir("small-faults");
+    // /dev/zero used to be read until memory ran out: cap this process at 2 GB so that
+    // a build without the fix fails instead of exhausting the machine.
+    let o = std::process::Command::new("sh")
+        .args([
+            "-c",
+            "ulimit -v 2000000; exec \"$0\" check /dev/zero",
+            &bin(),
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "/dev/zero: {err}");
+    assert!(err.contains("/dev/zero: larger than 16 MiB"), "{err}");
+
+    let scene = dir.join("short.toml");
+    std::fs::write(
+        &scene,
+        short_scene(0.05, "[checkpoint]\nevery_steps = 20\nkeep = 1"),
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let args = [
+        "run",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ];
+    let o = mpmcg(1, &[&args[..], &["--threads", "100000"]].concat());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--threads must be between 1 and 1024"),
+        "{err}"
+    );
+
+    // A restart whose time.end (0.01) is before the checkpoint's time (0.04).
+    let o = mpmcg(1, &args);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let ckpt = out.join("checkpoint_000040.h5");
+    assert!(ckpt.exists());
+    let earlier = dir.join("earlier.toml");
+    std::fs::write(
+        &earlier,
+        short_scene(0.01, "[checkpoint]\nevery_steps = 20\nkeep = 1"),
+    )
+    .unwrap();
+    for ranks in [1, 2] {
+        let o = mpmcg(
+            ranks,
+            &[
+                "run",
+                earlier.to_str().unwrap(),
+                "--restart",
+                ckpt.to_str().unwrap(),
+                "--quiet",
+            ],
+        );
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{ranks} rank(s): {err}");
+        assert_eq!(err.matches("error:").count(), 1, "{err}");
+        assert!(
+            err.contains("time.end = 1e-2 is not after the time of checkpoint")
+                && err.contains("step 40"),
+            "{err}"
+        );
+    }
+
+    // A 3 MB scene name: the message quotes at most 1000 bytes of it, once on 3 ranks.
+    let big = dir.join("big.toml");
+    std::fs::write(
+        &big,
+        short_scene(0.05, "").replacen(
+            "name = \"colliding_disks\"",
+            &format!("name = \"{}\"", "a b".repeat(1_000_000)),
+            1,
+        ),
+    )
+    .unwrap();
+    for ranks in [1, 3] {
+        let o = mpmcg(ranks, &["run", big.to_str().unwrap(), "--quiet"]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{ranks} rank(s)");
+        let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+        assert_eq!(
+            lines.len(),
+            1,
+            "{ranks} rank(s): one message, got {}",
+            lines.len()
+        );
+        assert!(lines[0].contains("key `name`") && lines[0].contains("more bytes)"));
+        assert!(lines[0].len() < 1200, "{} bytes", lines[0].len());
+    }
+}
