@@ -676,3 +676,102 @@ fn small_input_faults_end_with_exit_2() {
         assert!(lines[0].len() < 1200, "{} bytes", lines[0].len());
     }
 }
+
+/// The pids of `parent`'s children whose environment says they are MPI rank `rank`.
+fn rank_pids(parent: u32, rank: usize) -> Vec<i32> {
+    let mut v = Vec::new();
+    for e in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(pid) = e.file_name().to_string_lossy().parse::<i32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
+            continue;
+        };
+        // "pid (comm) state ppid ...": comm may contain spaces, so split after ')'.
+        let ppid = stat
+            .rsplit_once(')')
+            .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+            .and_then(|p| p.parse::<u32>().ok());
+        let env = std::fs::read(format!("/proc/{pid}/environ")).unwrap_or_default();
+        let want = format!("OMPI_COMM_WORLD_RANK={rank}");
+        if ppid == Some(parent) && env.split(|&b| b == 0).any(|kv| kv == want.as_bytes()) {
+            v.push(pid);
+        }
+    }
+    v
+}
+
+/// A rank killed under mpirun (SIGKILL to rank 1): the other ends promptly, mpirun
+/// names the rank, and the lock rank 0 held is recognised as stale by the next run in
+/// the folder.
+#[test]
+fn killed_rank_ends_the_job_and_leaves_a_stale_lock() {
+    use std::os::unix::process::CommandExt;
+    let dir = temp_dir("killed-rank");
+    let long = dir.join("long.toml");
+    std::fs::write(&long, short_scene(1000.0, "[output]\nsnapshots = false")).unwrap();
+    let out = dir.join("out");
+    let mut cmd = common::mpirun(2);
+    cmd.arg(bin())
+        .args([
+            "run",
+            long.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--quiet",
+        ])
+        .process_group(0)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped());
+    let mut job = Killed(cmd.spawn().unwrap());
+    assert!(wait_for(&out.join(LOCK), 60), "the job starts");
+    std::thread::sleep(Duration::from_millis(500));
+    let victims = rank_pids(job.id(), 1);
+    assert_eq!(victims.len(), 1, "rank 1 found: {victims:?}");
+    let t = Instant::now();
+    // SAFETY: kill(2) on a process this test's mpirun started.
+    unsafe { libc::kill(victims[0], libc::SIGKILL) };
+    let mut waited = None;
+    while t.elapsed() < Duration::from_secs(60) {
+        if let Some(s) = job.0.try_wait().unwrap() {
+            waited = Some(s);
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let took = t.elapsed();
+    let status = waited.expect("mpirun ends after a rank is killed");
+    assert!(!status.success());
+    let mut err = String::new();
+    use std::io::Read;
+    job.0
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut err)
+        .unwrap();
+    assert!(err.contains("rank 1") && err.contains("signal 9"), "{err}");
+    eprintln!("the job ended {took:?} after rank 1 was killed");
+    assert!(took < Duration::from_secs(30), "{took:?}");
+    // The killed job's lock is stale: the next run takes it over.
+    assert!(out.join(LOCK).exists(), "a killed rank 0 cannot release it");
+    let short = dir.join("short.toml");
+    std::fs::write(&short, short_scene(0.05, "")).unwrap();
+    let o = mpmcg(
+        1,
+        &[
+            "run",
+            short.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--quiet",
+        ],
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(!out.join(LOCK).exists());
+}
