@@ -722,9 +722,16 @@ fn run_dim<const D: usize>(
     if root && written.is_none() {
         let path = opts.out.join("summary.json");
         let text = serde_json::to_string_pretty(&summary).expect("summary serialises");
-        written = std::fs::write(&path, text + "\n")
+        // Via a temporary file: a full disk leaves the previous summary (or none), never
+        // a truncated one.
+        let tmp = opts.out.join(".summary.json.tmp");
+        written = std::fs::write(&tmp, text + "\n")
+            .and_then(|()| std::fs::rename(&tmp, &path))
             .err()
-            .map(|e| format!("{}: {e}", path.display()));
+            .map(|e| {
+                let _ = std::fs::remove_file(&tmp);
+                format!("{}: {e}", path.display())
+            });
     }
     // No rank leaves before rank 0 has written everything: mpirun ends the whole job
     // as soon as one rank exits with a non-zero status.
