@@ -283,6 +283,14 @@ fn run_main(
                     _ => eprintln!("error: {e}"),
                 }
             }
+            if crate::io::unclosed_file() {
+                // HDF5 holds a file it could not close: MPI_Finalize (via HDF5's
+                // clean-up callback) and HDF5's atexit handler would both crash on it.
+                // Every rank agreed on this and ends here, after the run has released
+                // the folder's lock and rank 0 has printed the message.
+                // SAFETY: _exit ends the process at once; nothing runs after it.
+                unsafe { libc::_exit(i32::from(e.exit_code())) };
+            }
             ExitCode::from(e.exit_code())
         }
     }

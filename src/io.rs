@@ -348,7 +348,7 @@ pub(crate) fn close(
         )
     });
     let failed = written.is_err();
-    let mut mine = written.err().map(|e| e.0).filter(|m| !m.is_empty());
+    let write_error = written.err().map(|e| e.0).filter(|m| !m.is_empty());
     let mut cause = None;
     if failed && root {
         cause = os_cause(path);
@@ -362,22 +362,42 @@ pub(crate) fn close(
     let closed = file
         .close()
         .map_err(|e| format!("{}: closing: {e}", path.display()));
-    if let Err(m) = closed {
-        mine.get_or_insert(m);
+    // A file HDF5 failed to close stays open inside it (closing may still fail after
+    // the truncation: with a file size limit, HDF5's final MPI_File_set_size to its
+    // allocated size fails too), and HDF5's clean-up in MPI_Finalize then crashes on
+    // it. Every rank learns of it, and the process ends without finalising.
+    let close_failed = comm.any(closed.is_err());
+    if close_failed {
+        UNCLOSED.store(true, std::sync::atomic::Ordering::SeqCst);
     }
-    let any = comm.any(failed || mine.is_some());
-    if (failed || any) && root {
-        let _ = std::fs::remove_file(path);
-    }
-    if !any {
+    // Both flags are agreed: every rank takes the same branches from here.
+    if !failed && !close_failed {
         return Ok(());
     }
-    let m = crate::checkpoint::agree(comm, mine)
+    if root {
+        if cause.is_none() {
+            cause = os_cause(path);
+        }
+        let _ = std::fs::remove_file(path);
+    }
+    // The first failure is the one to report: a failed write before the failed close
+    // it causes.
+    let m = crate::checkpoint::agree(comm, write_error)
+        .or_else(|| crate::checkpoint::agree(comm, closed.err()))
         .unwrap_or_else(|| format!("{}: writing failed", path.display()));
     Err(IoError(match cause {
         Some(c) if root => format!("{m}: {c}"),
         _ => m,
     }))
+}
+
+/// Set when HDF5 failed to close a file (see [`close`]).
+static UNCLOSED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Whether HDF5 failed to close a file: the process must then end without
+/// `MPI_Finalize` and without HDF5's exit handler, both of which would crash on it.
+pub fn unclosed_file() -> bool {
+    UNCLOSED.load(std::sync::atomic::Ordering::SeqCst)
 }
 
 /// Why writing `path` fails, as the operating system says it: append 64 KiB and sync.

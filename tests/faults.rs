@@ -775,3 +775,68 @@ fn killed_rank_ends_the_job_and_leaves_a_stale_lock() {
     );
     assert!(!out.join(LOCK).exists());
 }
+
+/// `cmd` run under `ulimit -f KB` (a file size limit: works without root).
+fn with_file_limit(kb: u64, cmd: &std::process::Command) -> std::process::Command {
+    let mut c = std::process::Command::new("sh");
+    c.arg("-c")
+        .arg(format!("ulimit -f {kb} && exec \"$@\""))
+        .arg("sh")
+        .arg(cmd.get_program())
+        .args(cmd.get_args());
+    c
+}
+
+/// A file size limit (`ulimit -f`, as a batch system may set) smaller than a
+/// checkpoint: exit 1 with one message naming the checkpoint and the OS's reason
+/// ("File too large"), no partial file, on 1 and 2 ranks. Here HDF5 also fails to
+/// close the file (its final MPI_File_set_size is over the limit too), which used to
+/// crash MPI_Finalize (exit 139 on 1 rank); the process now ends without finalising.
+#[test]
+fn file_size_limit_ends_cleanly() {
+    let dir = temp_dir("fsize");
+    // About 250 000 particles: a checkpoint of about 27 MB, over the 16 MB limit,
+    // which MPI's own start-up files (PMIx shared memory) stay under.
+    let scene = dir.join("big.toml");
+    std::fs::write(
+        &scene,
+        short_scene(
+            0.01,
+            "[output]\nsnapshots = false\n[checkpoint]\nevery_steps = 2\nkeep = 1",
+        )
+        .replacen("cells = [24, 24]", "cells = [600, 600]", 1),
+    )
+    .unwrap();
+    for ranks in [1, 2] {
+        let out = dir.join(format!("out{ranks}"));
+        let mut cmd = if ranks == 1 {
+            std::process::Command::new(bin())
+        } else {
+            let mut c = common::mpirun(ranks);
+            c.arg(bin());
+            c
+        };
+        cmd.args([
+            "run",
+            scene.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--quiet",
+        ]);
+        let t = Instant::now();
+        let o = with_file_limit(16000, &cmd).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(t.elapsed() < Duration::from_secs(60), "no hang");
+        assert_eq!(o.status.code(), Some(1), "{ranks} rank(s): {err}");
+        let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+        assert_eq!(lines.len(), 1, "one message: {err}");
+        assert!(
+            lines[0].contains("cannot write checkpoint")
+                && lines[0].contains("checkpoint_000002.h5")
+                && lines[0].contains("File too large"),
+            "{err}"
+        );
+        let left = names(&out);
+        assert_eq!(left, ["history.csv"], "no partial file, no lock");
+    }
+}
