@@ -1,5 +1,5 @@
 //! The command line. Exit status: 0 done, 2 bad input or usage (an unusable checkpoint
-//! included), 3 numerically unstable, 4 stopped by SIGTERM/SIGINT after writing a
+//! included), 3 numerically unstable, 4 stopped by SIGTERM/SIGINT/SIGUSR1 after writing a
 //! checkpoint, 1 any other failure (I/O, MPI).
 
 use crate::checkpoint;
@@ -37,6 +37,10 @@ enum Command {
         /// No progress line (the last line, which names the output folder, stays).
         #[arg(long, short)]
         quiet: bool,
+        /// Seconds between progress updates on rank 0's stderr [default: 0.5 on a
+        /// terminal, where the line is rewritten in place; 10 in a log, one line each].
+        #[arg(long, value_name = "SECONDS")]
+        progress_every: Option<f64>,
         /// Continue from a checkpoint (OUT/checkpoint_NNNNNN.h5) with the scene it
         /// stores. SCENE, if given, may change only time.end, time.cfl, time.dt,
         /// output.every and [checkpoint]. Output goes to the checkpoint's folder unless
@@ -139,8 +143,15 @@ pub fn main() -> ExitCode {
             out,
             threads,
             quiet,
+            progress_every,
             restart,
-        } => run_main(scene, out, threads, quiet, restart),
+        } => {
+            if progress_every.is_some_and(|s| !(s >= 0.0 && s.is_finite())) {
+                eprintln!("error: --progress-every must be a number of seconds >= 0");
+                return ExitCode::from(2);
+            }
+            run_main(scene, out, threads, quiet, progress_every, restart)
+        }
     }
 }
 
@@ -191,6 +202,7 @@ fn run_main(
     out: Option<PathBuf>,
     threads: Option<usize>,
     quiet: bool,
+    progress_every: Option<f64>,
     restart: Option<PathBuf>,
 ) -> ExitCode {
     // A fresh run's scene is checked before MPI starts; a restart needs every rank
@@ -241,7 +253,9 @@ fn run_main(
     }
     if let Err(m) = signals::install() {
         if root {
-            eprintln!("warning: {m}; SIGTERM and SIGINT will end the run without a checkpoint");
+            eprintln!(
+                "warning: {m}; SIGTERM, SIGINT and SIGUSR1 will end the run without a checkpoint"
+            );
         }
     }
     let default_out = match &restart {
@@ -257,6 +271,7 @@ fn run_main(
         threads,
         scene_text: Some(text),
         restart,
+        progress_every,
     };
     match run::run(&sc, &comm, &opts) {
         // The last line says where the files are, with --quiet too.

@@ -8,11 +8,16 @@
 //! ParaView expects), plus the fields the scene lists (`velocity` N × 3,
 //! `displacement` N × 3, `stress` N × 9, the full 3 × 3 Cauchy stress: in 2D with the
 //! plane-strain σ_zz, in 1D σ_xx only).
+//!
+//! Each file and the XDMF index also say what the numbers mean ([`Labels`]): the
+//! material names behind the `material` index, the units, and the symmetry planes of
+//! a scene that models part of a body.
 
 use crate::material::Material;
-use crate::particles::Particles;
-use crate::scene::Field;
+use crate::particles::{shape_bounds, Particles};
+use crate::scene::{Face, Field, Scene};
 use decomposition::Communicator;
+use hdf5::types::VarLenUnicode;
 use hdf5_sys::{h5d, h5p, h5s, h5t};
 use std::path::{Path, PathBuf};
 
@@ -50,10 +55,67 @@ pub fn snapshot_name(step: u64) -> String {
     format!("particles_{step:06}.h5")
 }
 
+/// What a run's snapshot numbers mean (the same for every snapshot of the run).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Labels {
+    /// The scene's material names, by the `material` index.
+    pub materials: Vec<String>,
+    /// `dimensionless` for benchmark scenes (exact solutions in unit-free parameters),
+    /// `SI` for the others.
+    pub units: String,
+    /// The slip faces that cut a body, e.g. `x = 0, y = 0` (a quarter of the Taylor
+    /// bar); `None` if no face cuts one.
+    pub symmetry_planes: Option<String>,
+}
+
+impl Labels {
+    /// The labels of a validated scene.
+    pub fn of<const D: usize>(scene: &Scene) -> Self {
+        let g = &scene.grid;
+        let mut planes = Vec::new();
+        for a in 0..D {
+            // The test that lets a slip face cut a body in scene validation.
+            let tol = 1e-12 * (g.upper[a] - g.lower[a]);
+            let (lo, hi) = scene.bodies.iter().fold((false, false), |(lo, hi), b| {
+                let (blo, bhi) = shape_bounds::<D>(&b.shape);
+                (
+                    lo || blo[a] < g.lower[a] - tol,
+                    hi || bhi[a] > g.upper[a] + tol,
+                )
+            });
+            for (cut, upper, at) in [(lo, false, g.lower[a]), (hi, true, g.upper[a])] {
+                if cut && g.boundary.face(a, upper) == Face::Slip {
+                    planes.push(format!("{} = {at}", ["x", "y", "z"][a]));
+                }
+            }
+        }
+        Self {
+            materials: scene.materials.iter().map(|m| m.name.clone()).collect(),
+            units: if scene.benchmark.is_some() {
+                "dimensionless"
+            } else {
+                "SI"
+            }
+            .into(),
+            symmetry_planes: (!planes.is_empty()).then(|| planes.join(", ")),
+        }
+    }
+
+    /// The symmetry note stored with the snapshots.
+    pub fn symmetry_note(&self) -> Option<String> {
+        self.symmetry_planes.as_ref().map(|p| {
+            format!(
+                "{p}: slip faces that cut the bodies are symmetry planes; the particles are the part inside the grid (mirror them about the planes for the whole)"
+            )
+        })
+    }
+}
+
 /// Writes snapshots and keeps the XDMF index of those written.
 pub struct Snapshots {
     out: PathBuf,
     fields: Vec<Field>,
+    labels: Labels,
     entries: Vec<Entry>,
     /// Flat staging buffer, reused between fields and snapshots.
     buf: Vec<f64>,
@@ -61,12 +123,13 @@ pub struct Snapshots {
 }
 
 impl Snapshots {
-    pub fn new(out: &Path, fields: &[Field]) -> Self {
+    pub fn new(out: &Path, fields: &[Field], labels: Labels) -> Self {
         let mut f = fields.to_vec();
         f.dedup();
         Self {
             out: out.to_path_buf(),
             fields: f,
+            labels,
             entries: Vec::new(),
             buf: Vec::new(),
             ibuf: Vec::new(),
@@ -175,6 +238,8 @@ impl Snapshots {
         self.ibuf.clear();
         self.ibuf.extend(parts.mat.iter().map(|&m| i64::from(m)));
         w.ints("material", &self.ibuf)?;
+        // What the numbers mean: the names behind `material`, units, symmetry planes.
+        lockstep(comm, self.write_labels(file).map_err(|e| h5err(path, e)))?;
         // The XDMF topology's connectivity (0..N-1, one vertex per particle): the
         // Xdmf3 readers, ParaView's default for `.xmf`, make no cells without it.
         self.ibuf.clear();
@@ -224,12 +289,68 @@ impl Snapshots {
         Ok(())
     }
 
+    /// The [`Labels`] as string attributes: `material_names` (one per index), `units`
+    /// and, if a slip face cuts a body, `symmetry`.
+    fn write_labels(&self, file: &hdf5::File) -> hdf5::Result<()> {
+        let text = |s: &str| {
+            s.parse::<VarLenUnicode>()
+                .map_err(|e| hdf5::Error::from(e.to_string()))
+        };
+        let names = self
+            .labels
+            .materials
+            .iter()
+            .map(|m| text(m))
+            .collect::<hdf5::Result<Vec<_>>>()?;
+        file.new_attr::<VarLenUnicode>()
+            .shape([names.len()])
+            .create("material_names")?
+            .write(&names)?;
+        let mut scalars = vec![("units", self.labels.units.clone())];
+        if let Some(note) = self.labels.symmetry_note() {
+            scalars.push(("symmetry", note));
+        }
+        for (name, value) in scalars {
+            file.new_attr::<VarLenUnicode>()
+                .create(name)?
+                .write_scalar(&text(&value)?)?;
+        }
+        Ok(())
+    }
+
+    /// The same labels as XDMF `Information` elements of the time series.
+    fn xdmf_information(&self) -> String {
+        let l = &self.labels;
+        let names = l
+            .materials
+            .iter()
+            .enumerate()
+            .map(|(i, m)| format!("{i}: {m}"))
+            .collect::<Vec<_>>()
+            .join("; ");
+        let mut items = vec![("material_names", names), ("units", l.units.clone())];
+        if let Some(note) = l.symmetry_note() {
+            items.push(("symmetry", note));
+        }
+        items
+            .iter()
+            .map(|(k, v)| {
+                format!(
+                    "  <Information Name=\"{k}\" Value=\"{}\"/>\n",
+                    xml_escape(v)
+                )
+            })
+            .collect()
+    }
+
     /// Rewrite `particles.xmf` (via a temporary file and a rename, so a reader never
     /// sees half of it).
     fn write_xdmf(&self) -> Result<(), IoError> {
         let mut x = String::from(
-            "<?xml version=\"1.0\" ?>\n<!DOCTYPE Xdmf SYSTEM \"Xdmf.dtd\" []>\n<Xdmf Version=\"3.0\">\n <Domain>\n  <Grid Name=\"particles\" GridType=\"Collection\" CollectionType=\"Temporal\">\n",
+            "<?xml version=\"1.0\" ?>\n<!DOCTYPE Xdmf SYSTEM \"Xdmf.dtd\" []>\n<Xdmf Version=\"3.0\">\n <Domain>\n",
         );
+        x += &self.xdmf_information();
+        x += "  <Grid Name=\"particles\" GridType=\"Collection\" CollectionType=\"Temporal\">\n";
         for e in &self.entries {
             let n = e.particles;
             // `cols` 0: one value per particle.
@@ -283,6 +404,14 @@ impl Snapshots {
                 IoError(format!("{}: {e}", path.display()))
             })
     }
+}
+
+/// Text for an XML attribute value.
+fn xml_escape(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
 }
 
 fn pad3<'a>(buf: &mut Vec<f64>, rows: impl Iterator<Item = &'a [f64]>, d: usize) {

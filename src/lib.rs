@@ -15,6 +15,7 @@ pub mod kernel;
 pub mod lock;
 pub mod material;
 pub mod particles;
+pub mod progress;
 pub mod run;
 pub mod scene;
 pub mod shape;

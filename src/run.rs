@@ -3,14 +3,15 @@
 //! the output folder (`summary.json`, `history.csv`).
 
 use crate::checkpoint::{self, RunState, SolverState};
-use crate::io::Snapshots;
+use crate::io::{Labels, Snapshots};
 use crate::particles::Particles;
+use crate::progress::Progress;
 use crate::scene::{CheckpointEvery, Face, Scene};
 use crate::signals;
 use crate::solver::{Failure, Solver, Totals};
 use decomposition::{Communicator, Layout};
 use serde::Serialize;
-use std::io::{IsTerminal, Write};
+use std::io::Write;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -24,6 +25,8 @@ pub struct RunOptions {
     pub scene_text: Option<String>,
     /// Continue from this checkpoint; the scene must be the one it stores.
     pub restart: Option<PathBuf>,
+    /// Seconds between progress updates (`None`: 0.5 on a terminal, 10 in a log).
+    pub progress_every: Option<f64>,
 }
 
 /// How a run ended, for the exit status.
@@ -122,6 +125,8 @@ pub struct Summary {
     pub gradient: String,
     pub update: String,
     pub flip: f64,
+    /// `SI`, or `dimensionless` for benchmark scenes (as in the snapshots).
+    pub units: String,
     /// `completed`, `unstable` or `interrupted`.
     pub status: String,
     pub message: Option<String>,
@@ -425,9 +430,12 @@ fn run_dim<const D: usize>(
     }
 
     // (writer, interval); an infinite interval writes the initial and final states.
-    let mut snaps = scene
-        .snapshot_plan()
-        .map(|o| (Snapshots::new(&opts.out, &o.fields), o.every));
+    let mut snaps = scene.snapshot_plan().map(|o| {
+        (
+            Snapshots::new(&opts.out, &o.fields, Labels::of::<D>(scene)),
+            o.every,
+        )
+    });
     let start = Instant::now();
     let mut output_seconds = OutputSeconds::default();
     let mut st = match restored {
@@ -482,7 +490,7 @@ fn run_dim<const D: usize>(
     };
     let e0 = st.initial.total_energy();
     let (t_start, step_start) = (solver.t, solver.step);
-    let mut progress = Progress::new(root && !opts.quiet, t_start);
+    let mut progress = Progress::new(root && !opts.quiet, opts.progress_every, start, t_start);
     let mut failure: Option<Failure> = None;
     let mut stopped_by = 0i32;
     let mut last_checkpoint: Option<PathBuf> = opts.restart.clone();
@@ -585,7 +593,7 @@ fn run_dim<const D: usize>(
         if solver.step.is_multiple_of(RESCUE_EVERY) {
             rescue.keep(&solver, &st, history.text.len());
         }
-        progress.tick(&solver, start);
+        progress.tick(solver.step, solver.t, solver.end, solver.dt);
         if signal != 0 && !solver.done() {
             stopped_by = signal;
             break;
@@ -666,6 +674,7 @@ fn run_dim<const D: usize>(
         gradient: scene.method.gradient.name().into(),
         update: scene.method.update.name().into(),
         flip: scene.method.flip,
+        units: Labels::of::<D>(scene).units,
         status: status.into(),
         message: message.clone(),
         ranks: comm.size(),
@@ -802,78 +811,5 @@ impl<const D: usize> Rescue<D> {
         }
         history.truncate(self.history_len);
         st.history = std::mem::take(history);
-    }
-}
-
-/// Progress on rank 0: a line rewritten in place on a terminal, a line every ten
-/// seconds otherwise (batch logs).
-struct Progress {
-    on: bool,
-    tty: bool,
-    last: Option<Instant>,
-    /// Simulated time at the start of this run (a restart's ETA counts from there).
-    t0: f64,
-}
-
-impl Progress {
-    fn new(on: bool, t0: f64) -> Self {
-        Self {
-            on,
-            tty: std::io::stderr().is_terminal(),
-            last: None,
-            t0,
-        }
-    }
-
-    fn tick<const D: usize>(&mut self, s: &Solver<D>, start: Instant) {
-        if !self.on {
-            return;
-        }
-        let now = Instant::now();
-        let every = if self.tty { 0.5 } else { 10.0 };
-        let due = match self.last {
-            None => now.duration_since(start).as_secs_f64() >= every,
-            Some(l) => now.duration_since(l).as_secs_f64() >= every,
-        };
-        if !due {
-            return;
-        }
-        self.last = Some(now);
-        let el = now.duration_since(start).as_secs_f64();
-        let frac = (s.t / s.end).clamp(1e-12, 1.0);
-        let run_frac = ((s.t - self.t0) / (s.end - self.t0)).clamp(1e-12, 1.0);
-        let eta = el * (1.0 - run_frac) / run_frac;
-        let line = format!(
-            "step {:>8}  t = {:.4e} / {:.4e} ({:5.1}%)  dt = {:.3e}  elapsed {}  ETA {}",
-            s.step,
-            s.t,
-            s.end,
-            100.0 * frac,
-            s.dt,
-            hms(el),
-            hms(eta)
-        );
-        if self.tty {
-            eprint!("\r{line}");
-        } else {
-            eprintln!("{line}");
-        }
-    }
-
-    fn finish(&mut self) {
-        if self.on && self.tty && self.last.is_some() {
-            eprintln!();
-        }
-    }
-}
-
-fn hms(s: f64) -> String {
-    let s = s.round() as u64;
-    if s >= 3600 {
-        format!("{}h{:02}m{:02}s", s / 3600, s / 60 % 60, s % 60)
-    } else if s >= 60 {
-        format!("{}m{:02}s", s / 60, s % 60)
-    } else {
-        format!("{s}s")
     }
 }

@@ -1,7 +1,11 @@
-//! SIGTERM and SIGINT as a request to stop: the handler only records the signal in an
-//! atomic (the one thing a signal handler may safely do); the run loop reads it once
-//! per step, agrees on it over all ranks, finishes the step, writes a checkpoint and
-//! ends with status "interrupted".
+//! SIGTERM, SIGINT and SIGUSR1 as a request to stop: the handler only records the
+//! signal in an atomic (the one thing a signal handler may safely do); the run loop
+//! reads it once per step, agrees on it over all ranks, finishes the step, writes a
+//! checkpoint and ends with status "interrupted".
+//!
+//! SIGUSR1 is there for `mpirun` (Open MPI): it forwards SIGUSR1 to every rank at once,
+//! while a SIGTERM to `mpirun` reaches the ranks only after `odls_base_sigkill_timeout`
+//! and is followed by SIGKILL as long after, too soon for a large checkpoint.
 //!
 //! A second SIGINT (Ctrl-C pressed twice) ends the process at once with status 130.
 //! Repeated SIGTERMs are not escalated: `mpirun` forwards the SIGTERM a scheduler
@@ -21,15 +25,15 @@ extern "C" fn on_signal(sig: libc::c_int) {
     let _ = PENDING.compare_exchange(0, sig, Ordering::SeqCst, Ordering::SeqCst);
 }
 
-/// Install the handlers for SIGTERM and SIGINT (with SA_RESTART, so that interrupted
-/// system calls in MPI and HDF5 resume).
+/// Install the handlers for SIGTERM, SIGINT and SIGUSR1 (with SA_RESTART, so that
+/// interrupted system calls in MPI and HDF5 resume).
 pub fn install() -> Result<(), String> {
     // A file size limit (`ulimit -f`) would kill the process with SIGXFSZ in the middle
     // of a collective write; ignored, the write fails with EFBIG, which the run reports
     // (exit 1, naming the file) like any other I/O error.
     // SAFETY: setting a signal's disposition to SIG_IGN installs no code.
     unsafe { libc::signal(libc::SIGXFSZ, libc::SIG_IGN) };
-    for sig in [libc::SIGTERM, libc::SIGINT] {
+    for sig in [libc::SIGTERM, libc::SIGINT, libc::SIGUSR1] {
         // SAFETY: a zeroed sigaction is valid; the handler only touches atomics and
         // calls _exit, both async-signal-safe.
         let r = unsafe {
@@ -55,11 +59,12 @@ pub fn pending() -> i32 {
     PENDING.load(Ordering::SeqCst)
 }
 
-/// "SIGTERM", "SIGINT" or "signal N".
+/// "SIGTERM", "SIGINT", "SIGUSR1" or "signal N".
 pub fn name(sig: i32) -> String {
     match sig {
         libc::SIGTERM => "SIGTERM".into(),
         libc::SIGINT => "SIGINT".into(),
+        libc::SIGUSR1 => "SIGUSR1".into(),
         n => format!("signal {n}"),
     }
 }

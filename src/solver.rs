@@ -127,6 +127,8 @@ pub struct Solver<'c, const D: usize> {
     pub gradient: Gradient,
     pub alpha: Alpha,
     pub update: Update,
+    /// The phases of a step: the update order's, resolved for the scheme.
+    phases: Vec<Phase>,
     flip: f64,
     cfl: Option<f64>,
     fixed_dt: Option<f64>,
@@ -172,6 +174,110 @@ pub struct Solver<'c, const D: usize> {
     dx: Vec<Vector<D>>,
     perm: Vec<usize>,
     scratch: Vec<f64>,
+}
+
+/// One phase of a time step. A step is one of the lists in [`Update::phases`], without
+/// the MPMCG node-to-node steps (`AveragedForce`, `AveragedGradient`) for one-step
+/// schemes (MPM, GIMP): [`Solver::two_step`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Phase {
+    /// Particle → grid: mass, momentum, the domain fill and, if `forces`, the forces
+    /// and the averaged stress sums; `moved`: the particles moved since the last scatter
+    /// (rebuild the slab order). Ends with the ghost sum and the domain weights.
+    Scatter { forces: bool, moved: bool },
+    /// MPMCG node → node step of the internal force, `f_i −= Σ_j σ̄_j ∫ w S_j ∇S_i`.
+    AveragedForce,
+    /// Grid velocities from momentum (slot 0) and, if `forces`, after the force update
+    /// (slot 1); walls; copy to the ghosts.
+    GridUpdate { forces: bool },
+    /// MPMCG node → node step of the velocity gradient, `L̄_j`, from velocity `slot`.
+    AveragedGradient { slot: usize },
+    /// Grid → particle: velocity (FLIP/PIC), position (now, or kept for `Move`), and
+    /// if `stress` the deformation and stress; `speed`: the step's last particle pass.
+    Gather {
+        stress: bool,
+        move_now: bool,
+        speed: bool,
+    },
+    /// Deformation and stress from velocity `slot` at the current positions.
+    Stress { slot: usize, speed: bool },
+    /// Apply the position increments a `Gather { move_now: false }` kept.
+    Move,
+}
+
+impl Update {
+    /// The phases of one step of this update order for a two-step scheme.
+    pub fn phases(self) -> &'static [Phase] {
+        use Phase::*;
+        match self {
+            // Update stress last: forces from the old stress, then the new velocity
+            // deforms the particles in the same pass that moves them.
+            Update::Usl => &[
+                Scatter {
+                    forces: true,
+                    moved: true,
+                },
+                AveragedForce,
+                GridUpdate { forces: true },
+                AveragedGradient { slot: 1 },
+                Gather {
+                    stress: true,
+                    move_now: true,
+                    speed: true,
+                },
+            ],
+            // Update stress first, from the grid velocity of the old momentum.
+            Update::Usf => &[
+                Scatter {
+                    forces: false,
+                    moved: true,
+                },
+                GridUpdate { forces: false },
+                AveragedGradient { slot: 0 },
+                Stress {
+                    slot: 0,
+                    speed: false,
+                },
+                Scatter {
+                    forces: true,
+                    moved: false,
+                },
+                AveragedForce,
+                GridUpdate { forces: true },
+                Gather {
+                    stress: false,
+                    move_now: true,
+                    speed: true,
+                },
+            ],
+            // Modified USL: the new particle momentum is remapped to the grid, still at
+            // the old positions, and that velocity deforms the particles; then they move.
+            Update::Musl => &[
+                Scatter {
+                    forces: true,
+                    moved: true,
+                },
+                AveragedForce,
+                GridUpdate { forces: true },
+                Gather {
+                    stress: false,
+                    move_now: false,
+                    speed: false,
+                },
+                Scatter {
+                    forces: false,
+                    moved: false,
+                },
+                GridUpdate { forces: false },
+                AveragedGradient { slot: 0 },
+                Stress {
+                    slot: 0,
+                    speed: true,
+                },
+                Move,
+            ],
+        }
+    }
 }
 
 const SORT_EVERY: u64 = 20;
@@ -260,6 +366,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             gradient,
             alpha,
             update: scene.method.update,
+            phases: Vec::new(),
             flip: scene.method.flip,
             cfl: match (scene.time.cfl, scene.time.dt) {
                 (None, None) => Some(0.2),
@@ -294,6 +401,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             scratch: Vec::new(),
         };
         s.setup_grid();
+        s.resolve_phases();
         let mut mmin = [s.parts.mass.iter().cloned().fold(f64::INFINITY, f64::min)];
         s.comm.min_f64(&mut mmin);
         s.mass_floor = if mmin[0].is_finite() {
@@ -309,6 +417,19 @@ impl<'c, const D: usize> Solver<'c, D> {
     pub fn set_alpha(&mut self, alpha: Alpha) {
         self.alpha = alpha;
         self.setup_grid();
+        self.resolve_phases();
+    }
+
+    /// The step's phases for this scheme: one-step schemes skip the grid averages.
+    fn resolve_phases(&mut self) {
+        let two = self.two_step();
+        self.phases = self
+            .update
+            .phases()
+            .iter()
+            .copied()
+            .filter(|p| two || !matches!(p, Phase::AveragedForce | Phase::AveragedGradient { .. }))
+            .collect();
     }
 
     /// The scheme evaluates its gradient through grid averages (σ̄, L̄)?
@@ -683,50 +804,8 @@ impl<'c, const D: usize> Solver<'c, D> {
         let dt = self.choose_dt()?;
         self.dt = dt;
         let mut ok = true;
-        match self.update {
-            Update::Usl => {
-                self.scatter(true, true);
-                if self.two_step() {
-                    self.averaged_force();
-                }
-                self.grid_velocity(dt);
-                if self.two_step() {
-                    self.averaged_velocity_gradient(1);
-                }
-                ok &= self.gather(dt, true, true, true);
-            }
-            Update::Usf => {
-                self.scatter(false, true);
-                self.grid_velocity(0.0);
-                if self.two_step() {
-                    self.averaged_velocity_gradient(0);
-                }
-                ok &= self.update_stress_from(0, dt, false);
-                self.scatter(true, false);
-                if self.two_step() {
-                    self.averaged_force();
-                }
-                self.grid_velocity(dt);
-                ok &= self.gather(dt, false, true, true);
-            }
-            Update::Musl => {
-                self.scatter(true, true);
-                if self.two_step() {
-                    self.averaged_force();
-                }
-                self.grid_velocity(dt);
-                ok &= self.gather(dt, false, false, false);
-                // Remap the new particle momentum to the grid, still at the old positions.
-                self.scatter(false, false);
-                self.grid_velocity(0.0);
-                if self.two_step() {
-                    self.averaged_velocity_gradient(0);
-                }
-                ok &= self.update_stress_from(0, dt, true);
-                for (x, dx) in self.parts.x.iter_mut().zip(&self.dx) {
-                    *x += dx;
-                }
-            }
+        for k in 0..self.phases.len() {
+            ok &= self.run_phase(self.phases[k], dt);
         }
         self.t += dt;
         self.step += 1;
@@ -746,6 +825,29 @@ impl<'c, const D: usize> Solver<'c, D> {
             self.sort();
         }
         Ok(())
+    }
+
+    /// Carry out one phase of a step (see [`Phase`]). Returns whether the particle state
+    /// stayed physical.
+    fn run_phase(&mut self, phase: Phase, dt: f64) -> bool {
+        match phase {
+            Phase::Scatter { forces, moved } => self.scatter(forces, moved),
+            Phase::AveragedForce => self.averaged_force(),
+            Phase::GridUpdate { forces } => self.grid_velocity(if forces { dt } else { 0.0 }),
+            Phase::AveragedGradient { slot } => self.averaged_velocity_gradient(slot),
+            Phase::Gather {
+                stress,
+                move_now,
+                speed,
+            } => return self.gather(dt, stress, move_now, speed),
+            Phase::Stress { slot, speed } => return self.update_stress_from(slot, dt, speed),
+            Phase::Move => {
+                for (x, dx) in self.parts.x.iter_mut().zip(&self.dx) {
+                    *x += dx;
+                }
+            }
+        }
+        true
     }
 
     /// Grid → particle: velocities (FLIP/PIC blend) and positions from slot 1, and if

@@ -459,6 +459,19 @@ pub fn write_outputs(base: &Scene, opts: &Options, rows: &[Row]) -> Result<(), S
             .collect()
     };
     let y_label = "displacement L2 error (max over the run)";
+    // Orders 1 and 2 in the cell size h. Against wall time they are slopes −p/(d+1):
+    // the cost of a run grows as (1/h)^(d+1), particles times steps (CFL).
+    let cost = base.dim + 1;
+    let orders = |per: f64, note: &str| -> Vec<plot::Reference> {
+        [1.0, 2.0]
+            .iter()
+            .map(|&p| plot::Reference {
+                name: format!("order {p}{note}"),
+                slope: -p / per,
+            })
+            .collect()
+    };
+    let sup = ["\u{b2}", "\u{b3}", "\u{2074}"][cost - 2];
     let by_cells = series(|r, _| r.cells as f64);
     write(
         "error_vs_cells.svg",
@@ -467,6 +480,7 @@ pub fn write_outputs(base: &Scene, opts: &Options, rows: &[Row]) -> Result<(), S
             x_label: "cells along x",
             y_label,
             series: &by_cells,
+            references: &orders(1.0, ""),
         }),
     )?;
     let by_time = series(|_, s| s.wall_seconds);
@@ -482,6 +496,7 @@ pub fn write_outputs(base: &Scene, opts: &Options, rows: &[Row]) -> Result<(), S
             x_label: &x_label,
             y_label,
             series: &by_time,
+            references: &orders(cost as f64, &format!(", cost \u{221d} n{sup}")),
         }),
     )?;
     Ok(())

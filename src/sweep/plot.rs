@@ -1,6 +1,12 @@
-//! Log–log line plots as hand-written SVG: one polyline with markers per series, a
-//! legend, labelled axes with decade ticks (and unlabelled minor ticks), a title. The
-//! output is a standalone SVG 1.1 document that any browser opens.
+//! Log–log line plots as hand-written SVG: one polyline with markers per series,
+//! dashed reference slopes, a legend, axes with labelled decades (and 2 and 5 between
+//! them when the axis spans at most two decades), a title. The output is a standalone
+//! SVG 1.1 document that any browser opens.
+//!
+//! Not `plotters`: its text layout needs font files (its `ttf` feature: font-kit with
+//! fontconfig and freetype, or a bundled font) even to write SVG, where a browser lays
+//! out the text anyway; these plots need log axes, markers and a legend, a few hundred
+//! lines with tests.
 
 use std::fmt::Write as _;
 
@@ -13,12 +19,20 @@ pub struct Series {
     pub points: Vec<(f64, f64)>,
 }
 
+/// A dashed line `y ∝ x^slope` to compare the curves' slopes with (convergence orders).
+#[derive(Clone, Debug)]
+pub struct Reference {
+    pub name: String,
+    pub slope: f64,
+}
+
 #[derive(Clone, Debug)]
 pub struct Plot<'a> {
     pub title: &'a str,
     pub x_label: &'a str,
     pub y_label: &'a str,
     pub series: &'a [Series],
+    pub references: &'a [Reference],
 }
 
 const WIDTH: f64 = 760.0;
@@ -81,13 +95,25 @@ impl Axis {
         (self.lo..self.hi).flat_map(|k| (2..10).map(move |m| f64::from(m) * 10f64.powi(k)))
     }
 
-    /// Decade labels as plain numbers while they stay short, else as powers of ten.
-    fn label(&self, k: i32) -> String {
+    /// Labelled values `(m, k)` for `m · 10^k`: the decades, and 2 and 5 between them
+    /// when the axis spans at most two decades (a sweep's 8–64 cells or 1–30 s of wall
+    /// time would otherwise show one or two labels).
+    fn labelled(&self) -> Vec<(u32, i32)> {
+        let mut v: Vec<(u32, i32)> = self.decades().map(|k| (1, k)).collect();
+        if self.hi - self.lo <= 2 {
+            v.extend((self.lo..self.hi).flat_map(|k| [(2, k), (5, k)]));
+        }
+        v
+    }
+
+    /// `m · 10^k` as a plain number while the axis's numbers stay short, else with a
+    /// power of ten.
+    fn label(&self, m: u32, k: i32) -> String {
         if self.lo >= -3 && self.hi <= 4 {
             if k >= 0 {
-                format!("1{}", "0".repeat(k as usize))
+                format!("{m}{}", "0".repeat(k as usize))
             } else {
-                format!("0.{}1", "0".repeat((-k - 1) as usize))
+                format!("0.{}{m}", "0".repeat((-k - 1) as usize))
             }
         } else {
             let exp = if k < 0 {
@@ -95,7 +121,12 @@ impl Axis {
             } else {
                 k.to_string()
             };
-            format!("10<tspan dy=\"-7\" font-size=\"9\">{exp}</tspan>")
+            let mant = if m == 1 {
+                String::new()
+            } else {
+                format!("{m}\u{00d7}")
+            };
+            format!("{mant}10<tspan dy=\"-7\" font-size=\"9\">{exp}</tspan>")
         }
     }
 }
@@ -150,14 +181,55 @@ fn marker(k: usize, x: f64, y: f64, colour: &str, tip: &str) -> String {
     )
 }
 
+/// The ends of a reference line of `slope` across the x range of the series. It starts
+/// [`REFERENCE_BELOW`] times below the lowest of the series' first (smallest x) points,
+/// so that it runs beside the curves rather than hiding one of the same slope. `None`
+/// without two distinct plottable x values.
+pub fn reference_ends(series: &[Series], slope: f64) -> Option<[(f64, f64); 2]> {
+    let all = || {
+        series
+            .iter()
+            .flat_map(|s| s.points.iter().copied().filter(usable))
+    };
+    let lo = all().map(|p| p.0).min_by(f64::total_cmp)?;
+    let hi = all().map(|p| p.0).max_by(f64::total_cmp)?;
+    if lo == hi {
+        return None;
+    }
+    let (ax, ay) = series
+        .iter()
+        .filter_map(|s| {
+            s.points
+                .iter()
+                .copied()
+                .filter(usable)
+                .min_by(|a, b| a.0.total_cmp(&b.0))
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))?;
+    let y = |x: f64| ay / REFERENCE_BELOW * (x / ax).powf(slope);
+    Some([(lo, y(lo)), (hi, y(hi))])
+}
+
+/// How far below the lowest first point the reference lines start.
+const REFERENCE_BELOW: f64 = 2.0;
+/// Dash patterns of the reference lines, in order.
+const DASHES: [&str; 2] = ["6 4", "2 3"];
+
 /// The SVG document of a log–log plot.
 pub fn loglog(plot: &Plot) -> String {
     let (x0, x1) = (LEFT, WIDTH - RIGHT);
     let (y0, y1) = (TOP, HEIGHT - BOTTOM);
+    let refs: Vec<(&Reference, [(f64, f64); 2])> = plot
+        .references
+        .iter()
+        .filter_map(|r| reference_ends(plot.series, r.slope).map(|e| (r, e)))
+        .collect();
+    // The axes hold the reference lines too.
     let pts = || {
         plot.series
             .iter()
-            .flat_map(|s| s.points.iter().filter(|p| usable(p)))
+            .flat_map(|s| s.points.iter().copied().filter(usable))
+            .chain(refs.iter().flat_map(|(_, e)| e.iter().copied()))
     };
     let xa = Axis::fit(pts().map(|p| p.0), x0, x1);
     let ya = Axis::fit(pts().map(|p| p.1), y1, y0);
@@ -255,22 +327,22 @@ pub fn loglog(plot: &Plot) -> String {
     }
     let _ = writeln!(s, "</g>");
     let _ = writeln!(s, "<g class=\"tick-labels\">");
-    for k in xa.decades() {
+    for (m, k) in xa.labelled() {
         let _ = writeln!(
             s,
             "<text x=\"{:.2}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text>",
-            xa.map(10f64.powi(k)),
+            xa.map(f64::from(m) * 10f64.powi(k)),
             y1 + 20.0,
-            xa.label(k)
+            xa.label(m, k)
         );
     }
-    for k in ya.decades() {
+    for (m, k) in ya.labelled() {
         let _ = writeln!(
             s,
             "<text x=\"{:.1}\" y=\"{:.2}\" text-anchor=\"end\">{}</text>",
             x0 - 8.0,
-            ya.map(10f64.powi(k)) + 4.0,
-            ya.label(k)
+            ya.map(f64::from(m) * 10f64.powi(k)) + 4.0,
+            ya.label(m, k)
         );
     }
     let _ = writeln!(s, "</g>");
@@ -289,7 +361,21 @@ pub fn loglog(plot: &Plot) -> String {
         escape(plot.y_label)
     );
 
-    // Curves, then the legend.
+    // Reference slopes under the curves, then the curves, then the legend.
+    let _ = writeln!(s, "<g class=\"reference\" stroke=\"#777777\">");
+    for (j, (r, [a, b])) in refs.iter().enumerate() {
+        let _ = writeln!(
+            s,
+            "<line x1=\"{:.2}\" y1=\"{:.2}\" x2=\"{:.2}\" y2=\"{:.2}\" stroke-width=\"1.2\" stroke-dasharray=\"{}\"><title>{}</title></line>",
+            xa.map(a.0),
+            ya.map(a.1),
+            xa.map(b.0),
+            ya.map(b.1),
+            DASHES[j % DASHES.len()],
+            escape(&r.name)
+        );
+    }
+    let _ = writeln!(s, "</g>");
     for (i, ser) in plot.series.iter().enumerate() {
         let colour = COLOURS[i % COLOURS.len()];
         let name = escape(&ser.name);
@@ -327,6 +413,22 @@ pub fn loglog(plot: &Plot) -> String {
             lx + 36.0,
             y + 4.0,
             escape(&ser.name)
+        );
+    }
+    for (j, (r, _)) in refs.iter().enumerate() {
+        let y = y0 + 14.0 + 22.0 * (plot.series.len() + j) as f64;
+        let _ = writeln!(
+            s,
+            "<line x1=\"{lx}\" y1=\"{y:.1}\" x2=\"{:.1}\" y2=\"{y:.1}\" stroke=\"#777777\" stroke-width=\"1.2\" stroke-dasharray=\"{}\"/>",
+            lx + 28.0,
+            DASHES[j % DASHES.len()]
+        );
+        let _ = writeln!(
+            s,
+            "<text x=\"{:.1}\" y=\"{:.1}\">{}</text>",
+            lx + 36.0,
+            y + 4.0,
+            escape(&r.name)
         );
     }
     let _ = writeln!(s, "</g>");
@@ -438,6 +540,7 @@ pub(crate) mod tests {
             x_label: "cells",
             y_label: "displacement L2 error",
             series: &series,
+            references: &[],
         });
         let names = check_xml(&doc);
         assert_eq!(names.iter().filter(|n| *n == "polyline").count(), 3);
@@ -468,6 +571,7 @@ pub(crate) mod tests {
             x_label: "x",
             y_label: "y",
             series: &series,
+            references: &[],
         });
         for line in polylines(&doc) {
             for w in line.windows(2) {
@@ -499,6 +603,69 @@ pub(crate) mod tests {
     }
 
     #[test]
+    fn reference_lines_have_their_slope_below_the_first_points() {
+        let series = example();
+        for slope in [-1.0, -2.0, -2.0 / 3.0] {
+            let [a, b] = reference_ends(&series, slope).unwrap();
+            assert_eq!((a.0, b.0), (8.0, 64.0));
+            let measured = (b.1 / a.1).log10() / (b.0 / a.0).log10();
+            assert!((measured - slope).abs() < 1e-12, "{measured} {slope}");
+            // Half the lowest first point (mpmcg's 0.2/64 at 8 cells).
+            assert!((a.1 - 0.2 / 64.0 / 2.0).abs() < 1e-15, "{a:?}");
+        }
+        let refs = [
+            Reference {
+                name: "order 1".into(),
+                slope: -1.0,
+            },
+            Reference {
+                name: "order 2".into(),
+                slope: -2.0,
+            },
+        ];
+        let doc = loglog(&Plot {
+            title: "t",
+            x_label: "cells",
+            y_label: "e",
+            series: &series,
+            references: &refs,
+        });
+        check_xml(&doc);
+        // Two dashed lines with their legend entries, inside the frame.
+        let group = doc.split("<g class=\"reference\"").nth(1).unwrap();
+        let group = &group[..group.find("</g>").unwrap()];
+        assert_eq!(group.matches("<line ").count(), 2);
+        for name in ["order 1", "order 2"] {
+            assert!(doc.contains(&format!(">{name}</text>")), "{name}");
+        }
+        // A series with a single x has no slope to compare with.
+        let one = vec![Series {
+            name: "s".into(),
+            points: vec![(8.0, 1e-2)],
+        }];
+        assert!(reference_ends(&one, -1.0).is_none());
+    }
+
+    #[test]
+    fn narrow_axes_label_2_and_5_between_decades() {
+        let series = example();
+        let doc = loglog(&Plot {
+            title: "t",
+            x_label: "cells",
+            y_label: "e",
+            series: &series,
+            references: &[],
+        });
+        // x spans 1–100: 2, 5, 20 and 50 labelled too; y spans 1e-5–1 (5 decades):
+        // decades only.
+        for label in [">2</text>", ">5</text>", ">20</text>", ">50</text>"] {
+            assert!(doc.contains(label), "{label}");
+        }
+        assert!(doc.contains(">0.001</text>") || doc.contains("\u{2212}3</tspan>"));
+        assert!(!doc.contains(">0.002</text>") && !doc.contains("2\u{00d7}10"));
+    }
+
+    #[test]
     fn unplottable_points_are_left_out_and_far_decades_use_powers() {
         let series = vec![Series {
             name: "s".into(),
@@ -509,6 +676,7 @@ pub(crate) mod tests {
             x_label: "wall time [s]",
             y_label: "e",
             series: &series,
+            references: &[],
         });
         check_xml(&doc);
         assert_eq!(polylines(&doc)[0].len(), 2);
@@ -523,6 +691,7 @@ pub(crate) mod tests {
             x_label: "x",
             y_label: "y",
             series: &series,
+            references: &[],
         });
         check_xml(&doc);
         assert_eq!(polylines(&doc), vec![Vec::<(f64, f64)>::new()]);
