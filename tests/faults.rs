@@ -222,6 +222,8 @@ fn full_disk_ends_cleanly_and_keeps_the_last_checkpoint() {
             std::fs::remove_dir_all(&out).unwrap();
         }
     }
+    drop(disk);
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A child process, killed (and reaped) if the test ends before it does.
@@ -325,6 +327,7 @@ fn second_run_on_a_locked_folder_is_refused() {
     assert_eq!(status.code(), Some(4));
     assert!(!out.join(LOCK).exists(), "released after SIGTERM");
     assert!(!common::files(&out, "checkpoint_").is_empty());
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A lock left by a killed run (this host, a pid that is gone) is taken over, and
@@ -376,6 +379,7 @@ fn stale_lock_is_taken_over() {
         "{err}"
     );
     assert!(out.join(LOCK).exists(), "another host's lock stays");
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A run in a folder that holds an earlier, unrelated run's checkpoints prunes only
@@ -434,6 +438,7 @@ fn pruning_deletes_only_this_runs_checkpoints() {
         "--quiet",
     ]);
     has(&[10, 20, 112, 119]);
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Run `mpmcg ARGS` on `ranks` ranks (its own process group), killed if it has not
@@ -519,6 +524,7 @@ fn absurd_intervals_are_refused() {
         err.contains("key `time.dt`") && err.contains("1.000e300 steps"),
         "{err}"
     );
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// SIGTERM ends a run within a step even when the scene writes a snapshot and a
@@ -527,7 +533,7 @@ fn absurd_intervals_are_refused() {
 /// intervals that used to make runs deaf to SIGTERM are refused above.)
 #[test]
 fn sigterm_is_honoured_within_a_step_at_the_highest_output_rate() {
-    let dir = temp_dir("sigterm");
+    let dir = temp_dir("sigterm-busy");
     let scene = dir.join("busy.toml");
     // dt = 1e-3 and output.every = end / 1e6 = 1e-3: a snapshot every step.
     std::fs::write(
@@ -568,6 +574,7 @@ fn sigterm_is_honoured_within_a_step_at_the_highest_output_rate() {
     assert!(summary.contains("\"interrupted\""), "{summary}");
     assert_eq!(common::files(&out, "checkpoint_").len(), 1, "keep = 1");
     assert!(!out.join(LOCK).exists());
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Smaller faults, each with exit 2 and one clear message: a scene read from a device
@@ -675,6 +682,7 @@ fn small_input_faults_end_with_exit_2() {
         assert!(lines[0].contains("key `name`") && lines[0].contains("more bytes)"));
         assert!(lines[0].len() < 1200, "{} bytes", lines[0].len());
     }
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The pids of `parent`'s children whose environment says they are MPI rank `rank`.
@@ -774,6 +782,7 @@ fn killed_rank_ends_the_job_and_leaves_a_stale_lock() {
         String::from_utf8_lossy(&o.stderr)
     );
     assert!(!out.join(LOCK).exists());
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `cmd` run under `ulimit -f KB` (a file size limit: works without root).
@@ -839,4 +848,5 @@ fn file_size_limit_ends_cleanly() {
         let left = names(&out);
         assert_eq!(left, ["history.csv"], "no partial file, no lock");
     }
+    let _ = std::fs::remove_dir_all(&dir);
 }
