@@ -7,11 +7,13 @@
 //! A checkpoint is written as `OUT/.checkpoint_NNNNNN.h5.tmp`, closed by every rank,
 //! flushed to disk and only then renamed to `OUT/checkpoint_NNNNNN.h5` by rank 0, so a
 //! crash during a write leaves the previous checkpoints intact. Then the oldest
-//! checkpoints beyond `keep` are deleted.
+//! checkpoints beyond `keep` of this run's [`Lineage`] are deleted.
 //!
 //! # Format (version 3)
 //!
-//! Root attributes: `format` = "mpmcg-checkpoint", `version` = 3, `dim`, `step`,
+//! Root attributes: `format` = "mpmcg-checkpoint", `version` = 3, `lineage` (the id
+//! of the run and its restarts; pruning deletes only checkpoints of its own lineage),
+//! `dim`, `step`,
 //! `time`, `dt`, `max_speed` (fastest signal speed over all ranks after the step; the
 //! next step size follows from it), `ranks` and `blocks` (the writer's process grid),
 //! `cells`, `particles` (total), `record_width`, `carries_def_grad`, `carries_x0`,
@@ -36,7 +38,7 @@
 //! chunks and keeps those in its cells: O(N) reading per rank, fine for the sizes of a
 //! few nodes but not for thousands of ranks.
 
-use crate::io::{self, h5err, Entry, IoError, Writer};
+use crate::io::{self, h5err, lockstep, Entry, IoError, Writer};
 use crate::particles::{Carries, Particles};
 use crate::shape::Geom;
 use crate::solver::{Solver, Totals};
@@ -119,6 +121,9 @@ pub struct Header {
     pub ranks: usize,
     pub blocks: Vec<usize>,
     pub particles: u64,
+    /// The run (and its restarts) that wrote it; `None` in checkpoints from before
+    /// the attribute existed.
+    pub lineage: Option<String>,
 }
 
 fn totals_vec(t: &Totals) -> Vec<f64> {
@@ -210,7 +215,7 @@ pub fn write<const D: usize>(
     solver: &Solver<D>,
     run: &RunState,
     scene_text: &str,
-    keep: usize,
+    lineage: &mut Lineage,
 ) -> Result<PathBuf, IoError> {
     let step = solver.step;
     let tmp = out.join(temp_name(step));
@@ -230,38 +235,47 @@ pub fn write<const D: usize>(
 
     let file = io::create(comm, &tmp)?;
     let result = (|| -> Result<(), IoError> {
-        let e = |e: hdf5::Error| h5err(&tmp, e);
+        // Every step agreed over all ranks (see `io::lockstep`).
+        let e = |r: hdf5::Result<()>| lockstep(comm, r.map_err(|e| h5err(&tmp, e)));
         let format: VarLenUnicode = FORMAT.parse().expect("ASCII");
-        file.new_attr::<VarLenUnicode>()
+        e(file
+            .new_attr::<VarLenUnicode>()
             .create("format")
-            .and_then(|a| a.write_scalar(&format))
-            .map_err(e)?;
+            .and_then(|a| a.write_scalar(&format)))?;
         let u = |name: &str, v: u64| {
-            file.new_attr::<u64>()
+            e(file
+                .new_attr::<u64>()
                 .create(name)
-                .and_then(|a| a.write_scalar(&v))
-                .map_err(e)
+                .and_then(|a| a.write_scalar(&v)))
         };
         let f = |name: &str, v: f64| {
-            file.new_attr::<f64>()
+            e(file
+                .new_attr::<f64>()
                 .create(name)
-                .and_then(|a| a.write_scalar(&v))
-                .map_err(e)
+                .and_then(|a| a.write_scalar(&v)))
         };
         let fs = |name: &str, v: &[f64]| {
-            file.new_attr_builder()
+            e(file
+                .new_attr_builder()
                 .with_data(v)
                 .create(name)
-                .map(|_| ())
-                .map_err(e)
+                .map(|_| ()))
         };
         let us = |name: &str, v: &[u64]| {
-            file.new_attr_builder()
+            e(file
+                .new_attr_builder()
                 .with_data(v)
                 .create(name)
-                .map(|_| ())
-                .map_err(e)
+                .map(|_| ()))
         };
+        let id: VarLenUnicode = lineage
+            .id
+            .parse()
+            .map_err(|_| IoError(format!("{}: lineage id is not text", tmp.display())))?;
+        e(file
+            .new_attr::<VarLenUnicode>()
+            .create("lineage")
+            .and_then(|a| a.write_scalar(&id)))?;
         u("version", VERSION)?;
         u("dim", D as u64)?;
         u("step", step)?;
@@ -305,6 +319,7 @@ pub fn write<const D: usize>(
             buf.extend_from_slice(&rec);
         }
         let rows = Writer {
+            comm,
             file: &file,
             path: &tmp,
             offset,
@@ -314,16 +329,15 @@ pub fn write<const D: usize>(
         rows.floats("particles", &buf, width)?;
         drop(buf);
         crash_for_tests(step);
-        file.dataset("particles")
-            .and_then(|ds| {
-                let cols: VarLenUnicode = columns(D, carries).parse().expect("ASCII");
-                ds.new_attr::<VarLenUnicode>()
-                    .create("columns")
-                    .and_then(|a| a.write_scalar(&cols))
-            })
-            .map_err(e)?;
+        e(file.dataset("particles").and_then(|ds| {
+            let cols: VarLenUnicode = columns(D, carries).parse().expect("ASCII");
+            ds.new_attr::<VarLenUnicode>()
+                .create("columns")
+                .and_then(|a| a.write_scalar(&cols))
+        }))?;
         // One value per writer rank.
         let per_rank = Writer {
+            comm,
             file: &file,
             path: &tmp,
             offset: comm.rank() as u64,
@@ -335,6 +349,7 @@ pub fn write<const D: usize>(
         per_rank.u64s("checksum", &[hash])?;
         // Data rank 0 writes alone (the others take part with empty selections).
         let only_root = |len: usize| Writer {
+            comm,
             file: &file,
             path: &tmp,
             offset: 0,
@@ -344,6 +359,7 @@ pub fn write<const D: usize>(
         let pick = |b: &[u8]| if root { b.to_vec() } else { Vec::new() };
         only_root(scene_text.len()).bytes("scene", &pick(scene_text.as_bytes()))?;
         let hist = Writer {
+            comm,
             file: &file,
             path: &tmp,
             offset: 0,
@@ -361,18 +377,17 @@ pub fn write<const D: usize>(
         only_root(k).u64s("snapshot_particles", &mine(counts))?;
         Ok(())
     })();
-    // Closing is collective: after it every rank's rows are in the file.
-    drop(file);
-    let failed = result.as_ref().err().map(|e| e.0.clone());
-    if let Some(m) = agree(comm, failed) {
-        if root {
-            let _ = std::fs::remove_file(&tmp);
-        }
-        return Err(IoError(m));
-    }
+    // Closing is collective: after it every rank's rows are in the file. On failure
+    // the partial file is gone and the earlier checkpoints are untouched.
+    io::close(comm, file, &tmp, result).map_err(|e| {
+        IoError(format!(
+            "cannot write checkpoint {}: {e}; its partial file is deleted",
+            path.display()
+        ))
+    })?;
     // Rank 0 makes the complete file durable, then gives it its name.
     let renamed = if root {
-        finish(&tmp, &path, out, keep).err()
+        finish(&tmp, &path, lineage).err()
     } else {
         None
     };
@@ -393,37 +408,105 @@ fn crash_for_tests(step: u64) {
 }
 
 /// Rank 0: fsync the temporary file, rename it, fsync the folder, delete old ones.
-fn finish(tmp: &Path, path: &Path, out: &Path, keep: usize) -> Result<(), String> {
+fn finish(tmp: &Path, path: &Path, lineage: &mut Lineage) -> Result<(), String> {
     let io = |p: &Path, e: std::io::Error| format!("{}: {e}", p.display());
-    std::fs::File::open(tmp)
+    // A file system may report a full disk only when the data is flushed: then the
+    // temporary file goes too.
+    let renamed = std::fs::File::open(tmp)
         .and_then(|f| f.sync_all())
-        .map_err(|e| io(tmp, e))?;
-    std::fs::rename(tmp, path).map_err(|e| io(path, e))?;
-    if let Ok(d) = std::fs::File::open(out) {
+        .map_err(|e| io(tmp, e))
+        .and_then(|()| std::fs::rename(tmp, path).map_err(|e| io(path, e)));
+    if let Err(m) = renamed {
+        let _ = std::fs::remove_file(tmp);
+        return Err(m);
+    }
+    if let Some(d) = path.parent().and_then(|d| std::fs::File::open(d).ok()) {
         let _ = d.sync_all();
     }
     let step = step_of(&path.file_name().unwrap_or_default().to_string_lossy()).unwrap_or(0);
-    prune(out, step, keep).map_err(|e| io(out, e))
+    lineage.prune(path, step).map_err(|(p, e)| io(&p, e))
 }
 
-/// Delete checkpoints in `out` older than the newest `keep` with step <= `step` (files of
-/// later steps, left by an earlier run of a restarted job, are not touched).
-fn prune(out: &Path, step: u64, keep: usize) -> std::io::Result<()> {
-    let mut found: Vec<(u64, PathBuf)> = Vec::new();
-    for e in std::fs::read_dir(out)? {
-        let e = e?;
-        if let Some(s) = step_of(&e.file_name().to_string_lossy()) {
-            if s <= step {
-                found.push((s, e.path()));
-            }
+/// The checkpoints one run and its restarts wrote (their attribute `lineage`), which
+/// are the only ones pruning deletes: an output folder may also hold checkpoints of an
+/// earlier, unrelated run, which are left alone. The list is kept on rank 0.
+#[derive(Debug, Clone)]
+pub struct Lineage {
+    /// Written into every checkpoint: the same on every rank.
+    pub id: String,
+    /// How many of the newest to keep.
+    pub keep: usize,
+    /// This lineage's checkpoints in the output folder, by step (rank 0).
+    ours: Vec<(u64, PathBuf)>,
+}
+
+impl Lineage {
+    /// A new lineage (a fresh run): host, pid and time make it unique.
+    pub fn fresh(keep: usize) -> Self {
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos());
+        Self::continued(
+            format!("{}-{}-{nanos}", crate::lock::hostname(), std::process::id()),
+            keep,
+        )
+    }
+
+    /// The lineage of the checkpoint a restart continues.
+    pub fn continued(id: String, keep: usize) -> Self {
+        Self {
+            id,
+            keep,
+            ours: Vec::new(),
         }
     }
-    found.sort();
-    let old = found.len().saturating_sub(keep);
-    for (_, p) in &found[..old] {
-        std::fs::remove_file(p)?;
+
+    /// Rank 0: adopt this lineage's checkpoints in `out` (after a restart, those of the
+    /// run it continues). Returns the names of the others, which are never deleted.
+    pub fn scan(&mut self, out: &Path) -> Vec<String> {
+        let mut others = Vec::new();
+        for e in std::fs::read_dir(out).into_iter().flatten().flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let Some(step) = step_of(&name) else { continue };
+            let id = hdf5::File::open(e.path()).ok().and_then(|f| lineage_of(&f));
+            if id.as_deref() == Some(self.id.as_str()) {
+                self.ours.push((step, e.path()));
+            } else {
+                others.push(name);
+            }
+        }
+        self.ours.sort();
+        others.sort();
+        others
     }
-    Ok(())
+
+    /// Rank 0: `path` (step `step`) was written; delete this lineage's checkpoints older
+    /// than the newest `keep` with step <= `step` (later ones, left by an earlier run of
+    /// a restarted job, are not touched).
+    fn prune(&mut self, path: &Path, step: u64) -> Result<(), (PathBuf, std::io::Error)> {
+        self.ours.retain(|(s, _)| *s != step);
+        self.ours.push((step, path.to_path_buf()));
+        self.ours.sort();
+        let older = self.ours.iter().filter(|(s, _)| *s <= step).count();
+        let drop = older.saturating_sub(self.keep);
+        let gone: Vec<(u64, PathBuf)> = self.ours.drain(..drop).collect();
+        for (_, p) in gone {
+            match std::fs::remove_file(&p) {
+                Ok(()) => {}
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+                Err(e) => return Err((p, e)),
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A checkpoint's `lineage` attribute.
+fn lineage_of(f: &hdf5::File) -> Option<String> {
+    f.attr("lineage")
+        .and_then(|a| a.read_scalar::<VarLenUnicode>())
+        .ok()
+        .map(|s| s.as_str().to_string())
 }
 
 /// Collective: `Some(message)` on every rank if any rank has an error; the message is
@@ -592,6 +675,7 @@ pub fn read_header(path: &Path) -> Result<Header, String> {
         ranks,
         blocks: blocks.iter().map(|&b| b as usize).collect(),
         particles: attr_u64(&f, path, "particles")?,
+        lineage: lineage_of(&f),
     })
 }
 

@@ -85,16 +85,40 @@ struct SweepArgs {
 }
 
 fn scene_error(e: &SceneError) -> ExitCode {
-    eprintln!("error: {e}");
+    if !launched_as_other_rank() {
+        eprintln!("error: {e}");
+    }
     ExitCode::from(2)
 }
+
+/// Whether the MPI launcher started this process as a rank other than 0 (read from
+/// the environment of Open MPI, MPICH/Intel MPI, PMIx and Slurm): errors found before
+/// MPI starts (usage, scene) are then left to rank 0, so that `mpirun -n 3` prints
+/// them once, not three times.
+fn launched_as_other_rank() -> bool {
+    [
+        "OMPI_COMM_WORLD_RANK",
+        "PMIX_RANK",
+        "PMI_RANK",
+        "SLURM_PROCID",
+    ]
+    .iter()
+    .find_map(|k| std::env::var(k).ok())
+    .and_then(|r| r.trim().parse::<u64>().ok())
+    .is_some_and(|r| r != 0)
+}
+
+/// The most threads per rank `--threads` may ask for.
+const MAX_THREADS: usize = 1024;
 
 pub fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
         Ok(c) => c,
         Err(e) => {
             let code = if e.use_stderr() { 2 } else { 0 };
-            let _ = e.print();
+            if !launched_as_other_rank() {
+                let _ = e.print();
+            }
             return ExitCode::from(code);
         }
     };
@@ -214,9 +238,9 @@ fn run_main(
     } else {
         std::thread::available_parallelism().map_or(1, |n| n.get())
     });
-    if threads == 0 {
+    if threads == 0 || threads > MAX_THREADS {
         if root {
-            eprintln!("error: --threads must be >= 1");
+            eprintln!("error: --threads must be between 1 and {MAX_THREADS} (threads per rank), got {threads}");
         }
         return ExitCode::from(2);
     }
@@ -273,6 +297,14 @@ fn run_main(
                     RunError::Unstable(_) => eprintln!("error: {e}; output in {dir}"),
                     _ => eprintln!("error: {e}"),
                 }
+            }
+            if crate::io::unclosed_file() {
+                // HDF5 holds a file it could not close: MPI_Finalize (via HDF5's
+                // clean-up callback) and HDF5's atexit handler would both crash on it.
+                // Every rank agreed on this and ends here, after the run has released
+                // the folder's lock and rank 0 has printed the message.
+                // SAFETY: _exit ends the process at once; nothing runs after it.
+                unsafe { libc::_exit(i32::from(e.exit_code())) };
             }
             ExitCode::from(e.exit_code())
         }

@@ -165,6 +165,52 @@ impl Snapshots {
         comm.sum_u64(&mut tot);
         let total = tot[0];
         let file = create(comm, &path)?;
+        let written = self.datasets(
+            comm,
+            &file,
+            &path,
+            parts,
+            materials,
+            (step, t),
+            offset,
+            total,
+        );
+        close(comm, file, &path, written)?;
+        // A restarted run may write a step again: replace its entry.
+        self.entries.retain(|e| e.step < step);
+        self.entries.push(Entry {
+            step,
+            time: t,
+            particles: total,
+        });
+        let xdmf = if comm.rank() == 0 {
+            self.write_xdmf().err()
+        } else {
+            None
+        };
+        // Rank 0 alone writes the index: let every rank know if that failed.
+        if comm.any(xdmf.is_some()) {
+            return Err(
+                xdmf.unwrap_or_else(|| IoError("writing particles.xmf failed on rank 0".into()))
+            );
+        }
+        Ok(())
+    }
+
+    /// The attributes and datasets of a snapshot, in lock-step over all ranks.
+    #[allow(clippy::too_many_arguments)]
+    fn datasets<const D: usize>(
+        &mut self,
+        comm: &dyn Communicator,
+        file: &hdf5::File,
+        path: &Path,
+        parts: &Particles<D>,
+        materials: &[Material],
+        (step, t): (u64, f64),
+        offset: u64,
+        total: u64,
+    ) -> Result<(), IoError> {
+        let n = parts.len() as u64;
         let a = file
             .new_attr::<f64>()
             .create("time")
@@ -173,11 +219,12 @@ impl Snapshots {
             .and_then(|a| a.write_scalar(&step))
             .and_then(|_| file.new_attr::<u64>().create("dim"))
             .and_then(|a| a.write_scalar(&(D as u64)));
-        a.map_err(|e| h5err(&path, e))?;
+        lockstep(comm, a.map_err(|e| h5err(path, e)))?;
 
         let w = Writer {
-            file: &file,
-            path: &path,
+            comm,
+            file,
+            path,
             offset,
             count: n,
             total,
@@ -192,7 +239,7 @@ impl Snapshots {
         self.ibuf.extend(parts.mat.iter().map(|&m| i64::from(m)));
         w.ints("material", &self.ibuf)?;
         // What the numbers mean: the names behind `material`, units, symmetry planes.
-        self.write_labels(&file).map_err(|e| h5err(&path, e))?;
+        lockstep(comm, self.write_labels(file).map_err(|e| h5err(path, e)))?;
         // The XDMF topology's connectivity (0..N-1, one vertex per particle): the
         // Xdmf3 readers, ParaView's default for `.xmf`, make no cells without it.
         self.ibuf.clear();
@@ -238,25 +285,6 @@ impl Snapshots {
                 Field::PlasticStrain => w.floats("plastic_strain", &parts.eps_p, 0)?,
                 Field::Damage => w.floats("damage", &parts.damage, 0)?,
             }
-        }
-        drop(file);
-        // A restarted run may write a step again: replace its entry.
-        self.entries.retain(|e| e.step < step);
-        self.entries.push(Entry {
-            step,
-            time: t,
-            particles: total,
-        });
-        let xdmf = if comm.rank() == 0 {
-            self.write_xdmf().err()
-        } else {
-            None
-        };
-        // Rank 0 alone writes the index: let every rank know if that failed.
-        if comm.any(xdmf.is_some()) {
-            return Err(
-                xdmf.unwrap_or_else(|| IoError("writing particles.xmf failed on rank 0".into()))
-            );
         }
         Ok(())
     }
@@ -370,7 +398,11 @@ impl Snapshots {
         let tmp = self.out.join(".particles.xmf.tmp");
         std::fs::write(&tmp, x)
             .and_then(|_| std::fs::rename(&tmp, &path))
-            .map_err(|e| IoError(format!("{}: {e}", path.display())))
+            .map_err(|e| {
+                // A full disk must not leave a half-written temporary file behind.
+                let _ = std::fs::remove_file(&tmp);
+                IoError(format!("{}: {e}", path.display()))
+            })
     }
 }
 
@@ -408,9 +440,113 @@ pub(crate) fn create(comm: &dyn Communicator, path: &Path) -> Result<hdf5::File,
     r.map_err(|e| h5err(path, e))
 }
 
+/// Collective: every rank's outcome of a step all ranks took, agreed over all ranks:
+/// `Err` on every rank if it failed on any, so that all ranks leave the write
+/// together. A rank where the step succeeded gets an empty message: the failure is
+/// another rank's, whose message [`close`] reports.
+pub(crate) fn lockstep<T>(comm: &dyn Communicator, r: Result<T, IoError>) -> Result<T, IoError> {
+    if !comm.any(r.is_err()) {
+        return r;
+    }
+    Err(r.err().unwrap_or_else(|| IoError(String::new())))
+}
+
+/// Collective: close a file every rank wrote, after `written` (each rank's outcome,
+/// agreed with [`lockstep`]). On failure the partial file is deleted and rank 0's
+/// message is the first failing rank's, with the operating system's reason.
+///
+/// HDF5 and MPI-IO report only that a write failed ("H5Dwrite failed"); the reason
+/// (a full disk, a quota, a file size limit, an I/O error) is found by writing to the
+/// file once more with plain file I/O. The partial file is then truncated before it is
+/// closed: closing flushes HDF5's metadata, which fails on a full disk and leaves the
+/// file open inside HDF5, whose clean-up at MPI_Finalize then crashes (HDF5 1.10).
+/// The truncation frees the file's blocks, so the few kilobytes of metadata fit.
+pub(crate) fn close(
+    comm: &dyn Communicator,
+    file: hdf5::File,
+    path: &Path,
+    written: Result<(), IoError>,
+) -> Result<(), IoError> {
+    let root = comm.rank() == 0;
+    // Metadata is written when the file is flushed: a full disk may fail here first.
+    let written = written.and_then(|()| {
+        lockstep(
+            comm,
+            file.flush()
+                .map_err(|e| IoError(format!("{}: flushing: {e}", path.display()))),
+        )
+    });
+    let failed = written.is_err();
+    let write_error = written.err().map(|e| e.0).filter(|m| !m.is_empty());
+    let mut cause = None;
+    if failed && root {
+        cause = os_cause(path);
+        let _ = std::fs::OpenOptions::new()
+            .write(true)
+            .open(path)
+            .and_then(|f| f.set_len(0));
+    }
+    // No rank closes (and writes metadata) before rank 0 has made room.
+    comm.any(false);
+    let closed = file
+        .close()
+        .map_err(|e| format!("{}: closing: {e}", path.display()));
+    // A file HDF5 failed to close stays open inside it (closing may still fail after
+    // the truncation: with a file size limit, HDF5's final MPI_File_set_size to its
+    // allocated size fails too), and HDF5's clean-up in MPI_Finalize then crashes on
+    // it. Every rank learns of it, and the process ends without finalising.
+    let close_failed = comm.any(closed.is_err());
+    if close_failed {
+        UNCLOSED.store(true, std::sync::atomic::Ordering::SeqCst);
+    }
+    // Both flags are agreed: every rank takes the same branches from here.
+    if !failed && !close_failed {
+        return Ok(());
+    }
+    if root {
+        if cause.is_none() {
+            cause = os_cause(path);
+        }
+        let _ = std::fs::remove_file(path);
+    }
+    // The first failure is the one to report: a failed write before the failed close
+    // it causes.
+    let m = crate::checkpoint::agree(comm, write_error)
+        .or_else(|| crate::checkpoint::agree(comm, closed.err()))
+        .unwrap_or_else(|| format!("{}: writing failed", path.display()));
+    Err(IoError(match cause {
+        Some(c) if root => format!("{m}: {c}"),
+        _ => m,
+    }))
+}
+
+/// Set when HDF5 failed to close a file (see [`close`]).
+static UNCLOSED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Whether HDF5 failed to close a file: the process must then end without
+/// `MPI_Finalize` and without HDF5's exit handler, both of which would crash on it.
+pub fn unclosed_file() -> bool {
+    UNCLOSED.load(std::sync::atomic::Ordering::SeqCst)
+}
+
+/// Why writing `path` fails, as the operating system says it: append 64 KiB and sync.
+/// `None` if that works (the cause was something else, or has gone).
+fn os_cause(path: &Path) -> Option<std::io::Error> {
+    use std::io::Write;
+    let probe = std::fs::OpenOptions::new()
+        .append(true)
+        .open(path)
+        .and_then(|mut f| f.write_all(&[0u8; 1 << 16]).and_then(|_| f.sync_data()));
+    probe.err()
+}
+
 /// Collective writes of this rank's rows `[offset, offset + count)` of datasets with
-/// `total` rows.
+/// `total` rows. Every dataset ends with an agreement over all ranks ([`lockstep`]):
+/// with collective MPI-IO only the aggregating ranks touch the disk, so a full disk
+/// fails the write on some ranks and not on others, and a rank that went on alone
+/// would wait for ever in the next collective call.
 pub(crate) struct Writer<'a> {
+    pub comm: &'a dyn Communicator,
     pub file: &'a hdf5::File,
     pub path: &'a Path,
     pub offset: u64,
@@ -420,27 +556,21 @@ pub(crate) struct Writer<'a> {
 
 impl Writer<'_> {
     pub fn u64s(&self, name: &str, data: &[u64]) -> Result<(), IoError> {
-        let ds = self
+        let r = self
             .file
             .new_dataset::<u64>()
             .shape([self.total as usize])
-            .create(name)
-            .map_err(|e| h5err(self.path, e))?;
-        assert_eq!(data.len() as u64, self.count);
-        self.raw_write(&ds, data.as_ptr().cast(), 0, *h5t::H5T_NATIVE_UINT64)
-            .map_err(|m| IoError(format!("{}: writing {name}: {m}", self.path.display())))
+            .create(name);
+        self.write(name, r, data, 0, *h5t::H5T_NATIVE_UINT64)
     }
 
     pub fn bytes(&self, name: &str, data: &[u8]) -> Result<(), IoError> {
-        let ds = self
+        let r = self
             .file
             .new_dataset::<u8>()
             .shape([self.total as usize])
-            .create(name)
-            .map_err(|e| h5err(self.path, e))?;
-        assert_eq!(data.len() as u64, self.count);
-        self.raw_write(&ds, data.as_ptr().cast(), 0, *h5t::H5T_NATIVE_UINT8)
-            .map_err(|m| IoError(format!("{}: writing {name}: {m}", self.path.display())))
+            .create(name);
+        self.write(name, r, data, 0, *h5t::H5T_NATIVE_UINT8)
     }
 
     /// A dataset of `total × cols` values, or of `total` values if `cols == 0`.
@@ -450,37 +580,43 @@ impl Writer<'_> {
         } else {
             vec![self.total as usize, cols]
         };
-        let ds = self
-            .file
-            .new_dataset::<f64>()
-            .shape(shape)
-            .create(name)
-            .map_err(|e| h5err(self.path, e))?;
-        // The selection of `raw_write` covers `count × max(cols, 1)` elements.
-        assert_eq!(data.len() as u64, self.count * cols.max(1) as u64);
-        self.raw_write(&ds, data.as_ptr().cast(), cols, *h5t::H5T_NATIVE_DOUBLE)
-            .map_err(|m| IoError(format!("{}: writing {name}: {m}", self.path.display())))
+        let r = self.file.new_dataset::<f64>().shape(shape).create(name);
+        self.write(name, r, data, cols, *h5t::H5T_NATIVE_DOUBLE)
     }
 
     pub fn ints(&self, name: &str, data: &[i64]) -> Result<(), IoError> {
-        let ds = self
+        let r = self
             .file
             .new_dataset::<i64>()
             .shape([self.total as usize])
-            .create(name)
-            .map_err(|e| h5err(self.path, e))?;
-        assert_eq!(data.len() as u64, self.count);
-        self.raw_write(&ds, data.as_ptr().cast(), 0, *h5t::H5T_NATIVE_INT64)
-            .map_err(|m| IoError(format!("{}: writing {name}: {m}", self.path.display())))
+            .create(name);
+        self.write(name, r, data, 0, *h5t::H5T_NATIVE_INT64)
     }
 
-    /// Collective (with MPI-IO) write of this rank's rows `[offset, offset + count)`;
-    /// `cols == 0` means a 1-D dataset. A rank without rows takes part with an empty
-    /// selection.
-    fn raw_write(
+    /// Write a created dataset (unless its creation failed), then agree with the other
+    /// ranks on the outcome.
+    fn write<T: Copy>(
+        &self,
+        name: &str,
+        created: hdf5::Result<hdf5::Dataset>,
+        data: &[T],
+        cols: usize,
+        ty: hdf5_sys::h5i::hid_t,
+    ) -> Result<(), IoError> {
+        let r = created
+            .map_err(|e| e.to_string())
+            .and_then(|ds| self.raw_write(&ds, data, cols, ty))
+            .map_err(|m| IoError(format!("{}: writing `{name}`: {m}", self.path.display())));
+        lockstep(self.comm, r)
+    }
+
+    /// Collective (with MPI-IO) write of this rank's rows `[offset, offset + count)`
+    /// from `data`; `cols == 0` means a 1-D dataset. A rank without rows takes part with
+    /// an empty selection. `ty` is the HDF5 memory type of `T` (its size is checked).
+    fn raw_write<T: Copy>(
         &self,
         ds: &hdf5::Dataset,
-        ptr: *const std::ffi::c_void,
+        data: &[T],
         cols: usize,
         ty: hdf5_sys::h5i::hid_t,
     ) -> Result<(), String> {
@@ -489,48 +625,82 @@ impl Writer<'_> {
         } else {
             (vec![self.offset, 0], vec![self.count, cols as u64])
         };
+        // HDF5 reads `count × max(cols, 1)` values of `ty` from the buffer.
+        let values = self.count as usize * cols.max(1);
+        if data.len() != values {
+            return Err(format!("{} values for a selection of {values}", data.len()));
+        }
         let id = ds.id();
-        let parallel = matches!(
-            self.file.access_plist().map(|p| p.driver()),
-            Ok(hdf5::plist::file_access::FileDriver::Mpio(_))
-        );
+        // `create` opens files with MPI-IO exactly when there is an MPI communicator
+        // (asking the file instead duplicates the communicator, a collective call).
+        let parallel = self.comm.raw_mpi().is_some();
+        let check = |r: i64, what: &str| {
+            if r < 0 {
+                Err(format!("{what} failed"))
+            } else {
+                Ok(())
+            }
+        };
         hdf5::sync::sync(|| {
-            // SAFETY: every id is created here and closed before returning; the memory
-            // space has exactly `count` rows of `cols` values, matching the caller's buffer.
+            // SAFETY: `ty` is a type id whose size is checked to be that of `T`, so the
+            // `values` elements HDF5 reads from `data` (checked above) lie inside it;
+            // every other id is created here and closed by its `Owned` guard.
             unsafe {
-                let fspace = h5d::H5Dget_space(id);
-                if fspace < 0 {
-                    return Err("no dataspace".to_string());
+                let size = h5t::H5Tget_size(ty);
+                if size != std::mem::size_of::<T>() {
+                    return Err(format!(
+                        "memory type of {size} bytes for values of {}",
+                        std::mem::size_of::<T>()
+                    ));
                 }
-                let dxpl = h5p::H5Pcreate(*h5p::H5P_CLS_DATASET_XFER);
+                let fspace = Owned(h5d::H5Dget_space(id), h5s::H5Sclose);
+                check(fspace.0, "H5Dget_space")?;
+                let dxpl = Owned(h5p::H5Pcreate(*h5p::H5P_CLS_DATASET_XFER), h5p::H5Pclose);
+                check(dxpl.0, "H5Pcreate")?;
                 if parallel {
-                    h5p::H5Pset_dxpl_mpio(dxpl, h5p::H5FD_mpio_xfer_t::H5FD_MPIO_COLLECTIVE);
+                    let r =
+                        h5p::H5Pset_dxpl_mpio(dxpl.0, h5p::H5FD_mpio_xfer_t::H5FD_MPIO_COLLECTIVE);
+                    check(r.into(), "H5Pset_dxpl_mpio")?;
                 }
-                let mspace =
-                    h5s::H5Screate_simple(count.len() as i32, count.as_ptr(), std::ptr::null());
+                let mspace = Owned(
+                    h5s::H5Screate_simple(count.len() as i32, count.as_ptr(), std::ptr::null()),
+                    h5s::H5Sclose,
+                );
+                check(mspace.0, "H5Screate_simple")?;
                 if self.count == 0 {
-                    h5s::H5Sselect_none(fspace);
-                    h5s::H5Sselect_none(mspace);
+                    check(h5s::H5Sselect_none(fspace.0).into(), "H5Sselect_none")?;
+                    check(h5s::H5Sselect_none(mspace.0).into(), "H5Sselect_none")?;
                 } else {
-                    h5s::H5Sselect_hyperslab(
-                        fspace,
+                    let r = h5s::H5Sselect_hyperslab(
+                        fspace.0,
                         h5s::H5S_seloper_t::H5S_SELECT_SET,
                         start.as_ptr(),
                         std::ptr::null(),
                         count.as_ptr(),
                         std::ptr::null(),
                     );
+                    check(r.into(), "H5Sselect_hyperslab")?;
                 }
-                let r = h5d::H5Dwrite(id, ty, mspace, fspace, dxpl, ptr);
-                h5s::H5Sclose(mspace);
-                h5s::H5Sclose(fspace);
-                h5p::H5Pclose(dxpl);
-                if r < 0 {
-                    Err("H5Dwrite failed".to_string())
-                } else {
-                    Ok(())
-                }
+                let r = h5d::H5Dwrite(id, ty, mspace.0, fspace.0, dxpl.0, data.as_ptr().cast());
+                check(r.into(), "H5Dwrite")
             }
         })
+    }
+}
+
+/// An HDF5 id, closed with its close function when dropped (ids < 0 are failures
+/// and not closed).
+struct Owned(
+    hdf5_sys::h5i::hid_t,
+    unsafe extern "C" fn(hdf5_sys::h5i::hid_t) -> hdf5_sys::h5::herr_t,
+);
+
+impl Drop for Owned {
+    fn drop(&mut self) {
+        if self.0 >= 0 {
+            // SAFETY: the id was returned by the HDF5 call that created it, is owned by
+            // this guard alone, and its close function is the one for its kind.
+            unsafe { (self.1)(self.0) };
+        }
     }
 }

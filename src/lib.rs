@@ -12,6 +12,7 @@ pub mod cli;
 pub mod gradient;
 pub mod io;
 pub mod kernel;
+pub mod lock;
 pub mod material;
 pub mod particles;
 pub mod progress;

@@ -251,8 +251,14 @@ impl History {
     }
 }
 
-/// The solver and, after a restart, the run state and where it came from.
-type SetUp<'c, const D: usize> = (Solver<'c, D>, Option<RunState>, Option<RestartSummary>);
+/// The solver and, after a restart, the run state, where it came from and the
+/// checkpoint's lineage.
+type SetUp<'c, const D: usize> = (
+    Solver<'c, D>,
+    Option<RunState>,
+    Option<RestartSummary>,
+    Option<String>,
+);
 
 /// A fresh solver, or one continuing from `opts.restart` (every rank agrees on errors).
 fn set_up<'c, const D: usize>(
@@ -262,7 +268,7 @@ fn set_up<'c, const D: usize>(
     opts: &RunOptions,
 ) -> Result<SetUp<'c, D>, RunError> {
     let Some(path) = &opts.restart else {
-        return Ok((Solver::new(scene, comm, layout.clone()), None, None));
+        return Ok((Solver::new(scene, comm, layout.clone()), None, None, None));
     };
     let geom = Solver::<D>::geometry(scene);
     let carries = crate::particles::Carries::for_scene(scene);
@@ -273,6 +279,16 @@ fn set_up<'c, const D: usize>(
         return Err(RunError::Input(m));
     }
     let (header, restored) = r.expect("agreed: no rank failed");
+    // Every rank read the same header, so every rank decides alike.
+    if header.time >= scene.time.end {
+        return Err(RunError::Input(format!(
+            "time.end = {:e} is not after the time of checkpoint {} (t = {:e}, step {}): nothing to run; restart with a scene whose time.end is later",
+            scene.time.end,
+            path.display(),
+            header.time,
+            header.step
+        )));
+    }
     let mut count = [restored.parts.len() as u64];
     comm.sum_u64(&mut count);
     if count[0] != header.particles {
@@ -306,7 +322,7 @@ fn set_up<'c, const D: usize>(
             _ => f64::INFINITY,
         };
     }
-    Ok((solver, Some(run), Some(info)))
+    Ok((solver, Some(run), Some(info), header.lineage))
 }
 
 fn run_dim<const D: usize>(
@@ -326,13 +342,50 @@ fn run_dim<const D: usize>(
     if let Some(m) = checkpoint::agree(comm, made) {
         return Err(RunError::Io(m));
     }
+    // One run at a time in a folder; the lock goes when `_lock` is dropped, on every
+    // path out of this function.
+    let (_lock, locked) = match root.then(|| crate::lock::acquire(&opts.out)) {
+        Some(Ok(l)) => (Some(l), None),
+        Some(Err(e)) => (None, Some(e)),
+        None => (None, None),
+    };
+    let held = matches!(locked, Some(crate::lock::LockError::Held(_)));
+    let message = locked.map(|e| match e {
+        crate::lock::LockError::Held(m) | crate::lock::LockError::Io(m) => m,
+    });
+    if let Some(m) = checkpoint::agree(comm, message) {
+        return Err(if comm.any(held) {
+            RunError::Input(m)
+        } else {
+            RunError::Io(m)
+        });
+    }
     let scene_text = match &opts.scene_text {
         Some(t) => t.clone(),
         None => toml::to_string(scene).unwrap_or_default(),
     };
     let schedule = scene.checkpoint.as_ref().map(|c| c.schedule());
     let keep = scene.checkpoint.as_ref().map_or(2, |c| c.keep);
-    let (mut solver, restored, restarted_from) = set_up::<D>(scene, comm, &layout, opts)?;
+    let (mut solver, restored, restarted_from, stored) = set_up::<D>(scene, comm, &layout, opts)?;
+    // Pruning deletes only checkpoints of this run and the runs it continues.
+    let id = match stored {
+        Some(id) => id,
+        None => {
+            let fresh = checkpoint::Lineage::fresh(keep).id;
+            String::from_utf8_lossy(&comm.broadcast_bytes(fresh.as_bytes())).into_owned()
+        }
+    };
+    let mut lineage = checkpoint::Lineage::continued(id, keep);
+    if root {
+        let others = lineage.scan(&opts.out);
+        if let (Some(first), Some(last)) = (others.first(), others.last()) {
+            eprintln!(
+                "warning: {} holds {} checkpoint(s) of another run ({first} ... {last}); this run does not delete them",
+                opts.out.display(),
+                others.len()
+            );
+        }
+    }
     let has_bench = solver.benchmark.is_some();
     let diag_dt = scene.time.end / 1000.0;
 
@@ -502,7 +555,8 @@ fn run_dim<const D: usize>(
                 output_seconds.snapshots += t0.elapsed().as_secs_f64();
                 // k·every by one multiplication: a sum of intervals would drift.
                 while st.next_snapshot <= solver.t + 1e-3 * solver.dt {
-                    st.next_snapshot = ((st.next_snapshot / *every).round() + 1.0) * *every;
+                    let next = ((st.next_snapshot / *every).round() + 1.0) * *every;
+                    st.next_snapshot = past(st.next_snapshot, next, solver.t, *every);
                 }
             }
         }
@@ -518,7 +572,8 @@ fn run_dim<const D: usize>(
         if due && !solver.done() {
             if let Some(CheckpointEvery::Time(every)) = schedule {
                 while st.next_checkpoint <= solver.t + 1e-3 * solver.dt {
-                    st.next_checkpoint += every;
+                    let next = st.next_checkpoint + every;
+                    st.next_checkpoint = past(st.next_checkpoint, next, solver.t, every);
                 }
             }
             history.flush();
@@ -527,7 +582,8 @@ fn run_dim<const D: usize>(
                 .as_ref()
                 .map_or_else(Vec::new, |(sn, _)| sn.entries().to_vec());
             let t0 = Instant::now();
-            let written = checkpoint::write(comm, &opts.out, &solver, &st, &scene_text, keep);
+            let written =
+                checkpoint::write(comm, &opts.out, &solver, &st, &scene_text, &mut lineage);
             output_seconds.checkpoints += t0.elapsed().as_secs_f64();
             history.text = std::mem::take(&mut st.history);
             last_checkpoint = Some(written.map_err(|e| RunError::Io(e.to_string()))?);
@@ -568,7 +624,8 @@ fn run_dim<const D: usize>(
                 .map_or_else(Vec::new, |(sn, _)| sn.entries().to_vec());
             st.snapshots.retain(|e| e.step <= rescue.solver.step);
             let t0 = Instant::now();
-            let written = checkpoint::write(comm, &opts.out, &solver, &st, &scene_text, keep);
+            let written =
+                checkpoint::write(comm, &opts.out, &solver, &st, &scene_text, &mut lineage);
             output_seconds.checkpoints += t0.elapsed().as_secs_f64();
             history.text = std::mem::take(&mut st.history);
             last_checkpoint = Some(written.map_err(|e| RunError::Io(e.to_string()))?);
@@ -674,9 +731,16 @@ fn run_dim<const D: usize>(
     if root && written.is_none() {
         let path = opts.out.join("summary.json");
         let text = serde_json::to_string_pretty(&summary).expect("summary serialises");
-        written = std::fs::write(&path, text + "\n")
+        // Via a temporary file: a full disk leaves the previous summary (or none), never
+        // a truncated one.
+        let tmp = opts.out.join(".summary.json.tmp");
+        written = std::fs::write(&tmp, text + "\n")
+            .and_then(|()| std::fs::rename(&tmp, &path))
             .err()
-            .map(|e| format!("{}: {e}", path.display()));
+            .map(|e| {
+                let _ = std::fs::remove_file(&tmp);
+                format!("{}: {e}", path.display())
+            });
     }
     // No rank leaves before rank 0 has written everything: mpirun ends the whole job
     // as soon as one rank exits with a non-zero status.
@@ -687,6 +751,18 @@ fn run_dim<const D: usize>(
         (Some(_), _) => Err(RunError::Unstable(message.unwrap_or_default())),
         (None, 0) => Ok(summary),
         (None, _) => Err(RunError::Interrupted(message.unwrap_or_default())),
+    }
+}
+
+/// The next output time `next` after `last` on a grid of `every`, or, where `every`
+/// is too small against the time to advance it in floating point (scene validation
+/// bounds the number of outputs, so only a hand-made checkpoint gets here), the first
+/// representable time after `t`: the schedule loops always end.
+fn past(last: f64, next: f64, t: f64, every: f64) -> f64 {
+    if next > last {
+        next
+    } else {
+        (t + every).max(t.next_up())
     }
 }
 

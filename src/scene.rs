@@ -4,6 +4,7 @@
 
 use serde::{Deserialize, Serialize};
 use std::fmt;
+use std::io::Read;
 use std::path::Path;
 
 /// The built-in scene `mpmcg run` uses when no scene file is given.
@@ -396,6 +397,9 @@ impl fmt::Display for SceneError {
 
 impl std::error::Error for SceneError {}
 
+/// The most bytes of a message's key or text (which quote the input) printed.
+const MAX_QUOTE: usize = 1000;
+
 /// 1-based line and column (in characters) of a byte offset.
 fn line_col(text: &str, offset: usize) -> (usize, usize) {
     let mut offset = offset.min(text.len());
@@ -410,8 +414,13 @@ fn line_col(text: &str, offset: usize) -> (usize, usize) {
 
 /// Escapes control characters (newlines included) so that a message stays on one line.
 fn one_line(s: &str) -> String {
-    let mut out = String::with_capacity(s.len());
-    for c in s.chars() {
+    let mut out = String::with_capacity(s.len().min(MAX_QUOTE + 64));
+    for (i, c) in s.char_indices() {
+        // Messages quote the input, which may be megabytes on one line.
+        if out.len() >= MAX_QUOTE {
+            out += &format!("... ({} more bytes)", s.len() - i);
+            break;
+        }
         if c.is_control() {
             out.extend(c.escape_default());
         } else {
@@ -797,15 +806,30 @@ pub fn parse(text: &str, file: &str) -> Result<Scene, SceneError> {
     Ok(scene)
 }
 
+/// The largest scene file read.
+pub const MAX_SCENE_BYTES: u64 = 16 << 20;
+
 /// Read, parse and validate a scene file.
 pub fn load(path: &Path) -> Result<(Scene, String), SceneError> {
     let file = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|e| SceneError {
+    let fail = |message: String| SceneError {
         file: file.clone(),
         key: None,
         line_col: None,
-        message: format!("cannot read the scene file: {e}"),
-    })?;
+        message,
+    };
+    // At most MAX_SCENE_BYTES (+1 to notice more): `/dev/zero` or a huge file given by
+    // mistake must not be read without end.
+    let mut bytes = Vec::new();
+    std::fs::File::open(path)
+        .and_then(|f| f.take(MAX_SCENE_BYTES + 1).read_to_end(&mut bytes))
+        .map_err(|e| fail(format!("cannot read the scene file: {e}")))?;
+    if bytes.len() as u64 > MAX_SCENE_BYTES {
+        return Err(fail(format!(
+            "larger than {} MiB: not a scene file (a scene is a short TOML text)",
+            MAX_SCENE_BYTES >> 20
+        )));
+    }
     let text = String::from_utf8(bytes).map_err(|e| {
         let n = e.utf8_error().valid_up_to();
         let valid = std::str::from_utf8(&e.as_bytes()[..n]).unwrap_or_default();
@@ -860,6 +884,28 @@ const MAX_GRID_NODES: u64 = 1 << 40;
 /// Grid field bytes per node of a 3D MPMCG run (scatter record, velocities, σ̄/L̄,
 /// fill, weight and volume), for the message above.
 const BYTES_PER_NODE: u64 = 8 * (1 + 6 + 9 + 1 + 6 + 9 + 3);
+
+/// The most snapshots or time-interval checkpoints a scene may ask for over its run:
+/// each is a file, and an interval far below the step size makes every step write one.
+pub const MAX_OUTPUTS: f64 = 1e6;
+/// The most steps a fixed `time.dt` may ask for.
+pub const MAX_STEPS: f64 = 1e12;
+
+/// An output interval gives at most [`MAX_OUTPUTS`] outputs up to `end`.
+fn interval(key: &str, every: f64, end: f64, what: &str) -> Result<(), Invalid> {
+    positive(key, every)?;
+    let n = end / every;
+    if n > MAX_OUTPUTS {
+        return Err((
+            key.into(),
+            format!(
+                "{every:e} would write {n:.3e} {what} up to time.end = {end:e}; at most {MAX_OUTPUTS:e} (an interval >= {:.3e})",
+                end / MAX_OUTPUTS
+            ),
+        ));
+    }
+    Ok(())
+}
 
 /// A scene name is a plain file name (it names the output folder).
 fn plain_name(name: &str) -> Result<(), Invalid> {
@@ -922,7 +968,19 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
                 return Err(("time.cfl".into(), format!("must be <= 1, got {c}")));
             }
         }
-        (None, Some(dt)) => positive("time.dt", dt)?,
+        (None, Some(dt)) => {
+            positive("time.dt", dt)?;
+            let n = s.time.end / dt;
+            if n > MAX_STEPS {
+                return Err((
+                    "time.dt".into(),
+                    format!(
+                        "{dt:e} makes {n:.3e} steps up to time.end = {:e}; at most {MAX_STEPS:e}",
+                        s.time.end
+                    ),
+                ));
+            }
+        }
         (None, None) => {}
     }
     finite("method.flip", s.method.flip)?;
@@ -1213,7 +1271,7 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
             }
         }
         if let Some(every) = o.every {
-            positive("output.every", every)?;
+            interval("output.every", every, s.time.end, "snapshots")?;
         }
         for (i, f) in o.fields.iter().flatten().enumerate() {
             let needs = match f {
@@ -1262,7 +1320,7 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
             }
         }
         if let Some(t) = c.every {
-            positive("checkpoint.every", t)?;
+            interval("checkpoint.every", t, s.time.end, "checkpoints")?;
         }
         if c.every_steps == Some(0) {
             return Err((

@@ -28,6 +28,11 @@ extern "C" fn on_signal(sig: libc::c_int) {
 /// Install the handlers for SIGTERM, SIGINT and SIGUSR1 (with SA_RESTART, so that
 /// interrupted system calls in MPI and HDF5 resume).
 pub fn install() -> Result<(), String> {
+    // A file size limit (`ulimit -f`) would kill the process with SIGXFSZ in the middle
+    // of a collective write; ignored, the write fails with EFBIG, which the run reports
+    // (exit 1, naming the file) like any other I/O error.
+    // SAFETY: setting a signal's disposition to SIG_IGN installs no code.
+    unsafe { libc::signal(libc::SIGXFSZ, libc::SIG_IGN) };
     for sig in [libc::SIGTERM, libc::SIGINT, libc::SIGUSR1] {
         // SAFETY: a zeroed sigaction is valid; the handler only touches atomics and
         // calls _exit, both async-signal-safe.

@@ -4,16 +4,31 @@
 
 mod common;
 use common::temp_dir;
+use std::path::{Path, PathBuf};
 use std::process::Output;
+use std::time::{Duration, Instant};
 
-const BIN: &str = env!("CARGO_BIN_EXE_mpmcg");
+const LOCK: &str = "mpmcg.lock";
+
+/// The binary under test: this build's, or `MPMCG_TEST_BIN` (to show that a case
+/// fails on another build, e.g. one from before its fix).
+fn bin() -> String {
+    std::env::var("MPMCG_TEST_BIN").unwrap_or_else(|_| env!("CARGO_BIN_EXE_mpmcg").into())
+}
 
 /// Run `mpmcg ARGS` on `ranks` ranks (1: no mpirun).
 fn mpmcg(ranks: usize, args: &[&str]) -> Output {
     if ranks == 1 {
-        std::process::Command::new(BIN).args(args).output().unwrap()
+        std::process::Command::new(bin())
+            .args(args)
+            .output()
+            .unwrap()
     } else {
-        common::mpirun(ranks).arg(BIN).args(args).output().unwrap()
+        common::mpirun(ranks)
+            .arg(bin())
+            .args(args)
+            .output()
+            .unwrap()
     }
 }
 
@@ -54,5 +69,784 @@ fn overflowing_velocity_ends_as_unstable() {
         );
         let summary = std::fs::read_to_string(out.join("summary.json")).unwrap();
         assert!(summary.contains("\"unstable\""), "{summary}");
+        assert!(
+            !out.join(LOCK).exists(),
+            "the lock is released after exit 3"
+        );
     }
+}
+
+/// The default scene, shortened to `end`, with `extra` tables appended.
+fn short_scene(end: f64, extra: &str) -> String {
+    let text =
+        include_str!("../inputs/default.toml").replacen("end = 3.0", &format!("end = {end}"), 1);
+    assert!(text.contains(&format!("end = {end}")));
+    format!("{text}\n{extra}\n")
+}
+
+fn is_root() -> bool {
+    std::process::Command::new("id")
+        .arg("-u")
+        .output()
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
+        .unwrap_or(false)
+}
+
+/// A size-limited tmpfs, unmounted when dropped (also when a test panics).
+struct SmallDisk(PathBuf);
+
+impl SmallDisk {
+    /// `None` (with the reason printed) when this process may not mount.
+    fn mount(dir: &Path, size: &str) -> Option<Self> {
+        if !is_root() {
+            eprintln!("skipped: mounting a small tmpfs needs root");
+            return None;
+        }
+        std::fs::create_dir_all(dir).unwrap();
+        let o = std::process::Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
+            .arg(dir)
+            .output()
+            .unwrap();
+        if !o.status.success() {
+            eprintln!(
+                "skipped: cannot mount a tmpfs: {}",
+                String::from_utf8_lossy(&o.stderr)
+            );
+            return None;
+        }
+        Some(Self(dir.to_path_buf()))
+    }
+}
+
+impl Drop for SmallDisk {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount").arg(&self.0).status();
+    }
+}
+
+fn names(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+/// A disk that fills up while checkpoints (and, in a second scene, snapshots) are
+/// written: on 1 rank this used to segfault at MPI_Finalize (HDF5 closing a file it had
+/// failed to flush), on 2 ranks to hang (the aggregating rank failed alone), and to
+/// leave the `.tmp` file, with "H5Dwrite failed" as the only reason. Now every rank
+/// ends promptly with exit 1 and one message naming the file and the OS's reason, no
+/// partial file is left, and the newest checkpoint left restarts.
+#[test]
+fn full_disk_ends_cleanly_and_keeps_the_last_checkpoint() {
+    let dir = temp_dir("full-disk");
+    // 200 KiB hold about three 56 KiB checkpoints or snapshots; the scenes write 25.
+    let Some(disk) = SmallDisk::mount(&dir.join("disk"), "200k") else {
+        return;
+    };
+    let checkpoints = dir.join("checkpoints.toml");
+    std::fs::write(
+        &checkpoints,
+        short_scene(
+            0.5,
+            "[output]\nsnapshots = false\n[checkpoint]\nevery_steps = 20\nkeep = 5",
+        ),
+    )
+    .unwrap();
+    let snapshots = dir.join("snapshots.toml");
+    std::fs::write(&snapshots, short_scene(0.5, "[output]\nevery = 0.02")).unwrap();
+    for ranks in [1, 2] {
+        for (scene, file) in [(&checkpoints, "checkpoint_"), (&snapshots, "particles_")] {
+            let out = disk.0.join(format!("out{ranks}"));
+            let start = Instant::now();
+            let o = mpmcg(
+                ranks,
+                &[
+                    "run",
+                    scene.to_str().unwrap(),
+                    "--out",
+                    out.to_str().unwrap(),
+                    "--quiet",
+                ],
+            );
+            let err = String::from_utf8_lossy(&o.stderr);
+            let what = format!("{ranks} rank(s), {file}: {err}");
+            assert!(start.elapsed() < Duration::from_secs(60), "no hang: {what}");
+            assert_eq!(o.status.code(), Some(1), "{what}");
+            let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+            assert_eq!(lines.len(), 1, "one message: {what}");
+            assert!(lines[0].contains("No space left on device"), "{what}");
+            assert!(
+                lines[0].contains(&format!("{}/{file}", out.display())),
+                "{what}"
+            );
+            let left = names(&out);
+            assert!(!left.iter().any(|n| n.ends_with(".tmp")), "{left:?}");
+            assert!(
+                !left.iter().any(|n| n == LOCK),
+                "the lock is released: {left:?}"
+            );
+            let bad = lines[0].split(file).nth(1).expect("a step")[..6].to_string();
+            assert!(
+                !left.contains(&format!("{file}{bad}.h5")),
+                "the partial file {file}{bad}.h5 is deleted: {left:?}"
+            );
+            if file == "checkpoint_" {
+                // The newest checkpoint left is complete: a run continues from it.
+                let last = common::files(&out, "checkpoint_")
+                    .pop()
+                    .expect("a checkpoint");
+                let again = dir.join(format!("again{ranks}"));
+                let o = mpmcg(
+                    1,
+                    &[
+                        "run",
+                        "--restart",
+                        last.to_str().unwrap(),
+                        "--out",
+                        again.to_str().unwrap(),
+                        "--quiet",
+                    ],
+                );
+                assert_eq!(
+                    o.status.code(),
+                    Some(0),
+                    "restart from {}: {}",
+                    last.display(),
+                    String::from_utf8_lossy(&o.stderr)
+                );
+            }
+            std::fs::remove_dir_all(&out).unwrap();
+        }
+    }
+    drop(disk);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A child process, killed (and reaped) if the test ends before it does.
+struct Killed(std::process::Child);
+
+impl Killed {
+    fn id(&self) -> u32 {
+        self.0.id()
+    }
+
+    /// Send `sig` and wait for the process to end.
+    fn stop(&mut self, sig: i32) -> std::process::ExitStatus {
+        // SAFETY: kill(2) on the pid of a child this test started and has not reaped.
+        unsafe { libc::kill(self.0.id() as i32, sig) };
+        self.0.wait().unwrap()
+    }
+}
+
+impl Drop for Killed {
+    fn drop(&mut self) {
+        if let Ok(None) = self.0.try_wait() {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+}
+
+/// Wait until `path` exists (at most `secs` seconds).
+fn wait_for(path: &Path, secs: u64) -> bool {
+    let t = Instant::now();
+    while t.elapsed() < Duration::from_secs(secs) {
+        if path.exists() {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    false
+}
+
+/// A second run into the folder of a running one (a rerun, or two jobs with the same
+/// --out): it used to interleave history.csv, prune the first run's checkpoints and
+/// list its snapshots. Now it is refused with exit 2 and one message naming the holder,
+/// on 1 rank and under mpirun, and leaves the first run's lock and files alone; the
+/// first run, stopped by SIGTERM, releases the lock.
+#[test]
+fn second_run_on_a_locked_folder_is_refused() {
+    let dir = temp_dir("locked");
+    let long = dir.join("long.toml");
+    std::fs::write(&long, short_scene(1000.0, "[output]\nsnapshots = false")).unwrap();
+    let other = dir.join("other.toml");
+    std::fs::write(&other, short_scene(0.1, "")).unwrap();
+    let out = dir.join("out");
+    let mut first = Killed(
+        std::process::Command::new(bin())
+            .args([
+                "run",
+                long.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+                "--quiet",
+            ])
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    assert!(
+        wait_for(&out.join(LOCK), 60),
+        "the first run locks its folder"
+    );
+    let lock = std::fs::read_to_string(out.join(LOCK)).unwrap();
+    assert!(lock.contains(&format!("pid = {}", first.id())), "{lock}");
+    for ranks in [1, 2] {
+        let o = mpmcg(
+            ranks,
+            &[
+                "run",
+                other.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+                "--quiet",
+            ],
+        );
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{ranks} rank(s): {err}");
+        let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+        assert_eq!(lines.len(), 1, "one message: {err}");
+        assert!(
+            lines[0].contains("in use by another run")
+                && lines[0].contains(&format!("pid {}", first.id()))
+                && lines[0].contains(LOCK),
+            "{err}"
+        );
+        assert_eq!(std::fs::read_to_string(out.join(LOCK)).unwrap(), lock);
+        assert!(
+            !out.join("particles_000000.h5").exists(),
+            "the second run wrote nothing"
+        );
+    }
+    // SIGTERM: the first run checkpoints, ends with status 4 and unlocks.
+    let status = first.stop(libc::SIGTERM);
+    assert_eq!(status.code(), Some(4));
+    assert!(!out.join(LOCK).exists(), "released after SIGTERM");
+    assert!(!common::files(&out, "checkpoint_").is_empty());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A lock left by a killed run (this host, a pid that is gone) is taken over, and
+/// released at the end; a lock of another host is not (its pid cannot be checked).
+#[test]
+fn stale_lock_is_taken_over() {
+    let dir = temp_dir("stale");
+    let scene = dir.join("short.toml");
+    std::fs::write(&scene, short_scene(0.05, "")).unwrap();
+    let out = dir.join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    // A pid that has just ended (and is not reused within the test).
+    let mut gone = std::process::Command::new("true").spawn().unwrap();
+    let dead = gone.id();
+    gone.wait().unwrap();
+    let host = mpmcg::lock::hostname();
+    std::fs::write(
+        out.join(LOCK),
+        format!("mpmcg run lock\nhost = {host}\npid = {dead}\nstarted = 0\n"),
+    )
+    .unwrap();
+    let args = [
+        "run",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ];
+    let o = mpmcg(1, &args);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(out.join("summary.json").exists());
+    assert!(!out.join(LOCK).exists(), "released at the end");
+
+    std::fs::write(
+        out.join(LOCK),
+        "mpmcg run lock\nhost = some-other-node\npid = 1\nstarted = 0\n",
+    )
+    .unwrap();
+    let o = mpmcg(2, &args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("host some-other-node") && err.contains("another host"),
+        "{err}"
+    );
+    assert!(out.join(LOCK).exists(), "another host's lock stays");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A run in a folder that holds an earlier, unrelated run's checkpoints prunes only
+/// its own (it used to delete the earlier run's of lower step numbers), says that the
+/// others are there, and a restart goes on pruning the checkpoints of the run it
+/// continues, not the unrelated ones.
+#[test]
+fn pruning_deletes_only_this_runs_checkpoints() {
+    let dir = temp_dir("prune");
+    let out = dir.join("out");
+    let scene = |end: f64, every: u64| {
+        short_scene(
+            end,
+            &format!("[output]\nsnapshots = false\n[checkpoint]\nevery_steps = {every}\nkeep = 2"),
+        )
+    };
+    let (a, b) = (dir.join("a.toml"), dir.join("b.toml"));
+    std::fs::write(&a, scene(0.03, 10)).unwrap();
+    std::fs::write(&b, scene(0.1, 7)).unwrap();
+    let run = |args: &[&str]| {
+        let o = mpmcg(1, args);
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert_eq!(o.status.code(), Some(0), "{args:?}: {err}");
+        err
+    };
+    let o = out.to_str().unwrap();
+    run(&["run", a.to_str().unwrap(), "--out", o, "--quiet"]);
+    let ckpt = |s: u64| format!("checkpoint_{s:06}.h5");
+    let has = |steps: &[u64]| {
+        let names = names(&out);
+        let got: Vec<&String> = names
+            .iter()
+            .filter(|n| n.starts_with("checkpoint_"))
+            .collect();
+        let want: Vec<String> = steps.iter().map(|&s| ckpt(s)).collect();
+        assert_eq!(got, want.iter().collect::<Vec<_>>());
+    };
+    has(&[10, 20]);
+    let err = run(&["run", b.to_str().unwrap(), "--out", o, "--quiet"]);
+    assert!(
+        err.contains(
+            "holds 2 checkpoint(s) of another run (checkpoint_000010.h5 ... checkpoint_000020.h5)"
+        ),
+        "{err}"
+    );
+    // b's newest two, and a's untouched.
+    has(&[10, 20, 91, 98]);
+    // A restart of b (run longer) prunes b's, not a's.
+    std::fs::write(&b, scene(0.12, 7)).unwrap();
+    let from = out.join(ckpt(98));
+    run(&[
+        "run",
+        b.to_str().unwrap(),
+        "--restart",
+        from.to_str().unwrap(),
+        "--quiet",
+    ]);
+    has(&[10, 20, 112, 119]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Run `mpmcg ARGS` on `ranks` ranks (its own process group), killed if it has not
+/// ended after `secs` seconds (then the status has no code).
+fn mpmcg_within(ranks: usize, args: &[&str], secs: u64) -> Output {
+    use std::os::unix::process::CommandExt;
+    let mut cmd = if ranks == 1 {
+        std::process::Command::new(bin())
+    } else {
+        let mut c = common::mpirun(ranks);
+        c.arg(bin());
+        c
+    };
+    cmd.args(args)
+        .process_group(0)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped());
+    let mut child = cmd.spawn().unwrap();
+    let t = Instant::now();
+    while child.try_wait().unwrap().is_none() && t.elapsed() < Duration::from_secs(secs) {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    if child.try_wait().unwrap().is_none() {
+        // SAFETY: kill(2) on the process group of a child this test started.
+        unsafe { libc::kill(-(child.id() as i32), libc::SIGKILL) };
+    }
+    child.wait_with_output().unwrap()
+}
+
+/// `output.every` or `checkpoint.every` of 1e-300 used to run for ever (a snapshot
+/// every step of 1e-300 s; a checkpoint schedule loop that never advanced, deaf to
+/// SIGTERM), and a `time.dt` of 1e-300 asks for 1e300 steps: each is now refused
+/// with exit 2 and one message naming the key and the bound, also under mpirun.
+#[test]
+fn absurd_intervals_are_refused() {
+    let dir = temp_dir("intervals");
+    let cases = [
+        ("[output]\nevery = 1e-300", "output.every", "snapshots"),
+        (
+            "[checkpoint]\nevery = 1e-300",
+            "checkpoint.every",
+            "checkpoints",
+        ),
+    ];
+    for (i, (extra, key, what)) in cases.iter().enumerate() {
+        let scene = dir.join(format!("s{i}.toml"));
+        std::fs::write(&scene, short_scene(1.0, extra)).unwrap();
+        for ranks in [1, 2] {
+            let out = dir.join(format!("out{i}-{ranks}"));
+            let o = mpmcg_within(
+                ranks,
+                &[
+                    "run",
+                    scene.to_str().unwrap(),
+                    "--out",
+                    out.to_str().unwrap(),
+                    "--quiet",
+                ],
+                30,
+            );
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert_eq!(o.status.code(), Some(2), "{key}, {ranks} rank(s): {err}");
+            let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+            assert_eq!(lines.len(), 1, "one message: {err}");
+            assert!(
+                lines[0].contains(&format!("key `{key}`"))
+                    && lines[0].contains(&format!("1.000e300 {what}"))
+                    && lines[0].contains("at most 1e6"),
+                "{err}"
+            );
+        }
+    }
+    let scene = dir.join("dt.toml");
+    std::fs::write(
+        &scene,
+        short_scene(1.0, "").replacen("dt = 1.0e-3", "dt = 1.0e-300", 1),
+    )
+    .unwrap();
+    let o = mpmcg_within(1, &["check", scene.to_str().unwrap()], 30);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("key `time.dt`") && err.contains("1.000e300 steps"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// SIGTERM ends a run within a step even when the scene writes a snapshot and a
+/// checkpoint at every step (the most outputs validation allows): exit 4, a final
+/// checkpoint, status "interrupted", the lock released. (A regression guard: the
+/// intervals that used to make runs deaf to SIGTERM are refused above.)
+#[test]
+fn sigterm_is_honoured_within_a_step_at_the_highest_output_rate() {
+    let dir = temp_dir("sigterm-busy");
+    let scene = dir.join("busy.toml");
+    // dt = 1e-3 and output.every = end / 1e6 = 1e-3: a snapshot every step.
+    std::fs::write(
+        &scene,
+        short_scene(
+            1000.0,
+            "[output]\nevery = 1.0e-3\n[checkpoint]\nevery_steps = 1\nkeep = 1",
+        ),
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let mut run = Killed(
+        std::process::Command::new(bin())
+            .args([
+                "run",
+                scene.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+                "--quiet",
+            ])
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    assert!(
+        wait_for(&out.join("particles_000005.h5"), 60),
+        "the run writes snapshots"
+    );
+    let t = Instant::now();
+    let status = run.stop(libc::SIGTERM);
+    let took = t.elapsed();
+    assert_eq!(status.code(), Some(4));
+    assert!(
+        took < Duration::from_secs(20),
+        "ended {took:?} after SIGTERM"
+    );
+    let summary = std::fs::read_to_string(out.join("summary.json")).unwrap();
+    assert!(summary.contains("\"interrupted\""), "{summary}");
+    assert_eq!(common::files(&out, "checkpoint_").len(), 1, "keep = 1");
+    assert!(!out.join(LOCK).exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Smaller faults, each with exit 2 and one clear message: a scene read from a device
+/// without end, an impossible thread count, a restart with nothing to run, an error
+/// that quotes megabytes of input, and an error under `mpirun -n 3` (printed by every
+/// rank before).
+#[test]
+fn small_input_faults_end_with_exit_2() {
+    let dir = temp_dir("small-faults");
+    // /dev/zero used to be read until memory ran out: cap this process at 2 GB so that
+    // a build without the fix fails instead of exhausting the machine.
+    let o = std::process::Command::new("sh")
+        .args([
+            "-c",
+            "ulimit -v 2000000; exec \"$0\" check /dev/zero",
+            &bin(),
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "/dev/zero: {err}");
+    assert!(err.contains("/dev/zero: larger than 16 MiB"), "{err}");
+
+    let scene = dir.join("short.toml");
+    std::fs::write(
+        &scene,
+        short_scene(0.05, "[checkpoint]\nevery_steps = 20\nkeep = 1"),
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let args = [
+        "run",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ];
+    let o = mpmcg(1, &[&args[..], &["--threads", "100000"]].concat());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--threads must be between 1 and 1024"),
+        "{err}"
+    );
+
+    // A restart whose time.end (0.01) is before the checkpoint's time (0.04).
+    let o = mpmcg(1, &args);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let ckpt = out.join("checkpoint_000040.h5");
+    assert!(ckpt.exists());
+    let earlier = dir.join("earlier.toml");
+    std::fs::write(
+        &earlier,
+        short_scene(0.01, "[checkpoint]\nevery_steps = 20\nkeep = 1"),
+    )
+    .unwrap();
+    for ranks in [1, 2] {
+        let o = mpmcg(
+            ranks,
+            &[
+                "run",
+                earlier.to_str().unwrap(),
+                "--restart",
+                ckpt.to_str().unwrap(),
+                "--quiet",
+            ],
+        );
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{ranks} rank(s): {err}");
+        assert_eq!(err.matches("error:").count(), 1, "{err}");
+        assert!(
+            err.contains("time.end = 1e-2 is not after the time of checkpoint")
+                && err.contains("step 40"),
+            "{err}"
+        );
+    }
+
+    // A 3 MB scene name: the message quotes at most 1000 bytes of it, once on 3 ranks.
+    let big = dir.join("big.toml");
+    std::fs::write(
+        &big,
+        short_scene(0.05, "").replacen(
+            "name = \"colliding_disks\"",
+            &format!("name = \"{}\"", "a b".repeat(1_000_000)),
+            1,
+        ),
+    )
+    .unwrap();
+    for ranks in [1, 3] {
+        let o = mpmcg(ranks, &["run", big.to_str().unwrap(), "--quiet"]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{ranks} rank(s)");
+        let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+        assert_eq!(
+            lines.len(),
+            1,
+            "{ranks} rank(s): one message, got {}",
+            lines.len()
+        );
+        assert!(lines[0].contains("key `name`") && lines[0].contains("more bytes)"));
+        assert!(lines[0].len() < 1200, "{} bytes", lines[0].len());
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The pids of `parent`'s children whose environment says they are MPI rank `rank`.
+fn rank_pids(parent: u32, rank: usize) -> Vec<i32> {
+    let mut v = Vec::new();
+    for e in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(pid) = e.file_name().to_string_lossy().parse::<i32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
+            continue;
+        };
+        // "pid (comm) state ppid ...": comm may contain spaces, so split after ')'.
+        let ppid = stat
+            .rsplit_once(')')
+            .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+            .and_then(|p| p.parse::<u32>().ok());
+        let env = std::fs::read(format!("/proc/{pid}/environ")).unwrap_or_default();
+        let want = format!("OMPI_COMM_WORLD_RANK={rank}");
+        if ppid == Some(parent) && env.split(|&b| b == 0).any(|kv| kv == want.as_bytes()) {
+            v.push(pid);
+        }
+    }
+    v
+}
+
+/// A rank killed under mpirun (SIGKILL to rank 1): the other ends promptly, mpirun
+/// names the rank, and the lock rank 0 held is recognised as stale by the next run in
+/// the folder.
+#[test]
+fn killed_rank_ends_the_job_and_leaves_a_stale_lock() {
+    use std::os::unix::process::CommandExt;
+    let dir = temp_dir("killed-rank");
+    let long = dir.join("long.toml");
+    std::fs::write(&long, short_scene(1000.0, "[output]\nsnapshots = false")).unwrap();
+    let out = dir.join("out");
+    let mut cmd = common::mpirun(2);
+    cmd.arg(bin())
+        .args([
+            "run",
+            long.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--quiet",
+        ])
+        .process_group(0)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped());
+    let mut job = Killed(cmd.spawn().unwrap());
+    assert!(wait_for(&out.join(LOCK), 60), "the job starts");
+    std::thread::sleep(Duration::from_millis(500));
+    let victims = rank_pids(job.id(), 1);
+    assert_eq!(victims.len(), 1, "rank 1 found: {victims:?}");
+    let t = Instant::now();
+    // SAFETY: kill(2) on a process this test's mpirun started.
+    unsafe { libc::kill(victims[0], libc::SIGKILL) };
+    let mut waited = None;
+    while t.elapsed() < Duration::from_secs(60) {
+        if let Some(s) = job.0.try_wait().unwrap() {
+            waited = Some(s);
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let took = t.elapsed();
+    let status = waited.expect("mpirun ends after a rank is killed");
+    assert!(!status.success());
+    let mut err = String::new();
+    use std::io::Read;
+    job.0
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut err)
+        .unwrap();
+    assert!(err.contains("rank 1") && err.contains("signal 9"), "{err}");
+    eprintln!("the job ended {took:?} after rank 1 was killed");
+    assert!(took < Duration::from_secs(30), "{took:?}");
+    // The killed job's lock is stale: the next run takes it over.
+    assert!(out.join(LOCK).exists(), "a killed rank 0 cannot release it");
+    let short = dir.join("short.toml");
+    std::fs::write(&short, short_scene(0.05, "")).unwrap();
+    let o = mpmcg(
+        1,
+        &[
+            "run",
+            short.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--quiet",
+        ],
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(!out.join(LOCK).exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `cmd` run under `ulimit -f KB` (a file size limit: works without root).
+fn with_file_limit(kb: u64, cmd: &std::process::Command) -> std::process::Command {
+    let mut c = std::process::Command::new("sh");
+    c.arg("-c")
+        .arg(format!("ulimit -f {kb} && exec \"$@\""))
+        .arg("sh")
+        .arg(cmd.get_program())
+        .args(cmd.get_args());
+    c
+}
+
+/// A file size limit (`ulimit -f`, as a batch system may set) smaller than a
+/// checkpoint: exit 1 with one message naming the checkpoint and the OS's reason
+/// ("File too large"), no partial file, on 1 and 2 ranks. Here HDF5 also fails to
+/// close the file (its final MPI_File_set_size is over the limit too), which used to
+/// crash MPI_Finalize (exit 139 on 1 rank); the process now ends without finalising.
+#[test]
+fn file_size_limit_ends_cleanly() {
+    let dir = temp_dir("fsize");
+    // About 250 000 particles: a checkpoint of about 27 MB, over the 16 MB limit,
+    // which MPI's own start-up files (PMIx shared memory) stay under.
+    let scene = dir.join("big.toml");
+    std::fs::write(
+        &scene,
+        short_scene(
+            0.01,
+            "[output]\nsnapshots = false\n[checkpoint]\nevery_steps = 2\nkeep = 1",
+        )
+        .replacen("cells = [24, 24]", "cells = [600, 600]", 1),
+    )
+    .unwrap();
+    for ranks in [1, 2] {
+        let out = dir.join(format!("out{ranks}"));
+        let mut cmd = if ranks == 1 {
+            std::process::Command::new(bin())
+        } else {
+            let mut c = common::mpirun(ranks);
+            c.arg(bin());
+            c
+        };
+        cmd.args([
+            "run",
+            scene.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--quiet",
+        ]);
+        let t = Instant::now();
+        let o = with_file_limit(16000, &cmd).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(t.elapsed() < Duration::from_secs(60), "no hang");
+        assert_eq!(o.status.code(), Some(1), "{ranks} rank(s): {err}");
+        let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+        assert_eq!(lines.len(), 1, "one message: {err}");
+        assert!(
+            lines[0].contains("cannot write checkpoint")
+                && lines[0].contains("checkpoint_000002.h5")
+                && lines[0].contains("File too large"),
+            "{err}"
+        );
+        let left = names(&out);
+        assert_eq!(left, ["history.csv"], "no partial file, no lock");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }
