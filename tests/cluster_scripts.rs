@@ -18,14 +18,14 @@ fn script(name: &str) -> PathBuf {
         .join(name)
 }
 
-/// A block of 2 700 particles for about 1 000 steps (a few seconds), checkpointed every
+/// A block of 2 700 particles for about 300 steps, checkpointed every
 /// 20 steps, or by the script's wall-clock default without `[checkpoint]`.
 fn scene(checkpoint: bool) -> String {
     let mut s = String::from(
         r#"name = "block"
 dim = 2
 [time]
-end = 1.0
+end = 0.25
 cfl = 0.3
 [grid]
 lower = [0.0, 0.0]
