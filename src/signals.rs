@@ -10,6 +10,13 @@
 //! A second SIGINT (Ctrl-C pressed twice) ends the process at once with status 130.
 //! Repeated SIGTERMs are not escalated: `mpirun` forwards the SIGTERM a scheduler
 //! sends to it, so every rank may see two.
+//!
+//! Not `signal-hook` (assessed for issue 16): its safe `flag` API could replace the
+//! `sigaction` block below (`register_usize` per signal, though it keeps the latest
+//! signal where we report the first, and a SIGINT-only flag with
+//! `register_conditional_shutdown` for the double Ctrl-C), but ignoring SIGXFSZ would
+//! still need `libc::signal`. One `unsafe` block less is not worth a dependency here;
+//! both blocks are argued where they stand.
 
 use std::sync::atomic::{AtomicI32, AtomicU32, Ordering};
 
