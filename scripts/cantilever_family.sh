@@ -2,10 +2,15 @@
 # The cantilever family of the hard cases: beams of 3, 4, 5 and 6 m (E = 2, 1, 1, 2 MPa)
 # clamped at x = 0 and sagging under gravity, h = 0.25 m, at 2 × 2 and 3 × 3 particles
 # per cell, MPM and MPMCG (MUSL), plus the 4 m beam in 3D at 2 × 2 × 2 and 3 × 3 × 3
-# (1 m wide, free sides). Prints, per run, the worst number of pieces over the snapshots and the largest
+# (1 m wide, free sides), and a bar hanging from a fixed ceiling. Prints, per run, the worst number of pieces over the snapshots and the largest
 # gap to a nearest neighbour (scripts/connectivity.py, particles closer than one cell
 # are neighbours). About two minutes on one core.
 # Usage: scripts/cantilever_family.sh [OUT]        (default out/cantilever_family)
+# Variants, as environment variables (the README's tables name the ones they used):
+#   UPDATE=usl     the update order (default musl)
+#   SHIFT=0.125    move the grid up by this much (half a cell: the beam's top and bottom
+#                  faces then lie inside cells instead of on grid lines)
+#   REFINE=2       divide h by this (same particles per cell, so more particles)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh python3-h5py python3-numpy
@@ -24,18 +29,21 @@ variant() {
     cx=$(awk "BEGIN{print int(($len + 1) / 0.25 + 0.5)}")
     cy=$(awk "BEGIN{print int(($depth + 1.5) / 0.25 + 0.5)}")
     local f="$out/$tag.toml"
+    local r=${REFINE:-1} sh=${SHIFT:-0}
+    cx=$((cx * r)); cy=$((cy * r))
     sed -e "s/^gradient = .*/gradient = \"$g\"/" \
         -e "s/youngs_modulus = 1.0e6/youngs_modulus = $e/" \
         -e "s/upper = \[4.0, 1.0\]/upper = [$len, 1.0]/" \
-        -e "s/lower = \[0.0, -4.0\]/lower = [0.0, -$depth]/" \
-        -e "s/upper = \[5.0, 1.5\]/upper = [$(awk "BEGIN{print $len + 1}"), 1.5]/" \
+        -e "s/lower = \[0.0, -4.0\]/lower = [0.0, $(awk "BEGIN{print -$depth + $sh}")]/" \
+        -e "s/upper = \[5.0, 1.5\]/upper = [$(awk "BEGIN{print $len + 1}"), $(awk "BEGIN{print 1.5 + $sh}")]/" \
+        -e "s/^update = .*/update = \"${UPDATE:-musl}\"/" \
         -e "s/cells = \[20, 22\]/cells = [$cx, $cy]/" \
         -e "s/particles_per_cell = 4/particles_per_cell = $ppc/" "$base" > "$f"
     if [ "$dim" = 3 ]; then
         sed -i -e 's/^dim = 2/dim = 3/' \
             -e 's/^lower = \[\(.*\)\]/lower = [\1, -0.5]/' \
             -e 's/^upper = \[\(.*\)\]/upper = [\1, 1.5]/' \
-            -e 's/^cells = \[\(.*\)\]\(.*\)/cells = [\1, 8]\2/' \
+            -e "s/^cells = \[\(.*\)\]\(.*\)/cells = [\1, $((8 * r))]\2/" \
             -e 's/y_upper = "slip" }/y_upper = "slip", z_lower = "slip", z_upper = "slip" }/' \
             -e 's/value = \[0.0, -10.0\]/value = [0.0, -10.0, 0.0]/' \
             -e 's/lower = \[0.0, 0.0\], upper = \[\(.*\), 1.0\]/lower = [0.0, 0.0, 0.0], upper = [\1, 1.0, 1.0]/' "$f"
@@ -44,7 +52,49 @@ variant() {
         || echo "$tag: the run did not complete (exit $?)" >&2
 }
 
+# hanging TAG E GRADIENT: a 1 m × 4 m bar (2 × 2 per cell) hanging under its weight
+# from a fixed ceiling at y = 0: tension at a clamp without bending (README, The
+# cantilever family). Same variants (SHIFT moves the grid along both axes).
+hanging() {
+    local tag=$1 e=$2 g=$3 r=${REFINE:-1} sh=${SHIFT:-0}
+    local f="$out/$tag.toml"
+    cat > "$f" <<SCENE
+name = "hanging_bar"
+dim = 2
+[time]
+end = 3.0
+cfl = 0.2
+[method]
+gradient = "$g"
+update = "${UPDATE:-musl}"
+[grid]
+lower = [$(awk "BEGIN{print -1 + $sh}"), $(awk "BEGIN{print -8 + $sh}")]
+upper = [$(awk "BEGIN{print 2 + $sh}"), $sh]
+cells = [$((12 * r)), $((32 * r))]
+boundary = { x_lower = "slip", x_upper = "slip", y_lower = "slip", y_upper = "fixed" }
+[gravity]
+value = [0.0, -10.0]
+[[materials]]
+name = "rubber"
+model = "neo_hookean"
+density = 1050.0
+youngs_modulus = $e
+poisson_ratio = 0.3
+[[bodies]]
+material = "rubber"
+shape = { box = { lower = [0.0, -4.0], upper = [1.0, 0.0] } }
+particles_per_cell = 2
+[output]
+every = 0.05
+fields = ["velocity", "stress", "displacement"]
+SCENE
+    target/release/mpmcg run "$f" --out "$out/$tag" --quiet --threads 1 \
+        || echo "$tag: the run did not complete (exit $?)" >&2
+}
+
 for g in mpm mpmcg; do
+    hanging "hang_E2e5_ppc2_$g" 2.0e5 "$g"
+    hanging "hang_E3e5_ppc2_$g" 3.0e5 "$g"
     for ppc in 2 3; do
         variant "L3_E2e6_ppc${ppc}_$g" 3.0 2.0e6 "$ppc" "$g"
         variant "L4_E1e6_ppc${ppc}_$g" 4.0 1.0e6 "$ppc" "$g"
@@ -54,4 +104,4 @@ for g in mpm mpmcg; do
     variant "3D_L4_E1e6_ppc2_$g" 4.0 1.0e6 2 "$g" 3
     variant "3D_L4_E1e6_ppc3_$g" 4.0 1.0e6 3 "$g" 3
 done
-/usr/bin/python3 scripts/connectivity.py "$out"/*/ --quiet --radius 0.25
+/usr/bin/python3 scripts/connectivity.py "$out"/*/ --quiet --radius "$(awk "BEGIN{print 0.25 / ${REFINE:-1}}")"
