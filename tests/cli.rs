@@ -10,26 +10,7 @@ use std::process::{Command, Output};
 
 const BIN: &str = env!("CARGO_BIN_EXE_mpmcg");
 
-const SCENE: &str = r#"name = "small"
-dim = 2
-[time]
-end = 0.05
-cfl = 0.3
-[grid]
-lower = [0.0, 0.0]
-upper = [1.0, 1.0]
-cells = [8, 8]
-[[materials]]
-name = "m"
-model = "linear_elastic"
-density = 1.0
-youngs_modulus = 100.0
-poisson_ratio = 0.3
-[[bodies]]
-material = "m"
-shape = { sphere = { center = [0.5, 0.5], radius = 0.3 } }
-velocity = [0.5, -0.25]
-"#;
+const SCENE: &str = common::SMALL_DISK;
 
 fn mpmcg(args: &[&str]) -> Output {
     Command::new(BIN).args(args).output().unwrap()

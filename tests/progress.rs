@@ -10,28 +10,9 @@ use std::process::Command;
 
 const BIN: &str = env!("CARGO_BIN_EXE_mpmcg");
 
-const SCENE: &str = r#"name = "small"
-dim = 2
-[time]
-end = 0.05
-cfl = 0.3
-[grid]
-lower = [0.0, 0.0]
-upper = [1.0, 1.0]
-cells = [8, 8]
-[[materials]]
-name = "m"
-model = "linear_elastic"
-density = 1.0
-youngs_modulus = 100.0
-poisson_ratio = 0.3
-[[bodies]]
-material = "m"
-shape = { sphere = { center = [0.5, 0.5], radius = 0.3 } }
-velocity = [0.5, -0.25]
-[output]
-snapshots = false
-"#;
+fn scene() -> String {
+    format!("{}[output]\nsnapshots = false\n", common::SMALL_DISK)
+}
 
 fn steps(out: &Path) -> u64 {
     let s: serde_json::Value =
@@ -43,7 +24,7 @@ fn steps(out: &Path) -> u64 {
 fn under_mpirun_rank_0_alone_prints_plain_lines_with_an_eta() {
     let dir = temp_dir("progress-lines");
     let sc = dir.join("small.toml");
-    std::fs::write(&sc, SCENE).unwrap();
+    std::fs::write(&sc, scene()).unwrap();
     let out = dir.join("out");
     // A line after every step: each rank that printed would add one per step.
     let o = common::mpirun(2)
@@ -80,7 +61,7 @@ fn under_mpirun_on_a_terminal_the_line_is_rewritten_in_place() {
     }
     let dir = temp_dir("progress-tty");
     let sc = dir.join("small.toml");
-    std::fs::write(&sc, SCENE).unwrap();
+    std::fs::write(&sc, scene()).unwrap();
     let out = dir.join("out");
     let mpirun = common::mpirun(2);
     let mut cmd: Vec<String> = vec![mpirun.get_program().to_string_lossy().into_owned()];

@@ -166,3 +166,26 @@ pub fn assert_rows_close(
     }
     peak
 }
+
+/// A small elastic disk moving across an 8 × 8 box for a few dozen steps, with no
+/// `[output]` table (tests append one): for command-line behaviour, not numerics.
+pub const SMALL_DISK: &str = r#"name = "small"
+dim = 2
+[time]
+end = 0.05
+cfl = 0.3
+[grid]
+lower = [0.0, 0.0]
+upper = [1.0, 1.0]
+cells = [8, 8]
+[[materials]]
+name = "m"
+model = "linear_elastic"
+density = 1.0
+youngs_modulus = 100.0
+poisson_ratio = 0.3
+[[bodies]]
+material = "m"
+shape = { sphere = { center = [0.5, 0.5], radius = 0.3 } }
+velocity = [0.5, -0.25]
+"#;
