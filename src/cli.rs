@@ -125,17 +125,23 @@ pub fn main() -> ExitCode {
     match cli.command {
         Command::Sweep(args) => sweep_main(args),
         Command::Check { scene } => match scene::load(&scene) {
-            Ok((s, _)) => {
-                println!(
-                    "{}: ok ({}D, {} cells, {} bodies, gradient {})",
-                    scene.display(),
-                    s.dim,
-                    s.grid.cells.iter().product::<usize>(),
-                    s.bodies.len(),
-                    s.method.gradient.name()
-                );
-                ExitCode::SUCCESS
-            }
+            Ok((s, _)) => match run::check_bodies(&s) {
+                Ok(()) => {
+                    println!(
+                        "{}: ok ({}D, {} cells, {} bodies, gradient {})",
+                        scene.display(),
+                        s.dim,
+                        s.grid.cells.iter().product::<usize>(),
+                        s.bodies.len(),
+                        s.method.gradient.name()
+                    );
+                    ExitCode::SUCCESS
+                }
+                Err(m) => {
+                    eprintln!("error: {}: {m}", scene.display());
+                    ExitCode::from(2)
+                }
+            },
             Err(e) => scene_error(&e),
         },
         Command::Run {

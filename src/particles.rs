@@ -5,7 +5,7 @@
 
 use crate::benchmark::Benchmark;
 use crate::material::Material;
-use crate::scene::{Model, Scene, Shape};
+use crate::scene::{BodySpec, Model, Scene, Shape};
 use crate::shape::Geom;
 use crate::tensor::{det, vector, Mat, Vector};
 use nalgebra::Matrix3;
@@ -313,17 +313,7 @@ impl<const D: usize> Particles<D> {
             let n = body.particles_per_cell;
             let sub = n.pow(D as u32);
             let vol0 = geom.cell_volume() / sub as f64;
-            let (blo, bhi) = shape_bounds::<D>(&body.shape);
-            // Cells of the grid overlapping the body's bounding box.
-            let mut c0 = [0usize; D];
-            let mut c1 = [0usize; D];
-            for a in 0..D {
-                let lo = ((blo[a] - geom.lower[a]) * geom.inv_h[a]).floor().max(0.0) as usize;
-                let hi =
-                    (((bhi[a] - geom.lower[a]) * geom.inv_h[a]).ceil() as usize).min(geom.cells[a]);
-                c0[a] = lo;
-                c1[a] = hi.max(lo + 1);
-            }
+            let (c0, c1) = body_cells::<D>(body, geom);
             // Restrict to the block, padded by the initial displacement.
             let pad: [usize; D] =
                 std::array::from_fn(|a| 1 + (disp * geom.inv_h[a]).ceil() as usize);
@@ -340,100 +330,147 @@ impl<const D: usize> Particles<D> {
             let dims: [usize; D] = std::array::from_fn(|a| c1[a] - c0[a]);
             let body_cells: usize = dims.iter().product();
             if !empty {
-                let counts: [usize; D] = std::array::from_fn(|a| r1[a] - r0[a]);
-                let total: usize = counts.iter().product();
-                for k in 0..total {
-                    let mut rem = k;
-                    let mut cell = [0usize; D];
-                    for a in 0..D {
-                        cell[a] = r0[a] + rem % counts[a];
-                        rem /= counts[a];
+                lattice_points::<D>(body, geom, (c0, c1), (r0, r1), |lin, s, xref| {
+                    let xr = vector::<D>(&xref);
+                    let (mut x, mut v, mut f) = (xr, Vector::<D>::zeros(), Mat::<D>::identity());
+                    if let Some(b) = benchmark {
+                        let (u, vel) = b.exact(&xr, 0.0);
+                        x += u;
+                        v = vel;
+                        f = b.deformation_gradient(&xr, 0.0);
                     }
-                    let mut lin = 0usize;
-                    for a in (0..D).rev() {
-                        lin = lin * dims[a] + (cell[a] - c0[a]);
+                    if let Some(bv) = &body.velocity {
+                        v += vector::<D>(bv);
                     }
-                    for s in 0..sub {
-                        let mut r = s;
-                        let mut xref = [0.0; D];
-                        for a in 0..D {
-                            let q = r % n;
-                            r /= n;
-                            xref[a] = geom.lower[a]
-                                + (cell[a] as f64 + (q as f64 + 0.5) / n as f64) * geom.h[a];
-                        }
-                        if !inside(&body.shape, &xref) {
-                            continue;
-                        }
-                        let xr = vector::<D>(&xref);
-                        let (mut x, mut v, mut f) =
-                            (xr, Vector::<D>::zeros(), Mat::<D>::identity());
-                        if let Some(b) = benchmark {
-                            let (u, vel) = b.exact(&xr, 0.0);
-                            x += u;
-                            v = vel;
-                            f = b.deformation_gradient(&xr, 0.0);
-                        }
-                        if let Some(bv) = &body.velocity {
-                            v += vector::<D>(bv);
-                        }
-                        if let Some(g) = &body.velocity_gradient {
-                            for (i, row) in g.value.iter().enumerate() {
-                                for (j, gij) in row.iter().enumerate() {
-                                    let c = g.about.as_ref().map_or(0.0, |c| c[j]);
-                                    v[i] += gij * (xr[j] - c);
-                                }
+                    if let Some(g) = &body.velocity_gradient {
+                        for (i, row) in g.value.iter().enumerate() {
+                            for (j, gij) in row.iter().enumerate() {
+                                let c = g.about.as_ref().map_or(0.0, |c| c[j]);
+                                v[i] += gij * (xr[j] - c);
                             }
                         }
-                        let (c, _) = geom.locate(&std::array::from_fn(|a| x[a]));
-                        if (0..D).any(|a| c[a] < cell_lo[a] as i64 || c[a] >= cell_hi[a] as i64) {
-                            continue;
-                        }
-                        let j = det(&f);
-                        p.x.push(x);
-                        p.v.push(v);
-                        p.mass.push(mat.density() * vol0);
-                        p.vol0.push(vol0);
-                        p.vol.push(vol0 * j);
-                        let mut st = Mat::<D>::zeros();
-                        if mat.needs_def_grad() {
-                            let none = crate::material::Internal {
-                                plastic: None,
-                                damage: None,
-                                stress_zz: None,
-                            };
-                            mat.update_stress(&mut st, &Mat::<D>::zeros(), &f, 0.0, none);
-                        }
-                        p.stress.push(st);
-                        if needs_f {
-                            p.def_grad.push(f);
-                        }
-                        p.mat.push(mi as u16);
-                        p.id.push(id_base + (lin * sub + s) as u64);
-                        if carries.x0 {
-                            p.x0.push(xr);
-                        }
-                        if carries.plastic {
-                            p.be.push(Matrix3::identity());
-                            p.eps_p.push(0.0);
-                        }
-                        if carries.damage {
-                            p.damage.push(0.0);
-                        }
-                        if carries.stress_zz {
-                            p.stress_zz.push(0.0);
-                        }
-                        if gimp {
-                            p.half
-                                .push(std::array::from_fn(|a| 0.5 * geom.h[a] / n as f64));
-                        }
                     }
-                }
+                    let (c, _) = geom.locate(&std::array::from_fn(|a| x[a]));
+                    if (0..D).any(|a| c[a] < cell_lo[a] as i64 || c[a] >= cell_hi[a] as i64) {
+                        return true;
+                    }
+                    let j = det(&f);
+                    p.x.push(x);
+                    p.v.push(v);
+                    p.mass.push(mat.density() * vol0);
+                    p.vol0.push(vol0);
+                    p.vol.push(vol0 * j);
+                    let mut st = Mat::<D>::zeros();
+                    if mat.needs_def_grad() {
+                        let none = crate::material::Internal {
+                            plastic: None,
+                            damage: None,
+                            stress_zz: None,
+                        };
+                        mat.update_stress(&mut st, &Mat::<D>::zeros(), &f, 0.0, none);
+                    }
+                    p.stress.push(st);
+                    if needs_f {
+                        p.def_grad.push(f);
+                    }
+                    p.mat.push(mi as u16);
+                    p.id.push(id_base + (lin * sub + s) as u64);
+                    if carries.x0 {
+                        p.x0.push(xr);
+                    }
+                    if carries.plastic {
+                        p.be.push(Matrix3::identity());
+                        p.eps_p.push(0.0);
+                    }
+                    if carries.damage {
+                        p.damage.push(0.0);
+                    }
+                    if carries.stress_zz {
+                        p.stress_zz.push(0.0);
+                    }
+                    if gimp {
+                        p.half
+                            .push(std::array::from_fn(|a| 0.5 * geom.h[a] / n as f64));
+                    }
+                    true
+                });
             }
             id_base += (body_cells * sub) as u64;
         }
         p
     }
+}
+
+/// The grid cells `c0..c1` overlapping a body's bounding box (at least one per axis; it
+/// may lie beyond the grid when the body does).
+fn body_cells<const D: usize>(body: &BodySpec, geom: &Geom<D>) -> ([usize; D], [usize; D]) {
+    let (blo, bhi) = shape_bounds::<D>(&body.shape);
+    let mut c0 = [0usize; D];
+    let mut c1 = [0usize; D];
+    for a in 0..D {
+        let lo = ((blo[a] - geom.lower[a]) * geom.inv_h[a]).floor().max(0.0) as usize;
+        let hi = (((bhi[a] - geom.lower[a]) * geom.inv_h[a]).ceil() as usize).min(geom.cells[a]);
+        c0[a] = lo;
+        c1[a] = hi.max(lo + 1);
+    }
+    (c0, c1)
+}
+
+/// Calls `f(lin, s, x)` for each seeding lattice point `x` of `body` inside its shape, in
+/// the cells `r0..r1` of the body's cells `c0..c1`: point `s` of the `n^D` in a cell
+/// (`n` particles per cell and axis, at `(q + ½)/n` of the cell), `lin` the cell's
+/// index in `c0..c1` (which, with `s`, numbers the particle ids). Stops when `f`
+/// returns false.
+fn lattice_points<const D: usize>(
+    body: &BodySpec,
+    geom: &Geom<D>,
+    (c0, c1): ([usize; D], [usize; D]),
+    (r0, r1): ([usize; D], [usize; D]),
+    mut f: impl FnMut(usize, usize, [f64; D]) -> bool,
+) {
+    let n = body.particles_per_cell;
+    let sub = n.pow(D as u32);
+    let dims: [usize; D] = std::array::from_fn(|a| c1[a] - c0[a]);
+    let counts: [usize; D] = std::array::from_fn(|a| r1[a].saturating_sub(r0[a]));
+    let total: usize = counts.iter().product();
+    for k in 0..total {
+        let mut rem = k;
+        let mut cell = [0usize; D];
+        for a in 0..D {
+            cell[a] = r0[a] + rem % counts[a];
+            rem /= counts[a];
+        }
+        let mut lin = 0usize;
+        for a in (0..D).rev() {
+            lin = lin * dims[a] + (cell[a] - c0[a]);
+        }
+        for s in 0..sub {
+            let mut r = s;
+            let mut x = [0.0; D];
+            for a in 0..D {
+                let q = r % n;
+                r /= n;
+                x[a] = geom.lower[a] + (cell[a] as f64 + (q as f64 + 0.5) / n as f64) * geom.h[a];
+            }
+            if inside(&body.shape, &x) && !f(lin, s, x) {
+                return;
+            }
+        }
+    }
+}
+
+/// Whether `body` seeds at least one particle in the grid of `geom`: false when it lies
+/// outside the grid or between the lattice points (smaller than a particle spacing).
+/// Stops at the first particle, so it costs little for any real body.
+pub fn seeds_any<const D: usize>(body: &BodySpec, geom: &Geom<D>) -> bool {
+    let (c0, c1) = body_cells::<D>(body, geom);
+    let r1: [usize; D] = std::array::from_fn(|a| c1[a].min(geom.cells[a]));
+    let mut any = false;
+    lattice_points::<D>(body, geom, (c0, c1), (c0, r1), |_, _, _| {
+        any = true;
+        false
+    });
+    any
 }
 
 /// Bounding box of a shape.

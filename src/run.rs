@@ -175,6 +175,35 @@ pub fn run(scene: &Scene, comm: &dyn Communicator, opts: &RunOptions) -> Result<
     }
 }
 
+/// The input check that needs the grid: every body seeds at least one particle (a body
+/// outside the grid, or smaller than the particle spacing, would run to "completed" with
+/// nothing in it). `mpmcg check` and every fresh run make it.
+pub fn check_bodies(scene: &Scene) -> Result<(), String> {
+    match scene.dim {
+        1 => check_bodies_dim::<1>(scene),
+        2 => check_bodies_dim::<2>(scene),
+        _ => check_bodies_dim::<3>(scene),
+    }
+}
+
+fn check_bodies_dim<const D: usize>(scene: &Scene) -> Result<(), String> {
+    let geom = Solver::<D>::geometry(scene);
+    for (i, b) in scene.bodies.iter().enumerate() {
+        if !crate::particles::seeds_any::<D>(b, &geom) {
+            let spacing =
+                geom.h.iter().cloned().fold(f64::INFINITY, f64::min) / b.particles_per_cell as f64;
+            return Err(format!(
+                "bodies[{i}] (material \"{}\") seeds no particle: it lies outside the grid \
+                 or between the particle lattice points (spacing {spacing:.3e} at \
+                 particles_per_cell = {}); move it into the grid, enlarge it, or raise \
+                 particles_per_cell",
+                b.material, b.particles_per_cell
+            ));
+        }
+    }
+    Ok(())
+}
+
 fn layout_for<const D: usize>(scene: &Scene, ranks: usize) -> Result<Layout<D>, RunError> {
     let cells: [usize; D] = std::array::from_fn(|a| scene.grid.cells[a]);
     let periodic: [bool; D] =
@@ -331,6 +360,9 @@ fn run_dim<const D: usize>(
     opts: &RunOptions,
 ) -> Result<Summary, RunError> {
     let layout = layout_for::<D>(scene, comm.size())?;
+    if opts.restart.is_none() {
+        check_bodies(scene).map_err(RunError::Input)?;
+    }
     let root = comm.rank() == 0;
     let made = if root {
         std::fs::create_dir_all(&opts.out)

@@ -991,3 +991,36 @@ fn hard_case_keys() {
     .key("bodies[0].velocity_gradient.about")
     .says("dim = 2");
 }
+
+// --- Bodies that seed nothing ------------------------------------------------------
+
+#[test]
+fn bodies_that_seed_no_particle() {
+    // (A body wholly outside the grid is refused by the scene's own validation.)
+    // Between the lattice points: they lie 0.0125 from (0.8, 0.8) along each axis
+    // (h = 0.05, 2 per cell), so a disc of radius 0.01 there holds none.
+    let tiny = edit(
+        DISKS,
+        "center = [0.8, 0.8], radius = 0.2",
+        "center = [0.8, 0.8], radius = 0.01",
+    );
+    check("body_tiny", &tiny)
+        .says("bodies[1]")
+        .says("spacing 2.500e-2");
+    // Just large enough to hold the four nearest lattice points: accepted.
+    let small = edit(
+        DISKS,
+        "center = [0.8, 0.8], radius = 0.2",
+        "center = [0.8, 0.8], radius = 0.018",
+    );
+    let dir = Scratch::new("body_small");
+    let file = dir.0.join("body_small.toml");
+    std::fs::write(&file, &small).unwrap();
+    let out = mpmcg(&["check".as_ref(), file.as_os_str()]);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
