@@ -161,15 +161,28 @@ pub fn main() -> ExitCode {
     }
 }
 
-/// The scene of a fresh run: the file's, or the built-in default.
+/// The scene of a fresh run: the file's, or the built-in default; its bodies checked
+/// like `mpmcg check` does, so that the message names the file.
 fn fresh_scene(scene: &Option<PathBuf>) -> Result<(scene::Scene, String), ExitCode> {
-    match scene {
+    let loaded = match scene {
         Some(path) => scene::load(path).map_err(|e| scene_error(&e)),
         None => match scene::parse(scene::DEFAULT_SCENE, scene::DEFAULT_SCENE_NAME) {
             Ok(s) => Ok((s, scene::DEFAULT_SCENE.to_string())),
             Err(e) => Err(scene_error(&e)),
         },
+    }?;
+    if let Err(m) = run::check_bodies(&loaded.0) {
+        if !launched_as_other_rank() {
+            let file = scene
+                .as_ref()
+                .map_or(scene::DEFAULT_SCENE_NAME.into(), |p| {
+                    p.display().to_string()
+                });
+            eprintln!("error: {file}: {m}");
+        }
+        return Err(ExitCode::from(2));
     }
+    Ok(loaded)
 }
 
 /// The scene stored in a checkpoint, checked against the SCENE argument if there is

@@ -473,6 +473,24 @@ pub fn seeds_any<const D: usize>(body: &BodySpec, geom: &Geom<D>) -> bool {
     any
 }
 
+/// A lattice point of `b` (as seeded) that lies inside the shape of `a`, if any: the two
+/// bodies would both seed particles there. Walks only the cells where their bounding
+/// boxes meet.
+pub fn overlap<const D: usize>(a: &BodySpec, b: &BodySpec, geom: &Geom<D>) -> Option<[f64; D]> {
+    let (a0, a1) = body_cells::<D>(a, geom);
+    let (b0, b1) = body_cells::<D>(b, geom);
+    let r0: [usize; D] = std::array::from_fn(|k| a0[k].max(b0[k]));
+    let r1: [usize; D] = std::array::from_fn(|k| a1[k].min(b1[k]).min(geom.cells[k]));
+    let mut hit = None;
+    lattice_points::<D>(b, geom, (b0, b1), (r0, r1), |_, _, x| {
+        if inside(&a.shape, &x) {
+            hit = Some(x);
+        }
+        hit.is_none()
+    });
+    hit
+}
+
 /// Bounding box of a shape.
 pub fn shape_bounds<const D: usize>(s: &Shape) -> ([f64; D], [f64; D]) {
     match s {

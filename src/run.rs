@@ -175,9 +175,10 @@ pub fn run(scene: &Scene, comm: &dyn Communicator, opts: &RunOptions) -> Result<
     }
 }
 
-/// The input check that needs the grid: every body seeds at least one particle (a body
+/// The input checks that need the grid: every body seeds at least one particle (a body
 /// outside the grid, or smaller than the particle spacing, would run to "completed" with
-/// nothing in it). `mpmcg check` and every fresh run make it.
+/// nothing in it), and no two bodies seed particles at the same place (overlapping
+/// bodies would double the mass there). `mpmcg check` and every fresh run make them.
 pub fn check_bodies(scene: &Scene) -> Result<(), String> {
     match scene.dim {
         1 => check_bodies_dim::<1>(scene),
@@ -199,6 +200,15 @@ fn check_bodies_dim<const D: usize>(scene: &Scene) -> Result<(), String> {
                  particles_per_cell",
                 b.material, b.particles_per_cell
             ));
+        }
+        for (j, a) in scene.bodies[..i].iter().enumerate() {
+            if let Some(x) = crate::particles::overlap::<D>(a, b, &geom) {
+                return Err(format!(
+                    "bodies[{j}] and bodies[{i}] overlap (both contain the particle position \
+                     {x:?}): both would seed particles there, doubling the mass; make them \
+                     disjoint"
+                ));
+            }
         }
     }
     Ok(())

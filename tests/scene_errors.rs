@@ -1007,6 +1007,9 @@ fn bodies_that_seed_no_particle() {
     check("body_tiny", &tiny)
         .says("bodies[1]")
         .says("spacing 2.500e-2");
+    run("body_tiny", &tiny)
+        .says("bodies[1]")
+        .says("seeds no particle");
     // Just large enough to hold the four nearest lattice points: accepted.
     let small = edit(
         DISKS,
@@ -1016,6 +1019,36 @@ fn bodies_that_seed_no_particle() {
     let dir = Scratch::new("body_small");
     let file = dir.0.join("body_small.toml");
     std::fs::write(&file, &small).unwrap();
+    let out = mpmcg(&["check".as_ref(), file.as_os_str()]);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+#[test]
+fn overlapping_bodies() {
+    // The second disk moved onto the first: both would seed particles where they meet.
+    let overlap = edit(
+        DISKS,
+        "center = [0.8, 0.8], radius = 0.2",
+        "center = [0.35, 0.35], radius = 0.2",
+    );
+    check("bodies_overlap", &overlap)
+        .says("bodies[0] and bodies[1] overlap")
+        .says("doubling the mass");
+    run("bodies_overlap", &overlap).says("bodies[0] and bodies[1] overlap");
+    // Apart by less than a particle spacing but not overlapping: accepted.
+    let near = edit(
+        DISKS,
+        "center = [0.8, 0.8], radius = 0.2",
+        "center = [0.6, 0.2], radius = 0.19",
+    );
+    let dir = Scratch::new("bodies_near");
+    let file = dir.0.join("bodies_near.toml");
+    std::fs::write(&file, &near).unwrap();
     let out = mpmcg(&["check".as_ref(), file.as_os_str()]);
     assert_eq!(
         out.status.code(),
