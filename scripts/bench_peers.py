@@ -143,11 +143,17 @@ def warp_pups(a, dim, cells, ppc, warm, steps, precision):
     return w["particles"], w["pups"], w["warp"]
 
 
+def sci(x):
+    """3 significant digits, `6.27e6` rather than `6.27e+06`."""
+    m, e = f"{x:.2e}".split("e")
+    return f"{m}e{int(e)}"
+
+
 def fmt(xs):
     med = statistics.median(xs)
     if len(xs) == 1:
-        return f"{med:.3g}"
-    return f"{med:.3g} ({min(xs):.3g}–{max(xs):.3g})"
+        return sci(med)
+    return f"{sci(med)} ({sci(min(xs))}–{sci(max(xs))})"
 
 
 def main():

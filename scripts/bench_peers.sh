@@ -7,8 +7,8 @@
 #
 # Usage: scripts/bench_peers.sh [--size full|small] [--dims 2,3] [--repeats N] [--cpu K]
 #   full  (default): 2D 256^2 cells x 4^2 per cell (376 996 particles), 3D 64^3 x 2^3
-#         (438 976); about 6 minutes with 3 repeats on a 2-core machine
-#   small: 2D 128^2, 3D 32^3; about a minute
+#         (438 976); 3.5 minutes with 3 repeats on a quiet 2-core machine, 7 on a busy one
+#   small: 2D 128^2, 3D 32^3; about 1.5 minutes
 #
 # Set-up on first use: a virtual environment with warp-lang and numpy in
 # $MPMCG_PEERS_VENV (default ~/.cache/mpmcg/venv-peers; needs `python3 -m venv`, on

@@ -235,7 +235,7 @@ def main():
     for lab, c in counts.most_common():
         print(f"{100.0 * c / total:6.1f} %  {lab}")
     print("outside mpmcg's code (included above):")
-    for (lab, sym), c in outside.most_common(8):
+    for (lab, sym), c in outside.most_common(12):
         print(f"{100.0 * c / total:6.1f} %  {sym} -> {lab}")
     if a.within:
         rx = re.compile(a.within)
