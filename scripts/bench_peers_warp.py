@@ -36,11 +36,12 @@ import warp as wp
 def make_kernels(dim, dtype):
     """The four kernels of a step for dimension `dim` and scalar type `dtype`.
 
-    The node loops are nested `range(3)` loops, which warp unrolls (it unrolls loops
-    of up to `max_unroll` = 16 iterations: one flat loop over 27 nodes in 3D would stay
-    a loop with run-time indexing, 2x slower). Node offsets come from a small vector
-    (`ofs[i]`): `float64(i)` of an unrolled loop index breaks warp 1.19's typing of `i`
-    in later integer expressions ("Input types must be the same")."""
+    The node loops are nested `range(3)` loops (the third of length 1 in 2D), which
+    warp unrolls (it unrolls loops of up to `max_unroll` = 16 iterations: one flat loop
+    over 27 nodes in 3D would stay a loop with run-time indexing, 2x slower). Node
+    offsets come from a small vector (`ofs[i]`): `float64(i)` of an unrolled loop index
+    breaks warp 1.19's typing of `i` in later integer expressions ("Input types must be
+    the same")."""
     vec = wp.types.vector(dim, dtype)
     mat = wp.types.matrix((dim, dim), dtype)
     veci = wp.types.vector(dim, int)
@@ -75,97 +76,61 @@ def make_kernels(dim, dtype):
         eye = wp.identity(n=dim, dtype=dtype)
         return mu * (fp * wp.transpose(fp) - eye) + lam * wp.log(wp.determinant(fp)) * eye
 
-    if dim == 2:
+    @wp.func
+    def node(i: int, j: int, k: int, base: veci, fx: vec, w: wmat, dx: dtype, nodes: int):
+        """Index, weight and offset `x_i − x_p` of node (i, j, k) of the particle's 3^D
+        (k = 0 in 2D)."""
+        ofs = vec3(dtype(0.0), dtype(1.0), dtype(2.0))
+        dpos = vec()
+        dpos[0] = (ofs[i] - fx[0]) * dx
+        dpos[1] = (ofs[j] - fx[1]) * dx
+        weight = w[i, 0] * w[j, 1]
+        idx = (base[0] + i) + (base[1] + j) * nodes
+        if wp.static(dim == 3):
+            dpos[2] = (ofs[k] - fx[2]) * dx
+            weight = weight * w[k, 2]
+            idx = idx + (base[2] + k) * nodes * nodes
+        return idx, weight, dpos
 
-        @wp.kernel(module="unique")
-        def p2g(
-            x: wp.array(dtype=vec), v: wp.array(dtype=vec), c_aff: wp.array(dtype=mat),
-            f_def: wp.array(dtype=mat), grid_v: wp.array(dtype=vec), grid_m: wp.array(dtype=dtype),
-            nodes: int, inv_dx: dtype, dt: dtype, p_vol: dtype, p_mass: dtype, mu: dtype, lam: dtype,
-        ):
-            p = wp.tid()
-            base, fx, w = weights(x[p] * inv_dx)
-            affine = (-dt * p_vol * dtype(4.0) * inv_dx * inv_dx) * kirchhoff(f_def[p], mu, lam) + p_mass * c_aff[p]
-            mv = p_mass * v[p]
-            dx = dtype(1.0) / inv_dx
-            ofs = vec3(dtype(0.0), dtype(1.0), dtype(2.0))
-            for i in range(3):
-                for j in range(3):
-                    dpos = vec(ofs[i] - fx[0], ofs[j] - fx[1]) * dx
-                    weight = w[i, 0] * w[j, 1]
-                    idx = (base[0] + i) + (base[1] + j) * nodes
+    @wp.kernel(module="unique")
+    def p2g(
+        x: wp.array(dtype=vec), v: wp.array(dtype=vec), c_aff: wp.array(dtype=mat),
+        f_def: wp.array(dtype=mat), grid_v: wp.array(dtype=vec), grid_m: wp.array(dtype=dtype),
+        nodes: int, inv_dx: dtype, dt: dtype, p_vol: dtype, p_mass: dtype, mu: dtype, lam: dtype,
+    ):
+        p = wp.tid()
+        base, fx, w = weights(x[p] * inv_dx)
+        affine = (-dt * p_vol * dtype(4.0) * inv_dx * inv_dx) * kirchhoff(f_def[p], mu, lam) + p_mass * c_aff[p]
+        mv = p_mass * v[p]
+        dx = dtype(1.0) / inv_dx
+        for i in range(3):
+            for j in range(3):
+                for k in range(wp.static(3 if dim == 3 else 1)):
+                    idx, weight, dpos = node(i, j, k, base, fx, w, dx, nodes)
                     wp.atomic_add(grid_v, idx, weight * (mv + affine * dpos))
                     wp.atomic_add(grid_m, idx, weight * p_mass)
 
-        @wp.kernel(module="unique")
-        def g2p(
-            x: wp.array(dtype=vec), v: wp.array(dtype=vec), c_aff: wp.array(dtype=mat),
-            f_def: wp.array(dtype=mat), grid_v: wp.array(dtype=vec), nodes: int, inv_dx: dtype, dt: dtype,
-        ):
-            p = wp.tid()
-            base, fx, w = weights(x[p] * inv_dx)
-            dx = dtype(1.0) / inv_dx
-            ofs = vec3(dtype(0.0), dtype(1.0), dtype(2.0))
-            new_v = vec()
-            new_c = mat()
-            for i in range(3):
-                for j in range(3):
-                    dpos = vec(ofs[i] - fx[0], ofs[j] - fx[1]) * dx
-                    weight = w[i, 0] * w[j, 1]
-                    gv = grid_v[(base[0] + i) + (base[1] + j) * nodes]
+    @wp.kernel(module="unique")
+    def g2p(
+        x: wp.array(dtype=vec), v: wp.array(dtype=vec), c_aff: wp.array(dtype=mat),
+        f_def: wp.array(dtype=mat), grid_v: wp.array(dtype=vec), nodes: int, inv_dx: dtype, dt: dtype,
+    ):
+        p = wp.tid()
+        base, fx, w = weights(x[p] * inv_dx)
+        dx = dtype(1.0) / inv_dx
+        new_v = vec()
+        new_c = mat()
+        for i in range(3):
+            for j in range(3):
+                for k in range(wp.static(3 if dim == 3 else 1)):
+                    idx, weight, dpos = node(i, j, k, base, fx, w, dx, nodes)
+                    gv = grid_v[idx]
                     new_v = new_v + weight * gv
                     new_c = new_c + (dtype(4.0) * inv_dx * inv_dx * weight) * wp.outer(gv, dpos)
-            v[p] = new_v
-            c_aff[p] = new_c
-            f_def[p] = (wp.identity(n=dim, dtype=dtype) + dt * new_c) * f_def[p]
-            x[p] = x[p] + dt * new_v
-
-    else:
-
-        @wp.kernel(module="unique")
-        def p2g(
-            x: wp.array(dtype=vec), v: wp.array(dtype=vec), c_aff: wp.array(dtype=mat),
-            f_def: wp.array(dtype=mat), grid_v: wp.array(dtype=vec), grid_m: wp.array(dtype=dtype),
-            nodes: int, inv_dx: dtype, dt: dtype, p_vol: dtype, p_mass: dtype, mu: dtype, lam: dtype,
-        ):
-            p = wp.tid()
-            base, fx, w = weights(x[p] * inv_dx)
-            affine = (-dt * p_vol * dtype(4.0) * inv_dx * inv_dx) * kirchhoff(f_def[p], mu, lam) + p_mass * c_aff[p]
-            mv = p_mass * v[p]
-            dx = dtype(1.0) / inv_dx
-            ofs = vec3(dtype(0.0), dtype(1.0), dtype(2.0))
-            for i in range(3):
-                for j in range(3):
-                    for k in range(3):
-                        dpos = vec(ofs[i] - fx[0], ofs[j] - fx[1], ofs[k] - fx[2]) * dx
-                        weight = w[i, 0] * w[j, 1] * w[k, 2]
-                        idx = (base[0] + i) + ((base[1] + j) + (base[2] + k) * nodes) * nodes
-                        wp.atomic_add(grid_v, idx, weight * (mv + affine * dpos))
-                        wp.atomic_add(grid_m, idx, weight * p_mass)
-
-        @wp.kernel(module="unique")
-        def g2p(
-            x: wp.array(dtype=vec), v: wp.array(dtype=vec), c_aff: wp.array(dtype=mat),
-            f_def: wp.array(dtype=mat), grid_v: wp.array(dtype=vec), nodes: int, inv_dx: dtype, dt: dtype,
-        ):
-            p = wp.tid()
-            base, fx, w = weights(x[p] * inv_dx)
-            dx = dtype(1.0) / inv_dx
-            ofs = vec3(dtype(0.0), dtype(1.0), dtype(2.0))
-            new_v = vec()
-            new_c = mat()
-            for i in range(3):
-                for j in range(3):
-                    for k in range(3):
-                        dpos = vec(ofs[i] - fx[0], ofs[j] - fx[1], ofs[k] - fx[2]) * dx
-                        weight = w[i, 0] * w[j, 1] * w[k, 2]
-                        gv = grid_v[(base[0] + i) + ((base[1] + j) + (base[2] + k) * nodes) * nodes]
-                        new_v = new_v + weight * gv
-                        new_c = new_c + (dtype(4.0) * inv_dx * inv_dx * weight) * wp.outer(gv, dpos)
-            v[p] = new_v
-            c_aff[p] = new_c
-            f_def[p] = (wp.identity(n=dim, dtype=dtype) + dt * new_c) * f_def[p]
-            x[p] = x[p] + dt * new_v
+        v[p] = new_v
+        c_aff[p] = new_c
+        f_def[p] = (wp.identity(n=dim, dtype=dtype) + dt * new_c) * f_def[p]
+        x[p] = x[p] + dt * new_v
 
     @wp.kernel(module="unique")
     def grid_update(
