@@ -14,8 +14,9 @@
 # $MPMCG_PEERS_VENV (default ~/.cache/mpmcg/venv-peers; needs `python3 -m venv`, on
 # Debian the python3-venv package), warp's compiled kernels in $MPMCG_PEERS_VENV/kernels.
 # The mpmcg binary: $MPMCG if set, else a release build of this checkout.
-# Pinned with taskset to core K (default 0), mpmcg with --threads 1, OMP/rayon/warp
-# thread variables at 1. Run it on an otherwise idle machine: the figures are wall time.
+# Pinned with taskset to core K (default 0), mpmcg with --threads 1, the OMP and rayon
+# thread variables at 1 (warp runs its CPU kernels on one thread). Run it on an otherwise
+# idle machine: the figures are wall time.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
