@@ -3,7 +3,7 @@
 //! Formulas and sources: `shared/reference/benchmarks.md` and the README.
 
 use crate::material::{lame, Material};
-use crate::scene::{BenchmarkKind, BenchmarkSpec, Model, Scene, Shape};
+use crate::scene::{BenchmarkKind, Scene, Shape};
 use crate::tensor::{Mat, Vector};
 use std::f64::consts::PI;
 
@@ -44,77 +44,6 @@ pub enum Benchmark<const D: usize> {
 }
 
 const PHASE: [f64; 3] = [0.0, 2.0 * PI / 3.0, 4.0 * PI / 3.0];
-
-/// Scene-level checks of a benchmark table (the solver relies on them).
-pub fn validate(s: &Scene, b: &BenchmarkSpec) -> Result<(), (String, String)> {
-    let m0 = &s.materials[0];
-    let body = &s.bodies[0];
-    let need_model = |model: Model, what: &str| {
-        if s.materials.iter().any(|m| m.model != model) {
-            Err((
-                "benchmark.kind".to_string(),
-                format!("`{what}` needs every material to be `{model:?}`")
-                    .replace("LinearElastic", "linear_elastic")
-                    .replace("NeoHookean", "neo_hookean"),
-            ))
-        } else {
-            Ok(())
-        }
-    };
-    match b.kind {
-        BenchmarkKind::VibratingBar => {
-            need_model(Model::LinearElastic, "vibrating_bar")?;
-            if b.c.is_some() {
-                return Err(("benchmark.c".into(), "not used by `vibrating_bar`".into()));
-            }
-            if !matches!(body.shape, Shape::Box { .. }) {
-                return Err((
-                    "bodies[0].shape".into(),
-                    "`vibrating_bar` needs the bar as a `box`".into(),
-                ));
-            }
-            if m0.poisson_ratio != 0.0 && s.dim > 1 {
-                return Err((
-                    "materials[0].poisson_ratio".into(),
-                    "the 2D/3D vibrating bar needs poisson_ratio = 0 for the 1D solution to hold"
-                        .into(),
-                ));
-            }
-        }
-        BenchmarkKind::AxisAlignedMms | BenchmarkKind::GeneralizedVortex => {
-            let name = if b.kind == BenchmarkKind::AxisAlignedMms {
-                "axis_aligned_mms"
-            } else {
-                "generalized_vortex"
-            };
-            need_model(Model::NeoHookean, name)?;
-            if b.mode.is_some() {
-                return Err(("benchmark.mode".into(), format!("not used by `{name}`")));
-            }
-            if b.kind == BenchmarkKind::GeneralizedVortex {
-                if s.dim != 2 {
-                    return Err(("dim".into(), "`generalized_vortex` is a 2D problem".into()));
-                }
-                if !matches!(body.shape, Shape::Annulus { .. }) {
-                    return Err((
-                        "bodies[0].shape".into(),
-                        "`generalized_vortex` needs the ring as an `annulus`".into(),
-                    ));
-                }
-            } else {
-                for a in 0..s.dim {
-                    if s.grid.lower[a] != 0.0 || s.grid.upper[a] != 1.0 {
-                        return Err((
-                            "grid.lower".into(),
-                            "`axis_aligned_mms` is posed on the unit interval/square/cube: lower = 0, upper = 1".into(),
-                        ));
-                    }
-                }
-            }
-        }
-    }
-    Ok(())
-}
 
 impl<const D: usize> Benchmark<D> {
     pub fn new(s: &Scene) -> Option<Self> {

@@ -38,7 +38,7 @@
 //! chunks and keeps those in its cells: O(N) reading per rank, fine for the sizes of a
 //! few nodes but not for thousands of ranks.
 
-use crate::io::{self, h5err, lockstep, Entry, IoError, Writer};
+use crate::io::{self, agree, h5err, lockstep, Entry, IoError, Writer};
 use crate::particles::{Carries, Particles};
 use crate::shape::Geom;
 use crate::solver::{Solver, Totals};
@@ -507,26 +507,6 @@ fn lineage_of(f: &hdf5::File) -> Option<String> {
         .and_then(|a| a.read_scalar::<VarLenUnicode>())
         .ok()
         .map(|s| s.as_str().to_string())
-}
-
-/// Collective: `Some(message)` on every rank if any rank has an error; the message is
-/// the first failing rank's own on rank 0, a pointer to it elsewhere.
-pub fn agree(comm: &dyn Communicator, mine: Option<String>) -> Option<String> {
-    if !comm.any(mine.is_some()) {
-        return None;
-    }
-    let all = comm.gather_bytes(mine.as_deref().unwrap_or("").as_bytes());
-    if comm.rank() == 0 {
-        let (r, m) = all
-            .iter()
-            .enumerate()
-            .find(|(_, m)| !m.is_empty())
-            .expect("some rank failed");
-        let m = String::from_utf8_lossy(m).into_owned();
-        Some(if r == 0 { m } else { format!("rank {r}: {m}") })
-    } else {
-        Some(mine.unwrap_or_else(|| "failed on another rank".into()))
-    }
 }
 
 /// An HDF5 file that is an mpmcg checkpoint of this format version, opened for reading.

@@ -193,7 +193,7 @@ fn restart_scene(
     scene_file: &Option<PathBuf>,
 ) -> Result<(scene::Scene, String), String> {
     let header = checkpoint::read_header(ckpt);
-    if let Some(m) = checkpoint::agree(comm, header.as_ref().err().cloned()) {
+    if let Some(m) = crate::io::agree(comm, header.as_ref().err().cloned()) {
         return Err(m);
     }
     let header = header.expect("agreed");

@@ -511,8 +511,8 @@ pub(crate) fn close(
     }
     // The first failure is the one to report: a failed write before the failed close
     // it causes.
-    let m = crate::checkpoint::agree(comm, write_error)
-        .or_else(|| crate::checkpoint::agree(comm, closed.err()))
+    let m = agree(comm, write_error)
+        .or_else(|| agree(comm, closed.err()))
         .unwrap_or_else(|| format!("{}: writing failed", path.display()));
     Err(IoError(match cause {
         Some(c) if root => format!("{m}: {c}"),
@@ -702,5 +702,25 @@ impl Drop for Owned {
             // this guard alone, and its close function is the one for its kind.
             unsafe { (self.1)(self.0) };
         }
+    }
+}
+
+/// Collective: `Some(message)` on every rank if any rank has an error; the message is
+/// the first failing rank's own on rank 0, a pointer to it elsewhere.
+pub fn agree(comm: &dyn Communicator, mine: Option<String>) -> Option<String> {
+    if !comm.any(mine.is_some()) {
+        return None;
+    }
+    let all = comm.gather_bytes(mine.as_deref().unwrap_or("").as_bytes());
+    if comm.rank() == 0 {
+        let (r, m) = all
+            .iter()
+            .enumerate()
+            .find(|(_, m)| !m.is_empty())
+            .expect("some rank failed");
+        let m = String::from_utf8_lossy(m).into_owned();
+        Some(if r == 0 { m } else { format!("rank {r}: {m}") })
+    } else {
+        Some(mine.unwrap_or_else(|| "failed on another rank".into()))
     }
 }

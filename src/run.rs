@@ -3,7 +3,7 @@
 //! the output folder (`summary.json`, `history.csv`).
 
 use crate::checkpoint::{self, RunState, SolverState};
-use crate::io::{Labels, Snapshots};
+use crate::io::{agree, Labels, Snapshots};
 use crate::particles::Particles;
 use crate::progress::Progress;
 use crate::scene::{CheckpointEvery, Face, Scene};
@@ -314,7 +314,7 @@ fn set_up<'c, const D: usize>(
     let r = checkpoint::read_header(path).and_then(|h| {
         checkpoint::read::<D>(&h, comm.rank(), layout, &geom, carries).map(|x| (h, x))
     });
-    if let Some(m) = checkpoint::agree(comm, r.as_ref().err().cloned()) {
+    if let Some(m) = agree(comm, r.as_ref().err().cloned()) {
         return Err(RunError::Input(m));
     }
     let (header, restored) = r.expect("agreed: no rank failed");
@@ -381,7 +381,7 @@ fn run_dim<const D: usize>(
     } else {
         None
     };
-    if let Some(m) = checkpoint::agree(comm, made) {
+    if let Some(m) = agree(comm, made) {
         return Err(RunError::Io(m));
     }
     // One run at a time in a folder; the lock goes when `_lock` is dropped, on every
@@ -395,7 +395,7 @@ fn run_dim<const D: usize>(
     let message = locked.map(|e| match e {
         crate::lock::LockError::Held(m) | crate::lock::LockError::Io(m) => m,
     });
-    if let Some(m) = checkpoint::agree(comm, message) {
+    if let Some(m) = agree(comm, message) {
         return Err(if comm.any(held) {
             RunError::Input(m)
         } else {
@@ -467,7 +467,7 @@ fn run_dim<const D: usize>(
             }
         }
     }
-    if let Some(m) = checkpoint::agree(comm, history.error.clone()) {
+    if let Some(m) = agree(comm, history.error.clone()) {
         return Err(RunError::Io(m));
     }
 
@@ -786,7 +786,7 @@ fn run_dim<const D: usize>(
     }
     // No rank leaves before rank 0 has written everything: mpirun ends the whole job
     // as soon as one rank exits with a non-zero status.
-    if let Some(m) = checkpoint::agree(comm, written) {
+    if let Some(m) = agree(comm, written) {
         return Err(RunError::Io(m));
     }
     match (failure, stopped_by) {
