@@ -230,6 +230,23 @@ fn full_disk_ends_cleanly_and_keeps_the_last_checkpoint() {
 struct Killed(std::process::Child);
 
 impl Killed {
+    /// `mpmcg run SCENE --out OUT --quiet` in the background, its stderr discarded.
+    fn run(scene: &std::path::Path, out: &std::path::Path) -> Self {
+        Killed(
+            std::process::Command::new(bin())
+                .args([
+                    "run".as_ref(),
+                    scene.as_os_str(),
+                    "--out".as_ref(),
+                    out.as_os_str(),
+                    "--quiet".as_ref(),
+                ])
+                .stderr(std::process::Stdio::null())
+                .spawn()
+                .unwrap(),
+        )
+    }
+
     fn id(&self) -> u32 {
         self.0.id()
     }
@@ -276,19 +293,7 @@ fn second_run_on_a_locked_folder_is_refused() {
     let other = dir.join("other.toml");
     std::fs::write(&other, short_scene(0.1, "")).unwrap();
     let out = dir.join("out");
-    let mut first = Killed(
-        std::process::Command::new(bin())
-            .args([
-                "run",
-                long.to_str().unwrap(),
-                "--out",
-                out.to_str().unwrap(),
-                "--quiet",
-            ])
-            .stderr(std::process::Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
+    let mut first = Killed::run(&long, &out);
     assert!(
         wait_for(&out.join(LOCK), 60),
         "the first run locks its folder"
@@ -545,19 +550,7 @@ fn sigterm_is_honoured_within_a_step_at_the_highest_output_rate() {
     )
     .unwrap();
     let out = dir.join("out");
-    let mut run = Killed(
-        std::process::Command::new(bin())
-            .args([
-                "run",
-                scene.to_str().unwrap(),
-                "--out",
-                out.to_str().unwrap(),
-                "--quiet",
-            ])
-            .stderr(std::process::Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
+    let mut run = Killed::run(&scene, &out);
     assert!(
         wait_for(&out.join("particles_000005.h5"), 60),
         "the run writes snapshots"

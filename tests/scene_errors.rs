@@ -170,6 +170,20 @@ fn check(name: &str, contents: impl AsRef<[u8]>) -> Rejected {
     Rejected::new(&file, contents.as_ref(), out)
 }
 
+/// `mpmcg check` on a scene file with these contents, which must pass.
+fn accepted(name: &str, contents: &str) {
+    let dir = Scratch::new(name);
+    let file = dir.0.join(format!("{name}.toml"));
+    std::fs::write(&file, contents).expect("write the scene");
+    let out = mpmcg(&["check".as_ref(), file.as_os_str()]);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{name}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 /// `mpmcg run --out DIR` on a scene file with these contents: rejected before any
 /// output is written.
 fn run(name: &str, contents: impl AsRef<[u8]>) -> Rejected {
@@ -1016,16 +1030,7 @@ fn bodies_that_seed_no_particle() {
         "center = [0.8, 0.8], radius = 0.2",
         "center = [0.8, 0.8], radius = 0.018",
     );
-    let dir = Scratch::new("body_small");
-    let file = dir.0.join("body_small.toml");
-    std::fs::write(&file, &small).unwrap();
-    let out = mpmcg(&["check".as_ref(), file.as_os_str()]);
-    assert_eq!(
-        out.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    accepted("body_small", &small);
 }
 
 #[test]
@@ -1046,14 +1051,5 @@ fn overlapping_bodies() {
         "center = [0.8, 0.8], radius = 0.2",
         "center = [0.6, 0.2], radius = 0.19",
     );
-    let dir = Scratch::new("bodies_near");
-    let file = dir.0.join("bodies_near.toml");
-    std::fs::write(&file, &near).unwrap();
-    let out = mpmcg(&["check".as_ref(), file.as_os_str()]);
-    assert_eq!(
-        out.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    accepted("bodies_near", &near);
 }
