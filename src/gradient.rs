@@ -451,6 +451,63 @@ pub fn mpmcg<const D: usize>(
     mpmcg_with(geom, omega, x, |xi| alpha.eval(xi))
 }
 
+/// The velocity a two-step scheme moves a point `x` of Ω with, from nodal velocities
+/// `vel` (by unwrapped node): `u(x) = Σ_j S_j(x) (v̄_j + L̄_j (x − x_j))` over the nodes
+/// `j` of `x`'s cell, with `L̄_j = (1/V_j) Σ_i v_i ⊗ ∫_Ω w S_j ∇S_i dv` and
+/// `v̄_j = (1/V_j) ∫_Ω w S_j (v_h(y) + L̄_j (x_j − y)) dy`, `v_h = Σ_i S_i v_i`. Grids
+/// without walls (free or periodic faces): the solver also applies wall conditions to
+/// `v̄_j`.
+pub fn moving_velocity<const D: usize>(
+    geom: &Geom<D>,
+    omega: &Domain<D>,
+    x: &[f64; D],
+    vel: impl Fn([i64; D]) -> [f64; D],
+) -> [f64; D] {
+    let mut u = [0.0; D];
+    for (j, sj, _) in linear_shape(geom, x) {
+        let vj = node_volume(geom, omega, j);
+        let mut l = [[0.0; D]; D];
+        for i in box_nodes(std::array::from_fn(|a| j[a] - 1), 3) {
+            if !(0..D).all(|a| exists(geom, a, i[a])) {
+                continue;
+            }
+            let (w, v) = (integral(geom, omega, j, i), vel(i));
+            for a in 0..D {
+                for b in 0..D {
+                    l[a][b] += v[a] * w[b] / vj;
+                }
+            }
+        }
+        let xj = geom.node_position(j);
+        let mut vbar = [0.0; D];
+        for c in shared_cells(j, j) {
+            if !omega.contains(geom, c) {
+                continue;
+            }
+            let part: [f64; D] = cell_quadrature(geom, c, |y| {
+                let s_j: f64 = (0..D).map(|a| hat(geom, a, j[a], y[a])).product();
+                let mut vh = [0.0; D];
+                for i in box_nodes(c, 2) {
+                    let si: f64 = (0..D).map(|a| hat(geom, a, i[a], y[a])).product();
+                    let v = vel(i);
+                    (0..D).for_each(|a| vh[a] += si * v[a]);
+                }
+                std::array::from_fn(|a| {
+                    let corr: f64 = (0..D).map(|b| l[a][b] * (xj[b] - y[b])).sum();
+                    s_j * (vh[a] + corr)
+                })
+            });
+            let wc = omega.weight(geom, c);
+            (0..D).for_each(|a| vbar[a] += wc * part[a] / vj);
+        }
+        for a in 0..D {
+            let lin: f64 = (0..D).map(|b| l[a][b] * (x[b] - xj[b])).sum();
+            u[a] += sj * (vbar[a] + lin);
+        }
+    }
+    u
+}
+
 /// `G_i(x)` of `scheme` at `x`, as (global unwrapped node index, G) pairs. Ω matters
 /// only for `averaged` and `mpmcg`, which need `x` in a cell of Ω.
 pub fn gradient<const D: usize>(

@@ -72,6 +72,9 @@ pub struct Kern<const D: usize, const N: usize> {
     pub s: [f64; N],
     pub g: [[f64; D]; N],
     pub alpha: f64,
+    /// Local cell coordinate ξ per axis (linear shapes only: the offset of node `n`
+    /// from the particle is `(ξ_a − o_a) h_a`, `o_a` its corner bit).
+    pub frac: [f64; D],
     /// Per axis: the particle gives weight to a node on the lower / upper grid face.
     pub ends: [[bool; 2]; D],
 }
@@ -100,8 +103,14 @@ impl<const D: usize> Ctx<'_, D> {
                 Alpha::ProductOfShapes => w.bubble,
                 Alpha::Constant(c) => c,
             },
+            frac: [0.0; D],
             ends: [[false; 2]; D],
         };
+        if !self.gimp {
+            for a in 0..D {
+                k.frac[a] = w.w[a][1];
+            }
+        }
         // Only the gather's slip-wall clip reads which grid faces the particle touches:
         // the other passes skip this per-particle work.
         if self.slip_walls {
@@ -297,6 +306,9 @@ pub struct GatherMode {
     pub move_now: bool,
     /// The scheme uses grid-averaged gradients (`avg` holds L̄).
     pub two_step: bool,
+    /// `avg` holds L̄ and v̄ of slot 1: move with [`moving_velocity`] (two-step
+    /// schemes under USL and USF; under MUSL the stress pass sets the move).
+    pub recon: bool,
     /// Report the fastest signal speed (only the step's last particle pass needs to:
     /// a wave speed costs a logarithm and a square root per particle).
     pub speed: bool,
@@ -309,8 +321,84 @@ pub struct StressMode {
     pub slot: usize,
     pub dt: f64,
     pub two_step: bool,
+    /// Set the position increments `dx` from [`moving_velocity`] (two-step schemes
+    /// under MUSL, whose gather ran before the remap).
+    pub moves: bool,
     /// Report the fastest signal speed (see [`GatherMode::speed`]).
     pub speed: bool,
+}
+
+/// Layout of the nodal averages of the two-step schemes, `WIDTH` numbers per node: in
+/// the force step σ̄_j (D × D, row-major); in the gradient step L̄_j (D × D) and then the
+/// smoothed velocity v̄_j (D) at `VBAR`, so that one halo copy carries both.
+pub struct AvgRecord<const D: usize>;
+
+impl<const D: usize> AvgRecord<D> {
+    pub const WIDTH: usize = D * D + D;
+    pub const VBAR: usize = D * D;
+}
+
+/// The velocity two-step schemes move a particle with: the nodal linear
+/// reconstructions `v̄_j + L̄_j (x − x_j)` blended by the shape functions,
+/// `u(x) = Σ_j S_j(x) (v̄_j + L̄_j (x − x_j))`. Exact for linear velocity fields, like
+/// the grid interpolation `Σ_i S_i v_i`, but built from the same nodal averages as the
+/// particle's velocity gradient, so the particles separate only as fast as their
+/// deformation gradients register (README, "The cantilever family").
+#[inline(always)]
+pub(crate) fn moving_velocity<const D: usize, const N: usize>(
+    k: &Kern<D, N>,
+    avg: &[f64],
+    h: &[f64; D],
+) -> Vector<D> {
+    let w = AvgRecord::<D>::WIDTH;
+    let mut u = Vector::<D>::zeros();
+    for n in 0..N {
+        let rec = &avg[k.idx[n] * w..(k.idx[n] + 1) * w];
+        let mut d = [0.0; D];
+        for a in 0..D {
+            d[a] = (k.frac[a] - ((n >> a) & 1) as f64) * h[a];
+        }
+        for a in 0..D {
+            let mut x = rec[AvgRecord::<D>::VBAR + a];
+            for b in 0..D {
+                x += rec[a * D + b] * d[b];
+            }
+            u[a] += k.s[n] * x;
+        }
+    }
+    u
+}
+
+/// A particle that touches a slip wall's node may move into that wall no faster than
+/// the velocity it moves with, `vm` (which vanishes at the wall): the normal component
+/// of its velocity `v` is clipped to `vm`'s. Returns the kinetic energy the clip takes
+/// out (≤ 0), the wall's work.
+#[inline(always)]
+fn clip_at_slip_walls<const D: usize, const N: usize>(
+    ctx: &Ctx<'_, D>,
+    k: &Kern<D, N>,
+    v: &mut Vector<D>,
+    vm: &Vector<D>,
+    mass: f64,
+) -> f64 {
+    let free = *v;
+    for a in 0..D {
+        for side in 0..2 {
+            if k.ends[a][side] && ctx.faces[a][side] == Face::Slip {
+                v[a] = if side == 0 {
+                    v[a].max(vm[a])
+                } else {
+                    v[a].min(vm[a])
+                };
+            }
+        }
+    }
+    // The wall is an external force: its impulse m (new − free) does the work
+    // m (new − free)·(new + free)/2 by the midpoint rule gravity's work uses, i.e. the
+    // kinetic energy the clip takes out. A wall at rest does no work on the continuum;
+    // this is what the discrete impact dissipates there, counted so that the balance
+    // keeps measuring the integrator.
+    0.5 * mass * (v.norm_squared() - free.norm_squared())
 }
 
 /// Velocity gradient at a particle from velocity slot `slot` and, for two-step
@@ -338,7 +426,8 @@ pub(crate) fn velocity_gradient<const D: usize, const N: usize>(
         }
         if two && k.alpha != 1.0 {
             let c = (1.0 - k.alpha) * k.s[n];
-            let lb = &avg[i * D * D..(i + 1) * D * D];
+            let w = AvgRecord::<D>::WIDTH;
+            let lb = &avg[i * w..i * w + D * D];
             for a in 0..D {
                 for b in 0..D {
                     l[(a, b)] += c * lb[a * D + b];
@@ -411,36 +500,25 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
             }
             let old = s.v[p];
             let mut new = (old + dv) * m.flip + vn * (1.0 - m.flip);
+            // The velocity the particle moves with: the grid's, or for a two-step
+            // scheme whose L̄ and v̄ of slot 1 are at hand, their reconstruction.
+            let vm = if m.recon {
+                moving_velocity(&k, avg, &ctx.geom.h)
+            } else {
+                vn
+            };
             // At a slip wall the grid's normal velocity is zeroed before and after the
             // force update alike, so FLIP's increment never tells a particle that the
             // wall stopped it: particles kept their velocity into the wall (Taylor bar:
-            // -176 m/s at 0.1 mm from it at 80 µs). A particle that touches a slip wall's
-            // node may therefore move into that wall no faster than the grid's velocity
-            // at its position (which vanishes at the wall and is what the particle moves
-            // with): its normal component is clipped to the grid's. Clipping, not PIC:
-            // PIC every step also damps legitimate subgrid motion (bent beam at its
-            // clamp: 6 % of the energy in two periods for the normal component, 12 % for
-            // all, 1.1 % clipping). Not at fixed walls: there the material is clamped,
-            // and clipping pressed the cantilever's compressed root onto the clamp until
-            // particles left the grid through it (5 and 6 m beams at 3 × 3 per cell).
-            let free = new;
-            for a in 0..D {
-                for side in 0..2 {
-                    if k.ends[a][side] && ctx.faces[a][side] == Face::Slip {
-                        new[a] = if side == 0 {
-                            new[a].max(vn[a])
-                        } else {
-                            new[a].min(vn[a])
-                        };
-                    }
-                }
-            }
-            // The wall is an external force: its impulse m (new − free) does the work
-            // m (new − free)·(new + free)/2 by the midpoint rule gravity's work uses
-            // below, i.e. the kinetic energy the clip takes out. A wall at rest does no
-            // work on the continuum; this is what the discrete impact dissipates there,
-            // counted so that the balance keeps measuring the integrator.
-            t.work += 0.5 * s.mass[p] * (new.norm_squared() - free.norm_squared());
+            // -176 m/s at 0.1 mm from it at 80 µs). So its normal component is clipped
+            // to the one the particle moves with (which vanishes at the wall). Clipping,
+            // not PIC: PIC every step also damps legitimate subgrid motion (bent beam at
+            // its clamp: 6 % of the energy in two periods for the normal component, 12 %
+            // for all, 1.1 % clipping). Not at fixed walls: there the material is
+            // clamped, and clipping pressed the cantilever's compressed root onto the
+            // clamp until particles left the grid through it (5 and 6 m beams at 3 × 3
+            // per cell).
+            t.work += clip_at_slip_walls(ctx, &k, &mut new, &vm, s.mass[p]);
             t.work += m.dt * s.mass[p] * ctx.accel(s.x0, p).dot(&(old + new)) * 0.5;
             s.v[p] = new;
             t.ok &= new.iter().all(|x| x.is_finite());
@@ -449,9 +527,9 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
                 t.ok &= deform(ctx, &mut s, p, &l, m.dt);
             }
             if m.move_now {
-                s.x[p] += vn * m.dt;
+                s.x[p] += vm * m.dt;
             } else {
-                s.dx[p] = vn * m.dt;
+                s.dx[p] = vm * m.dt;
             }
             if m.speed {
                 t.max_speed = t.max_speed.max(speed(ctx, &s, p));
@@ -476,6 +554,16 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
             let k = ctx.kern::<NA, N>(&s.x[p], half);
             let l = velocity_gradient(&k, vel, avg, m.slot, m.two_step);
             t.ok &= deform(ctx, &mut s, p, &l, m.dt);
+            if m.moves {
+                // MUSL, two-step scheme: the particle moves with the reconstruction of
+                // the remapped velocity (and its velocity into a slip wall is clipped to
+                // that, as in the gather).
+                let vm = moving_velocity(&k, avg, &ctx.geom.h);
+                let mut v = s.v[p];
+                t.work += clip_at_slip_walls(ctx, &k, &mut v, &vm, s.mass[p]);
+                s.v[p] = v;
+                s.dx[p] = vm * m.dt;
+            }
             if m.speed {
                 t.max_speed = t.max_speed.max(speed(ctx, &s, p));
             }

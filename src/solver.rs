@@ -4,7 +4,7 @@
 //! node→node stencils, migration after the position update).
 
 use crate::benchmark::Benchmark;
-use crate::kernel::{self, NodeRecord, SlabOrder};
+use crate::kernel::{self, AvgRecord, NodeRecord, SlabOrder};
 use crate::material::Material;
 use crate::particles::{Carries, Particles};
 use crate::scene::{Face, Gradient, Scene, Update};
@@ -161,6 +161,8 @@ pub struct Solver<'c, const D: usize> {
     node_vol: Vec<f64>,
     /// `∫_c S_j ∇S_i dv` over one cell for its corners j (first index) and i (second).
     cell_k: [[[f64; D]; CORNERS]; CORNERS],
+    /// `∫_c S_j S_i dv` over one cell for its corners j and i.
+    cell_m: [[f64; CORNERS]; CORNERS],
     /// Linear index offset of each cell corner.
     corner_delta: [usize; CORNERS],
     /// Node mass below which a node is treated as empty.
@@ -200,7 +202,13 @@ pub enum Phase {
         speed: bool,
     },
     /// Deformation and stress from velocity `slot` at the current positions.
-    Stress { slot: usize, speed: bool },
+    /// `moves`: also set the position increments for `Move` (MUSL: the particles move
+    /// with the remapped velocity's reconstruction, see [`kernel::moving_velocity`]).
+    Stress {
+        slot: usize,
+        speed: bool,
+        moves: bool,
+    },
     /// Apply the position increments a `Gather { move_now: false }` kept.
     Move,
 }
@@ -237,6 +245,7 @@ impl Update {
                 Stress {
                     slot: 0,
                     speed: false,
+                    moves: false,
                 },
                 Scatter {
                     forces: true,
@@ -244,6 +253,8 @@ impl Update {
                 },
                 AveragedForce,
                 GridUpdate { forces: true },
+                // The reconstruction the particles move with (two-step schemes).
+                AveragedGradient { slot: 1 },
                 Gather {
                     stress: false,
                     move_now: true,
@@ -273,6 +284,7 @@ impl Update {
                 Stress {
                     slot: 0,
                     speed: true,
+                    moves: true,
                 },
                 Move,
             ],
@@ -389,6 +401,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             cell_w: Vec::new(),
             node_vol: Vec::new(),
             cell_k: [[[0.0; D]; CORNERS]; CORNERS],
+            cell_m: [[0.0; CORNERS]; CORNERS],
             corner_delta: [0; CORNERS],
             mass_floor: 0.0,
             slabs: SlabOrder::default(),
@@ -454,7 +467,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.scat = vec![0.0; nn * self.sw];
         self.vel = vec![0.0; nn * 2 * D];
         if two {
-            self.avg = vec![0.0; nn * D * D];
+            self.avg = vec![0.0; nn * AvgRecord::<D>::WIDTH];
             self.fill = vec![0.0; nn];
             self.cell_w = vec![0.0; nn];
             self.node_vol = vec![0.0; nn];
@@ -462,6 +475,13 @@ impl<'c, const D: usize> Solver<'c, D> {
                 self.corner_delta[q] = (0..D).map(|a| ((q >> a) & 1) * st[a]).sum();
                 for r in 0..(1 << D) {
                     self.cell_k[r][q] = cell_integral::<D>(&self.geom.h, r, q);
+                    // ∫_c S_r S_q dv: h/3 per axis on which the corners agree, h/6 else.
+                    self.cell_m[r][q] = (0..D)
+                        .map(|a| {
+                            let same = (r >> a) & 1 == (q >> a) & 1;
+                            self.geom.h[a] / if same { 3.0 } else { 6.0 }
+                        })
+                        .product();
                 }
             }
         } else {
@@ -611,19 +631,20 @@ impl<'c, const D: usize> Solver<'c, D> {
     fn averaged_force(&mut self) {
         let sw = self.sw;
         let dd = D * D;
+        let aw = AvgRecord::<D>::WIDTH;
         // σ̄_j = T_j / V_j on owned nodes, then to the ghosts.
         let mut avg = std::mem::take(&mut self.avg);
         self.for_owned(|n, _| {
             let v = self.node_vol[n];
             for c in 0..dd {
-                avg[n * dd + c] = if v > 0.0 {
+                avg[n * aw + c] = if v > 0.0 {
                     self.scat[n * sw + NodeRecord::<D>::stress_sum(0, 0) + c] / v
                 } else {
                     0.0
                 };
             }
         });
-        self.block.ghost_copy(self.comm, &mut avg, dd);
+        self.block.ghost_copy(self.comm, &mut avg, aw);
         let mut scat = std::mem::take(&mut self.scat);
         self.for_owned(|i, ci| {
             let mut f = [0.0; D];
@@ -631,7 +652,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                 for r in 0..(1 << D) {
                     let j = cell + self.corner_delta[r];
                     let w = &self.cell_k[r][q];
-                    let s = &avg[j * dd..(j + 1) * dd];
+                    let s = &avg[j * aw..j * aw + dd];
                     for a in 0..D {
                         for b in 0..D {
                             f[a] += wc * s[a * D + b] * w[b];
@@ -690,18 +711,32 @@ impl<'c, const D: usize> Solver<'c, D> {
         }
     }
 
-    /// `L̄_j = (1/V_j) Σ_i v_i ⊗ ∫_Ω S_j ∇S_i dv` on owned nodes from velocity slot
-    /// `slot`, then to the ghosts (stored in `avg`).
+    /// `L̄_j = (1/V_j) Σ_i v_i ⊗ ∫ w S_j ∇S_i dv` on owned nodes from velocity slot
+    /// `slot`, then the smoothed velocity
+    /// `v̄_j = (1/V_j) Σ_i (v_i + L̄_j (x_j − x_i)) ∫ w S_j S_i dv` (the weighted mean of the
+    /// grid velocity over the node's support, corrected by L̄_j to the node, so that a
+    /// linear field gives its own nodal value; walls as on the grid velocity), both to
+    /// the ghosts in `avg` ([`AvgRecord`]). The particles' velocity gradient and the
+    /// velocity they move with ([`kernel::moving_velocity`]) are built from these.
     fn averaged_velocity_gradient(&mut self, slot: usize) {
         let dd = D * D;
+        let aw = AvgRecord::<D>::WIDTH;
+        let h = self.geom.h;
         let mut avg = std::mem::take(&mut self.avg);
         self.for_owned(|j, cj| {
+            let vol = self.node_vol[j];
+            let rec = &mut avg[j * aw..(j + 1) * aw];
+            if vol <= 0.0 {
+                rec.iter_mut().for_each(|x| *x = 0.0);
+                return;
+            }
+            let vel = |i: usize| &self.vel[i * 2 * D + slot * D..i * 2 * D + slot * D + D];
             let mut l = [0.0; 9];
             self.cells_around(j, &cj, |q, cell, wc| {
                 for r in 0..(1 << D) {
                     let i = cell + self.corner_delta[r];
                     let w = &self.cell_k[q][r];
-                    let v = &self.vel[i * 2 * D + slot * D..i * 2 * D + slot * D + D];
+                    let v = vel(i);
                     for a in 0..D {
                         for b in 0..D {
                             l[a * D + b] += wc * v[a] * w[b];
@@ -709,12 +744,35 @@ impl<'c, const D: usize> Solver<'c, D> {
                     }
                 }
             });
-            let vol = self.node_vol[j];
             for c in 0..dd {
-                avg[j * dd + c] = if vol > 0.0 { l[c] / vol } else { 0.0 };
+                l[c] /= vol;
             }
+            let mut u = [0.0; 3];
+            self.cells_around(j, &cj, |q, cell, wc| {
+                for r in 0..(1 << D) {
+                    let i = cell + self.corner_delta[r];
+                    let m = wc * self.cell_m[q][r];
+                    let v = vel(i);
+                    for a in 0..D {
+                        let mut x = v[a];
+                        for b in 0..D {
+                            let d = ((q >> b) & 1) as f64 - ((r >> b) & 1) as f64;
+                            x += l[a * D + b] * d * h[b];
+                        }
+                        u[a] += m * x;
+                    }
+                }
+            });
+            let mut vb = [0.0; 6];
+            for a in 0..D {
+                vb[a] = u[a] / vol;
+                vb[D + a] = vb[a];
+            }
+            self.apply_bc(cj, &mut vb[..2 * D]);
+            rec[..dd].copy_from_slice(&l[..dd]);
+            rec[dd..].copy_from_slice(&vb[..D]);
         });
-        self.block.ghost_copy(self.comm, &mut avg, dd);
+        self.block.ghost_copy(self.comm, &mut avg, aw);
         self.avg = avg;
     }
 
@@ -839,7 +897,9 @@ impl<'c, const D: usize> Solver<'c, D> {
                 move_now,
                 speed,
             } => return self.gather(dt, stress, move_now, speed),
-            Phase::Stress { slot, speed } => return self.update_stress_from(slot, dt, speed),
+            Phase::Stress { slot, speed, moves } => {
+                return self.update_stress_from(slot, dt, speed, moves)
+            }
             Phase::Move => {
                 for (x, dx) in self.parts.x.iter_mut().zip(&self.dx) {
                     *x += dx;
@@ -864,6 +924,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             stress,
             move_now,
             two_step: self.two_step(),
+            recon: self.two_step() && move_now,
             speed,
         };
         let mut ctx = ctx!(self);
@@ -886,14 +947,16 @@ impl<'c, const D: usize> Solver<'c, D> {
     }
 
     /// Stress update from grid velocity slot `slot` at the current positions.
-    fn update_stress_from(&mut self, slot: usize, dt: f64, speed: bool) -> bool {
+    fn update_stress_from(&mut self, slot: usize, dt: f64, speed: bool, moves: bool) -> bool {
         let m = kernel::StressMode {
             slot,
             dt,
             two_step: self.two_step(),
+            moves: moves && self.two_step(),
             speed,
         };
-        let ctx = ctx!(self);
+        let mut ctx = ctx!(self);
+        ctx.slip_walls = m.moves && self.faces.iter().flatten().any(|f| *f == Face::Slip);
         let parts = slices!(self);
         let t = by_nodes!(
             self.gradient == Gradient::Gimp,
@@ -904,6 +967,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             &self.avg,
             m
         );
+        self.external_work += t.work;
         if speed {
             self.max_speed = t.max_speed;
         }

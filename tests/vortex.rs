@@ -50,8 +50,14 @@ fn error(gradient: Gradient, cells: usize) -> f64 {
     e
 }
 
-/// MPMCG converges (order ≥ 1.3 from 32 to 64 cells, ≥ 1.9 from 64 to 128) where MPM
-/// stalls, and ends four times more accurate than MPM at 128 cells.
+/// MPMCG converges where MPM stalls: order ≥ 1.9 from 64 to 128 cells, and at every
+/// resolution no less accurate than these runs were before particles moved with the
+/// reconstruction of the nodal averages (2.2766e-2, 8.8363e-3, 2.1948e-3; deterministic
+/// runs, so the bound is exact); it ends four times more accurate than
+/// MPM at 128 cells. The order from 32 to 64 cells is not asserted: 32 cells is before
+/// the asymptotic range (moving particles with the reconstruction lowered the 32-cell
+/// error by 16 % and left the 64-cell one as it was, so that order fell from 1.37 to
+/// 1.12 while every error fell).
 #[test]
 fn mpmcg_converges_where_mpm_stalls() {
     let cg: Vec<f64> = [32, 64, 128]
@@ -59,9 +65,13 @@ fn mpmcg_converges_where_mpm_stalls() {
         .map(|&n| error(Gradient::Mpmcg, n))
         .collect();
     let order = |a: f64, b: f64| (a / b).log2();
-    assert!(cg[0] < 0.03, "mpmcg error {} at 32 cells", cg[0]);
-    let (o1, o2) = (order(cg[0], cg[1]), order(cg[1], cg[2]));
-    assert!(o1 > 1.3, "mpmcg order {o1} from 32 to 64 cells ({cg:?})");
+    for (e, committed) in cg.iter().zip([2.2766e-2, 8.8363e-3, 2.1948e-3]) {
+        assert!(
+            *e <= committed,
+            "mpmcg errors {cg:?}, committed {committed}"
+        );
+    }
+    let o2 = order(cg[1], cg[2]);
     assert!(o2 > 1.9, "mpmcg order {o2} from 64 to 128 cells ({cg:?})");
     let (m64, m128) = (error(Gradient::Mpm, 64), error(Gradient::Mpm, 128));
     assert!(
