@@ -36,8 +36,9 @@ pub struct Ctx<'a, const D: usize> {
     pub t: f64,
     /// Boundary condition of the lower and upper face per axis.
     pub faces: [[Face; 2]; D],
-    /// Fill [`Kern::ends`] (the gather of a scene with slip walls sets it).
-    pub slip_walls: bool,
+    /// Fill [`Kern::ends`] (the passes that move particles or clip their velocities,
+    /// in a scene with fixed or slip walls, set it).
+    pub walls: bool,
 }
 
 /// Layout of a node's scatter record, `width(two_step)` numbers per node: the mass, the
@@ -113,7 +114,7 @@ impl<const D: usize> Ctx<'_, D> {
         }
         // Only the gather's slip-wall clip reads which grid faces the particle touches:
         // the other passes skip this per-particle work.
-        if self.slip_walls {
+        if self.walls {
             for a in 0..D {
                 for o in 0..NA {
                     let side = self.geom.end(a, w.base[a] + o as i64);
@@ -343,14 +344,21 @@ impl<const D: usize> AvgRecord<D> {
 /// `u(x) = Σ_j S_j(x) (v̄_j + L̄_j (x − x_j))`. Exact for linear velocity fields, like
 /// the grid interpolation `Σ_i S_i v_i`, but built from the same nodal averages as the
 /// particle's velocity gradient, so the particles separate only as fast as their
-/// deformation gradients register (README, "The cantilever family").
+/// deformation gradients register (README, "The schemes"). Next to a fixed or slip
+/// wall the reconstruction of an interior node, carried to the wall by `L̄_j`, need not
+/// vanish there: a particle approaches the wall no faster than the grid velocity of
+/// slot `slot` at its position, which does (without this, particles squeezed into a
+/// cantilever's clamp corner left the grid through the clamp).
 #[inline(always)]
 pub(crate) fn moving_velocity<const D: usize, const N: usize>(
+    ctx: &Ctx<'_, D>,
     k: &Kern<D, N>,
+    vel: &[f64],
     avg: &[f64],
-    h: &[f64; D],
+    slot: usize,
 ) -> Vector<D> {
     let w = AvgRecord::<D>::WIDTH;
+    let h = &ctx.geom.h;
     let mut u = Vector::<D>::zeros();
     for n in 0..N {
         let rec = &avg[k.idx[n] * w..(k.idx[n] + 1) * w];
@@ -364,6 +372,23 @@ pub(crate) fn moving_velocity<const D: usize, const N: usize>(
                 x += rec[a * D + b] * d[b];
             }
             u[a] += k.s[n] * x;
+        }
+    }
+    if ctx.walls {
+        for a in 0..D {
+            for side in 0..2 {
+                if k.ends[a][side] && matches!(ctx.faces[a][side], Face::Fixed | Face::Slip) {
+                    let mut vn = 0.0;
+                    for n in 0..N {
+                        vn += k.s[n] * vel[k.idx[n] * 2 * D + slot * D + a];
+                    }
+                    u[a] = if side == 0 {
+                        u[a].max(vn)
+                    } else {
+                        u[a].min(vn)
+                    };
+                }
+            }
         }
     }
     u
@@ -503,7 +528,7 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
             // The velocity the particle moves with: the grid's, or for a two-step
             // scheme whose L̄ and v̄ of slot 1 are at hand, their reconstruction.
             let vm = if m.recon {
-                moving_velocity(&k, avg, &ctx.geom.h)
+                moving_velocity(ctx, &k, vel, avg, 1)
             } else {
                 vn
             };
@@ -558,7 +583,7 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
                 // MUSL, two-step scheme: the particle moves with the reconstruction of
                 // the remapped velocity (and its velocity into a slip wall is clipped to
                 // that, as in the gather).
-                let vm = moving_velocity(&k, avg, &ctx.geom.h);
+                let vm = moving_velocity(ctx, &k, vel, avg, m.slot);
                 let mut v = s.v[p];
                 t.work += clip_at_slip_walls(ctx, &k, &mut v, &vm, s.mass[p]);
                 s.v[p] = v;

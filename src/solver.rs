@@ -26,7 +26,7 @@ macro_rules! ctx {
             body_force: $s.benchmark.as_ref().filter(|b| b.has_body_force()),
             t: $s.t,
             faces: $s.faces,
-            slip_walls: false,
+            walls: false,
         }
     };
 }
@@ -928,7 +928,11 @@ impl<'c, const D: usize> Solver<'c, D> {
             speed,
         };
         let mut ctx = ctx!(self);
-        ctx.slip_walls = self.faces.iter().flatten().any(|f| *f == Face::Slip);
+        ctx.walls = self
+            .faces
+            .iter()
+            .flatten()
+            .any(|f| matches!(f, Face::Slip | Face::Fixed));
         let parts = slices!(self);
         let t = by_nodes!(
             self.gradient == Gradient::Gimp,
@@ -956,7 +960,12 @@ impl<'c, const D: usize> Solver<'c, D> {
             speed,
         };
         let mut ctx = ctx!(self);
-        ctx.slip_walls = m.moves && self.faces.iter().flatten().any(|f| *f == Face::Slip);
+        ctx.walls = m.moves
+            && self
+                .faces
+                .iter()
+                .flatten()
+                .any(|f| matches!(f, Face::Slip | Face::Fixed));
         let parts = slices!(self);
         let t = by_nodes!(
             self.gradient == Gradient::Gimp,
