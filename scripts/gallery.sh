@@ -23,6 +23,9 @@ run() {
     # The default scene writes no snapshots: ask for some.
     grep -q '^\[output\]' "$tmp" || printf '\n[output]\nevery = 0.1\nfields = ["velocity", "stress"]\n' >> "$tmp"
     echo "gallery: $tag with $g" >&2
+    # A fresh folder: snapshots of an earlier, longer or different run would stay
+    # beside the new ones and render.py picks snapshots by file name.
+    rm -rf "${runs:?}/${tag}_$g"
     target/release/mpmcg run "$tmp" --out "$runs/${tag}_$g" --quiet || true
     rm -f "$tmp"
 }

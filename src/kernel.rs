@@ -344,11 +344,14 @@ impl<const D: usize> AvgRecord<D> {
 /// `u(x) = Σ_j S_j(x) (v̄_j + L̄_j (x − x_j))`. Exact for linear velocity fields, like
 /// the grid interpolation `Σ_i S_i v_i`, but built from the same nodal averages as the
 /// particle's velocity gradient, so the particles separate only as fast as their
-/// deformation gradients register (README, "The schemes"). Next to a fixed or slip
-/// wall the reconstruction of an interior node, carried to the wall by `L̄_j`, need not
-/// vanish there: a particle approaches the wall no faster than the grid velocity of
-/// slot `slot` at its position, which does (without this, particles squeezed into a
-/// cantilever's clamp corner left the grid through the clamp).
+/// deformation gradients register (README, "The schemes"). Next to a wall the
+/// reconstruction of an interior node, carried to the wall by `L̄_j`, need not vanish
+/// on it, while the grid velocity of slot `slot` does (the wall's nodes are held): the
+/// velocity blends from `u` to the grid interpolation `Σ_i S_i v_i` with the particle's
+/// shape weight on the wall's nodes, all components at a fixed wall, the normal one at
+/// a slip wall. Still continuous and exact for linear fields that satisfy the walls; on
+/// the wall it is the grid's. (Unblended, particles squeezed into a cantilever's clamp
+/// corner left the grid through the clamp, and the clamped beam slid off the clamp.)
 #[inline(always)]
 pub(crate) fn moving_velocity<const D: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
@@ -375,18 +378,36 @@ pub(crate) fn moving_velocity<const D: usize, const N: usize>(
         }
     }
     if ctx.walls {
+        // The share of the particle's shape weight on wall nodes: on fixed faces (all
+        // components) and on slip faces normal to each axis (that component).
+        let mut keep_fixed = 1.0;
+        let mut keep = [1.0; D];
         for a in 0..D {
             for side in 0..2 {
-                if k.ends[a][side] && matches!(ctx.faces[a][side], Face::Fixed | Face::Slip) {
+                if !k.ends[a][side] {
+                    continue;
+                }
+                let on_face = if side == 0 {
+                    1.0 - k.frac[a]
+                } else {
+                    k.frac[a]
+                };
+                match ctx.faces[a][side] {
+                    Face::Fixed => keep_fixed *= 1.0 - on_face,
+                    Face::Slip => keep[a] *= 1.0 - on_face,
+                    Face::Free | Face::Periodic => {}
+                }
+            }
+        }
+        if keep_fixed < 1.0 || keep.iter().any(|&k| k < 1.0) {
+            for a in 0..D {
+                let c = keep_fixed * keep[a];
+                if c < 1.0 {
                     let mut vn = 0.0;
                     for n in 0..N {
                         vn += k.s[n] * vel[k.idx[n] * 2 * D + slot * D + a];
                     }
-                    u[a] = if side == 0 {
-                        u[a].max(vn)
-                    } else {
-                        u[a].min(vn)
-                    };
+                    u[a] = c * u[a] + (1.0 - c) * vn;
                 }
             }
         }
