@@ -544,6 +544,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             .begin(self.block.cell_lo[last], self.block.cell_hi[last]);
         let mut prev: Option<[i64; D]> = None;
         let mut node = 0u32;
+        let mut tile = (u64::MAX, 0u32);
         for x in &self.parts.x {
             let (c, _) = self.geom.locate(&std::array::from_fn(|a| x[a]));
             self.slabs.push(c[last]);
@@ -551,7 +552,13 @@ impl<'c, const D: usize> Solver<'c, D> {
                 prev = Some(c);
                 let l: [i64; D] = std::array::from_fn(|a| c[a] - node_lo[a]);
                 self.tiles.touch(l.map(|v| v - below), l.map(|v| v + above));
-                node = self.tiles.index(l.map(|v| v as usize)).unwrap_or(0) as u32;
+                let l = l.map(|v| v as usize);
+                let k = self.tiles.key_of(l);
+                if k != tile.0 {
+                    tile = (k, self.tiles.slot_of_key(k));
+                }
+                // A slot of 0 (a new tile) is fixed by the second pass below.
+                node = self.tiles.index_in(tile.1, l) as u32;
             }
             self.ptile.push(node);
         }

@@ -311,6 +311,14 @@ impl<const D: usize> Tiles<D> {
         (s != 0).then(|| s * Self::TILE_NODES + Self::offset(r))
     }
 
+    /// Storage index of local node `l` given its tile's slot (from
+    /// [`Tiles::slot_of_key`] of [`Tiles::key_of`]`(l)`).
+    #[inline]
+    pub fn index_in(&self, slot: u32, l: [usize; D]) -> usize {
+        let r: [usize; D] = std::array::from_fn(|a| (l[a] + self.shift[a]) & (TILE - 1));
+        slot as usize * Self::TILE_NODES + Self::offset(r)
+    }
+
     /// Tile origin of a slot, in shifted node units (`l + shift`).
     #[inline(always)]
     pub fn origin(&self, slot: usize) -> [usize; D] {
