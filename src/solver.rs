@@ -1518,7 +1518,7 @@ mod sparse_tests {
 
     /// A spinning, drifting neo-Hookean box body [0.25, 0.75]^D in a box [0, upper]^D
     /// with `cells` cells per axis (the scenes below all have h = 1/16).
-    fn text(dim: usize, upper: f64, cells: usize, gradient: &str) -> String {
+    pub(super) fn text(dim: usize, upper: f64, cells: usize, gradient: &str) -> String {
         let v = |x: f64| format!("[{}]", vec![format!("{x:?}"); dim].join(", "));
         let faces: Vec<String> = ["x", "y", "z"][..dim]
             .iter()
@@ -1694,5 +1694,82 @@ velocity_gradient = {{ value = {grad}, about = {c} }}
         assert!(first <= 25 && changes > 0);
         let box_tiles = 129usize.div_ceil(decomposition::TILE).pow(2);
         assert!(last * 20 < box_tiles);
+    }
+}
+
+#[cfg(test)]
+mod sparse_multirank_tests {
+    //! The sparse grid on several ranks (in-process): a body that crosses every block
+    //! boundary, whose nodes on one rank are often stored only because a neighbour's
+    //! particles touch them through the halo.
+    use super::*;
+    use crate::scene;
+    use decomposition::{Layout, LocalComm};
+
+    type State = Vec<(u64, [f64; 2], [f64; 2])>;
+
+    /// Positions and velocities by id after `steps` steps on `ranks` ranks, with the
+    /// largest and smallest active tile count of a rank, and whether particles
+    /// changed rank.
+    fn run(ranks: usize, gradient: &str, steps: usize) -> (State, usize, bool) {
+        let text = super::sparse_tests::text(2, 4.0, 64, gradient);
+        let sc = scene::parse(&text, "sparse").unwrap();
+        let out = LocalComm::run(ranks, |comm| {
+            let layout = Layout::choose([64; 2], [false; 2], ranks).unwrap();
+            let mut s = Solver::<2>::new(&sc, comm, layout);
+            for p in 0..s.parts.len() {
+                s.parts.v[p] += Vector::<2>::new(60.0, 60.0);
+            }
+            let mine: std::collections::BTreeSet<u64> = s.parts.id.iter().copied().collect();
+            let mut most = 0;
+            for _ in 0..steps {
+                s.advance().unwrap();
+                most = most.max(s.tiles.active());
+            }
+            let moved = s.parts.id.iter().any(|i| !mine.contains(i));
+            let st: State = (0..s.parts.len())
+                .map(|p| {
+                    let (x, v) = (s.parts.x[p], s.parts.v[p]);
+                    (s.parts.id[p], [x[0], x[1]], [v[0], v[1]])
+                })
+                .collect();
+            (st, most, moved)
+        });
+        let mut all: State = out.iter().flat_map(|o| o.0.clone()).collect();
+        all.sort_by_key(|r| r.0);
+        let most = out.iter().map(|o| o.1).max().unwrap();
+        (all, most, out.iter().any(|o| o.2))
+    }
+
+    /// 1, 2, 3 and 4 ranks agree to 1e-12 (positions relative to the box, velocities
+    /// relative to the speed) after the body crossed the block boundaries, and no
+    /// rank ever stores more than a fraction of the box's tiles.
+    #[test]
+    fn ranks_agree_on_a_body_crossing_blocks() {
+        for g in ["mpmcg", "gimp"] {
+            let (one, _, _) = run(1, g, 200);
+            for n in [2, 3, 4] {
+                let (got, most, moved) = run(n, g, 200);
+                assert!(moved, "{g} on {n} ranks: no particle changed rank");
+                assert_eq!(got.len(), one.len());
+                let mut worst = 0.0f64;
+                for (a, b) in got.iter().zip(&one) {
+                    assert_eq!(a.0, b.0);
+                    for k in 0..2 {
+                        worst = worst.max((a.1[k] - b.1[k]).abs() / 4.0);
+                        worst = worst.max((a.2[k] - b.2[k]).abs() / 85.0);
+                    }
+                }
+                assert!(worst < 1e-12, "{g} on {n} ranks: difference {worst:e}");
+                // 17 × 17 tiles cover the box; a rank holds the body's and its halo's.
+                assert!(
+                    most < 17 * 17 / 2,
+                    "{g} on {n} ranks: {most} tiles on a rank"
+                );
+            }
+            // The body travelled across the middle of the box, where the blocks meet.
+            let x = one.iter().map(|r| r.1[0]).fold(f64::INFINITY, f64::min);
+            assert!(x > 2.0, "{g}: the body's left edge is at {x}");
+        }
     }
 }
