@@ -13,6 +13,7 @@ use crate::material::{Internal, Material};
 use crate::scene::Face;
 use crate::shape::{self, Alpha, Geom};
 use crate::tensor::{det, Mat, Vector};
+use decomposition::tiles::{Tiles, NEIGHBOURS, TILE, TILE_LOG};
 use nalgebra::Matrix3;
 
 /// Slab thickness in cells for the coloured scatter: a GIMP particle writes one node row
@@ -26,7 +27,8 @@ const GRAIN: usize = 4096;
 pub struct Ctx<'a, const D: usize> {
     pub geom: &'a Geom<D>,
     pub node_lo: [i64; D],
-    pub strides: [usize; D],
+    /// Where the nodes of the local box are stored.
+    pub tiles: &'a Tiles<D>,
     pub gimp: bool,
     pub alpha: Alpha,
     pub materials: &'a [Material],
@@ -86,16 +88,44 @@ impl<const D: usize> Ctx<'_, D> {
         &self,
         x: &Vector<D>,
         half: Option<&[f64; D]>,
+        cell_node: u32,
     ) -> Kern<D, N> {
         let xa: [f64; D] = std::array::from_fn(|a| x[a]);
         let w = match half {
             Some(lp) if self.gimp => shape::gimp(self.geom, &xa, lp),
             _ => shape::linear(self.geom, &xa),
         };
-        let mut base = 0usize;
+        // The particle's nodes lie within one tile of its cell's tile: per axis and
+        // node, the step to the node's tile (×3^a, the neighbour table's numbering)
+        // and the node's offset bits in that tile. `cell_node` is the storage index of
+        // the cell's lower corner, which names the tile (its slot) and the corner's
+        // place in it, so the common case, all nodes in that tile, needs no table.
+        let cell_node = cell_node as usize;
+        let tn = Tiles::<D>::TILE_NODES;
+        let mut step = [[0usize; NA]; D];
+        let mut bits = [[0usize; NA]; D];
+        let mut pow = 1;
+        let mut one_tile = true;
+        let mut first = cell_node;
         for a in 0..D {
-            base += (w.base[a] - self.node_lo[a]) as usize * self.strides[a];
+            let r = (cell_node >> (TILE_LOG * a as u32)) & (TILE - 1);
+            // The first node's place relative to the tile, plus TILE (so >= 0).
+            let below = (w.cell[a] - w.base[a]) as usize; // 0 or 1
+            let rel = r + TILE - below;
+            one_tile &= rel >= TILE && rel + NA <= 2 * TILE;
+            first = first.wrapping_sub(below << (TILE_LOG * a as u32));
+            for o in 0..NA {
+                let m = rel + o;
+                step[a][o] = (m >> TILE_LOG) * pow;
+                bits[a][o] = (m & (TILE - 1)) << (TILE_LOG * a as u32);
+            }
+            pow *= 3;
         }
+        let nb = if one_tile {
+            None
+        } else {
+            Some(self.tiles.neighbours(cell_node / tn))
+        };
         let mut k = Kern {
             idx: [0; N],
             s: [0.0; N],
@@ -127,12 +157,23 @@ impl<const D: usize> Ctx<'_, D> {
         for n in 0..N {
             let mut r = n;
             let mut o = [0usize; D];
-            let mut i = base;
+            let mut t = 0;
+            let mut off = 0;
+            let mut within = 0;
             for a in 0..D {
                 o[a] = r % NA;
                 r /= NA;
-                i += o[a] * self.strides[a];
+                t += step[a][o[a]];
+                off |= bits[a][o[a]];
+                within += o[a] << (TILE_LOG * a as u32);
             }
+            // `t < 27` when the slot is the particle's cell's tile; the mask only
+            // spares the bounds check (a wrong slot gives a wrong node, caught by the
+            // scatter's bounds assertion or visible in the result, never memory unsafety).
+            let i = match nb {
+                None => first.wrapping_add(within),
+                Some(nb) => nb[t & (NEIGHBOURS - 1)] + off,
+            };
             let mut s = 1.0;
             for a in 0..D {
                 s *= w.w[a][o[a]];
@@ -180,6 +221,8 @@ pub struct Slices<'a, const D: usize> {
     pub eps_p: &'a mut [f64],
     pub damage: &'a mut [f64],
     pub stress_zz: &'a mut [f64],
+    /// Storage index of each particle's cell's lower corner node.
+    pub tile: &'a [u32],
 }
 
 fn split_mut<T>(s: &mut [T], mid: usize) -> (&mut [T], &mut [T]) {
@@ -223,6 +266,7 @@ impl<'a, const D: usize> Slices<'a, D> {
         let (e0, e1) = split_mut(self.eps_p, mid);
         let (g0, g1) = split_mut(self.damage, mid);
         let (z0, z1) = split_mut(self.stress_zz, mid);
+        let (k0, k1) = split(self.tile, mid);
         (
             Slices {
                 x: x0,
@@ -240,6 +284,7 @@ impl<'a, const D: usize> Slices<'a, D> {
                 eps_p: e0,
                 damage: g0,
                 stress_zz: z0,
+                tile: k0,
             },
             Slices {
                 x: x1,
@@ -257,6 +302,7 @@ impl<'a, const D: usize> Slices<'a, D> {
                 eps_p: e1,
                 damage: g1,
                 stress_zz: z1,
+                tile: k1,
             },
         )
     }
@@ -534,7 +580,7 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
         let d2 = 2 * D;
         for p in 0..s.len() {
             let half = if ctx.gimp { Some(&s.half[p]) } else { None };
-            let k = ctx.kern::<NA, N>(&s.x[p], half);
+            let k = ctx.kern::<NA, N>(&s.x[p], half, s.tile[p]);
             let mut vn = Vector::<D>::zeros();
             let mut dv = Vector::<D>::zeros();
             for n in 0..N {
@@ -597,7 +643,7 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
         let mut t = Tally::ZERO;
         for p in 0..s.len() {
             let half = if ctx.gimp { Some(&s.half[p]) } else { None };
-            let k = ctx.kern::<NA, N>(&s.x[p], half);
+            let k = ctx.kern::<NA, N>(&s.x[p], half, s.tile[p]);
             let l = velocity_gradient(&k, vel, avg, m.slot, m.two_step);
             t.ok &= deform(ctx, &mut s, p, &l, m.dt);
             if m.moves {
@@ -627,6 +673,8 @@ pub struct ScatterParts<'a, const D: usize> {
     pub mass: &'a [f64],
     pub x0: &'a [Vector<D>],
     pub half: &'a [[f64; D]],
+    /// Storage index of each particle's cell's lower corner node.
+    pub tile: &'a [u32],
 }
 
 /// The particle order of the coloured scatter: particle indices grouped by slab.
@@ -636,35 +684,50 @@ pub struct SlabOrder {
     pub start: Vec<usize>,
     pub order: Vec<u32>,
     slab_of: Vec<u32>,
+    /// Owned cells along the last axis, `[lo, hi)`.
+    lo: usize,
+    hi: usize,
 }
 
 impl SlabOrder {
-    /// Group particles by slab along the last axis of the owned cells `[cell_lo, cell_hi)`.
-    /// Stable: within a slab, particles keep their array order.
-    pub fn build<const D: usize>(
-        &mut self,
-        geom: &Geom<D>,
-        x: &[Vector<D>],
-        cell_lo: usize,
-        cell_hi: usize,
-    ) {
-        let a = D - 1;
+    /// Start grouping particles by slab along the last axis of the owned cells
+    /// `[cell_lo, cell_hi)`: then [`SlabOrder::push`] each particle's cell along that
+    /// axis in array order, and [`SlabOrder::finish`]. Stable: within a slab, particles
+    /// keep their array order.
+    pub fn begin(&mut self, cell_lo: usize, cell_hi: usize) {
         let nslab = (cell_hi - cell_lo).div_ceil(SLAB).max(1);
+        self.lo = cell_lo;
+        self.hi = cell_hi;
         self.start.clear();
         self.start.resize(nslab + 1, 0);
         self.slab_of.clear();
-        for p in x {
-            let c = shape::floor_i64((p[a] - geom.lower[a]) * geom.inv_h[a]);
-            let c = c.clamp(cell_lo as i64, cell_hi as i64 - 1) as usize;
-            let s = (c - cell_lo) / SLAB;
-            self.slab_of.push(s as u32);
-            self.start[s + 1] += 1;
-        }
+    }
+
+    /// The next particle, in cell `c` along the last axis (as `Geom::locate` gives it,
+    /// so that the kern's nodes agree with the slab).
+    #[inline]
+    pub fn push(&mut self, c: i64) {
+        // The scatter's threads rely on this (see `scatter`): a particle outside its
+        // block would write outside its slab's rows.
+        assert!(
+            (self.lo as i64..self.hi as i64).contains(&c),
+            "a particle in cell {c} along the last axis is outside its block [{}, {})",
+            self.lo,
+            self.hi
+        );
+        let s = (c as usize - self.lo) / SLAB;
+        self.slab_of.push(s as u32);
+        self.start[s + 1] += 1;
+    }
+
+    /// Order the pushed particles by slab.
+    pub fn finish(&mut self) {
+        let nslab = self.start.len() - 1;
         for s in 0..nslab {
             self.start[s + 1] += self.start[s];
         }
         self.order.clear();
-        self.order.resize(x.len(), 0);
+        self.order.resize(self.slab_of.len(), 0);
         // Reuse the tail of `start` as insertion cursors, then restore.
         let mut cursor = std::mem::take(&mut self.start);
         for (p, &s) in self.slab_of.iter().enumerate() {
@@ -694,14 +757,33 @@ pub struct ScatterMode {
     /// Also accumulate Σ(1−α) v σ S and the nodes' covered volume Σ v S (two-step
     /// schemes).
     pub two_step: bool,
-    /// Local node row (last axis) of the first owned cell's lower corner.
-    pub row0: usize,
-    /// Node rows in the local box along the last axis.
-    pub rows: usize,
 }
+
+/// The scatter's view of the node records, shared by its threads.
+#[derive(Clone, Copy)]
+struct GridPtr {
+    ptr: *mut f64,
+    len: usize,
+}
+
+// SAFETY: a `GridPtr` is only made in `scatter` from a `&mut [f64]` that it holds for
+// its whole run, and the threads given copies write node records of disjoint node sets
+// (see `scatter`), so sharing it between threads is sharing disjoint parts of a buffer
+// borrowed exclusively.
+unsafe impl Send for GridPtr {}
+unsafe impl Sync for GridPtr {}
 
 /// Particle → grid over all particles into `scat` (cleared by the caller), in slab
 /// colours so that no two threads write the same node.
+///
+/// Why threads never write the same record: slab `s` holds the particles whose cell
+/// lies in cells `[lo + s·SLAB, lo + (s+1)·SLAB)` of the block along the last axis
+/// (`SlabOrder::push` asserts it), and a particle in cell `c` writes nodes `c − 1 ..=
+/// c + 2` along that axis at most (GIMP), so slab `s` writes node rows `lo + s·SLAB − 1
+/// ..= lo + (s+1)·SLAB + 1` and slab `s + 2` starts at row `lo + (s+2)·SLAB − 1`:
+/// disjoint for SLAB >= 3. Same-coloured slabs thus write disjoint node sets, and the
+/// storage map of [`Tiles`] is injective (a node has one tile, a tile one slot), so
+/// they write disjoint records. The two colours run one after the other.
 pub fn scatter<const D: usize, const NA: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
     parts: &ScatterParts<'_, D>,
@@ -709,13 +791,9 @@ pub fn scatter<const D: usize, const NA: usize, const N: usize>(
     scat: &mut [f64],
     m: ScatterMode,
 ) {
-    let row_len = ctx.strides[D - 1] * m.sw;
-    // Node rows slab `s` may write, clamped to the box: GIMP reaches one row further.
-    let reach = if ctx.gimp { 1 } else { 0 };
-    let rows_of = |s: usize| {
-        let lo = (m.row0 + s * SLAB).saturating_sub(reach);
-        let hi = (m.row0 + (s + 1) * SLAB + 1 + reach).min(m.rows);
-        (lo, hi)
+    let grid = GridPtr {
+        ptr: scat.as_mut_ptr(),
+        len: scat.len(),
     };
     let ns = slabs.slabs();
     for colour in 0..2 {
@@ -724,61 +802,32 @@ pub fn scatter<const D: usize, const NA: usize, const N: usize>(
             continue;
         }
         let count = (ns - first).div_ceil(2);
-        let lo = rows_of(first).0;
-        let hi = rows_of(first + 2 * (count - 1)).1;
-        let window = &mut scat[lo * row_len..hi * row_len];
-        scatter_slabs::<D, NA, N>(
-            ctx,
-            parts,
-            slabs,
-            window,
-            lo * row_len,
-            first,
-            count,
-            &rows_of,
-            row_len,
-            m,
-        );
+        scatter_slabs::<D, NA, N>(ctx, parts, slabs, grid, first, count, m);
     }
 }
 
-#[allow(clippy::too_many_arguments)]
 fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
     parts: &ScatterParts<'_, D>,
     slabs: &SlabOrder,
-    window: &mut [f64],
-    offset: usize,
+    grid: GridPtr,
     first: usize,
     count: usize,
-    rows_of: &(impl Fn(usize) -> (usize, usize) + Sync),
-    row_len: usize,
     m: ScatterMode,
 ) {
     if count > 1 {
-        // Split between same-coloured slabs: everything from the later one's first row
-        // goes right; the slab between them (other colour) is not written now.
+        // Same-coloured slabs `first, first + 2, ...`: split them in two runs.
         let half = count / 2;
-        let split_slab = first + 2 * half;
-        let cut = rows_of(split_slab).0 * row_len - offset;
-        let (a, b) = window.split_at_mut(cut);
         rayon::join(
-            || {
-                scatter_slabs::<D, NA, N>(
-                    ctx, parts, slabs, a, offset, first, half, rows_of, row_len, m,
-                )
-            },
+            || scatter_slabs::<D, NA, N>(ctx, parts, slabs, grid, first, half, m),
             || {
                 scatter_slabs::<D, NA, N>(
                     ctx,
                     parts,
                     slabs,
-                    b,
-                    offset + cut,
-                    split_slab,
+                    grid,
+                    first + 2 * half,
                     count - half,
-                    rows_of,
-                    row_len,
                     m,
                 )
             },
@@ -790,7 +839,7 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
     for &p in &slabs.order[slabs.start[first]..slabs.start[first + 1]] {
         let p = p as usize;
         let half = if ctx.gimp { Some(&parts.half[p]) } else { None };
-        let k = ctx.kern::<NA, N>(&parts.x[p], half);
+        let k = ctx.kern::<NA, N>(&parts.x[p], half, parts.tile[p]);
         let mass = parts.mass[p];
         let mv = parts.v[p] * mass;
         let vol = parts.vol[p];
@@ -801,8 +850,16 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
             Vector::<D>::zeros()
         };
         for n in 0..N {
-            let at = k.idx[n] * sw - offset;
-            let rec = &mut window[at..at + sw];
+            let at = k.idx[n] * sw;
+            assert!(at + sw <= grid.len, "node record outside the grid storage");
+            debug_assert!(
+                k.idx[n] >= ctx.tiles.tile_nodes(),
+                "a particle's node in the zero tile: its tile was not touched"
+            );
+            // SAFETY: in bounds (checked above); no other thread writes this record
+            // while this one does (see `scatter`), and this thread holds no other
+            // reference into the buffer while `rec` lives.
+            let rec = unsafe { std::slice::from_raw_parts_mut(grid.ptr.add(at), sw) };
             let s = k.s[n];
             rec[R::<D>::MASS] += mass * s;
             for a in 0..D {

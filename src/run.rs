@@ -110,6 +110,17 @@ pub struct RankLoad {
     pub max: u64,
 }
 
+/// The sparse grid at the end of the run: active tiles of `tile_nodes` nodes each,
+/// summed over ranks and per rank, and what a dense grid would have needed.
+#[derive(Serialize, Debug, Clone)]
+pub struct GridSummary {
+    pub tile_nodes: usize,
+    pub active_tiles: u64,
+    pub active_tiles_per_rank: RankLoad,
+    /// Tiles that would cover the whole grid (a dense grid's storage, in tiles).
+    pub box_tiles: f64,
+}
+
 /// Where a restarted run began.
 #[derive(Serialize, Debug, Clone)]
 pub struct RestartSummary {
@@ -134,6 +145,7 @@ pub struct Summary {
     pub threads: usize,
     pub blocks: Vec<usize>,
     pub particles_per_rank: RankLoad,
+    pub grid: GridSummary,
     pub particles: u64,
     pub cells: Vec<usize>,
     pub steps: u64,
@@ -697,10 +709,12 @@ fn run_dim<const D: usize>(
     }
     progress.finish();
     let wall = start.elapsed().as_secs_f64();
-    let mut lo = [solver.parts.len() as f64];
+    let mut lo = [solver.parts.len() as f64, solver.tiles.active() as f64];
     let mut hi = lo;
+    let mut sum = [solver.tiles.active() as u64];
     comm.min_f64(&mut lo);
     comm.max_f64(&mut hi);
+    comm.sum_u64(&mut sum);
     history.flush();
     let tot0 = &st.initial;
     let status = if failure.is_some() {
@@ -726,6 +740,21 @@ fn run_dim<const D: usize>(
             min: lo[0] as u64,
             mean: last.particles as f64 / comm.size() as f64,
             max: hi[0] as u64,
+        },
+        grid: GridSummary {
+            tile_nodes: solver.tiles.tile_nodes(),
+            active_tiles: sum[0],
+            active_tiles_per_rank: RankLoad {
+                min: lo[1] as u64,
+                mean: sum[0] as f64 / comm.size() as f64,
+                max: hi[1] as u64,
+            },
+            box_tiles: scene
+                .grid
+                .cells
+                .iter()
+                .map(|&c| (c + 1).div_ceil(decomposition::TILE) as f64)
+                .product(),
         },
         particles: tot0.particles,
         cells: scene.grid.cells.clone(),

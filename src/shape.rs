@@ -192,6 +192,9 @@ impl Alpha {
 pub struct Weights1<const D: usize> {
     /// Global index of the first node touched along each axis.
     pub base: [i64; D],
+    /// The cell the particle is in (`Geom::locate`); `base` is this cell or the one
+    /// below.
+    pub cell: [i64; D],
     /// Nodes per axis: 2 (linear) or 3 (GIMP).
     pub n: usize,
     pub w: [[f64; 3]; D],
@@ -227,6 +230,7 @@ pub fn linear<const D: usize>(geom: &Geom<D>, x: &[f64; D]) -> Weights1<D> {
     }
     Weights1 {
         base: c,
+        cell: c,
         n: 2,
         w,
         dw,
@@ -306,6 +310,7 @@ pub fn gimp<const D: usize>(geom: &Geom<D>, x: &[f64; D], lp: &[f64; D]) -> Weig
     }
     Weights1 {
         base,
+        cell: c,
         n: 3,
         w,
         dw,

@@ -101,6 +101,34 @@ impl<const D: usize> Block<D> {
         &self.halo.peers
     }
 
+    /// Every local node a halo operation reads or writes (ghost nodes and owned nodes
+    /// that are ghosts elsewhere), as local coordinates; some may repeat.
+    pub fn halo_nodes(&self) -> impl Iterator<Item = [usize; D]> + '_ {
+        self.halo
+            .ghosts
+            .iter()
+            .chain(&self.halo.owned)
+            .flatten()
+            .map(|&i| self.coords(i))
+    }
+
+    /// Renumber the nodes of the halo lists, e.g. from the dense local numbering of
+    /// [`Block::index`] to a sparse storage ([`crate::Tiles`]); fields passed to the
+    /// halo operations are then indexed by the new numbers. Call once, with the
+    /// numbering the fields use.
+    pub fn map_halo(&mut self, f: impl Fn(usize) -> usize) {
+        for list in self
+            .halo
+            .ghosts
+            .iter_mut()
+            .chain(self.halo.owned.iter_mut())
+        {
+            for i in list.iter_mut() {
+                *i = f(*i);
+            }
+        }
+    }
+
     /// Add every ghost node's value into its owner's node, then leave ghosts as they were
     /// (call [`Block::ghost_copy`] if they must hold the sum too).
     pub fn ghost_sum(&mut self, comm: &dyn Communicator, field: &mut [f64], ncomp: usize) {
@@ -230,6 +258,59 @@ fn odometer<const D: usize>(lens: [usize; D], mut f: impl FnMut([usize; D])) {
     }
 }
 
+/// Call `f` for every index tuple `i` with `i[a] < lens[a]` for which `inner(a, i[a])`
+/// is false on at least one axis, in the order of [`odometer`]. The work is
+/// proportional to the tuples visited plus the inner tuples' projections, not to the
+/// product of the lengths: a node box's ghost layer is walked without its interior, so
+/// a huge box with a small body costs its surface, not its volume.
+fn odometer_outside<const D: usize>(
+    lens: [usize; D],
+    inner: impl Fn(usize, usize) -> bool,
+    mut f: impl FnMut([usize; D]),
+) {
+    if lens.contains(&0) {
+        return;
+    }
+    // Per axis, the positions that are not inner.
+    let outer: [Vec<usize>; D] =
+        std::array::from_fn(|a| (0..lens[a]).filter(|&v| !inner(a, v)).collect());
+    fn rec<const D: usize>(
+        a: usize,
+        i: &mut [usize; D],
+        lens: &[usize; D],
+        outer: &[Vec<usize>; D],
+        inner: &impl Fn(usize, usize) -> bool,
+        outside: bool,
+        f: &mut impl FnMut([usize; D]),
+    ) {
+        if outside {
+            // Everything below axis `a` (inclusive), in odometer order.
+            let mut sub = [1usize; D];
+            sub[..=a].copy_from_slice(&lens[..=a]);
+            let hi = *i;
+            odometer::<D>(sub, |j| {
+                let mut t = hi;
+                t[..=a].copy_from_slice(&j[..=a]);
+                f(t);
+            });
+            return;
+        }
+        if a == 0 {
+            for &v in &outer[0] {
+                i[0] = v;
+                f(*i);
+            }
+            return;
+        }
+        for v in 0..lens[a] {
+            i[a] = v;
+            rec(a - 1, i, lens, outer, inner, !inner(a, v), f);
+        }
+    }
+    let mut i = [0usize; D];
+    rec(D - 1, &mut i, &lens, &outer, &inner, false, &mut f);
+}
+
 fn linear<const D: usize>(dims: [usize; D], c: [usize; D]) -> usize {
     let mut i = 0;
     for a in (0..D).rev() {
@@ -276,12 +357,15 @@ fn build_halo<const D: usize>(layout: &Layout<D>, rank: usize) -> Halo {
                 .collect()
         });
         let mut ghosts = Vec::new();
-        odometer::<D>(std::array::from_fn(|a| pos[a].len()), |i| {
-            let l: [usize; D] = std::array::from_fn(|a| pos[a][i[a]]);
-            if !is_mine_owned(l) {
+        odometer_outside::<D>(
+            std::array::from_fn(|a| pos[a].len()),
+            |a, v| mine[a].owns(pos[a][v]),
+            |i| {
+                let l: [usize; D] = std::array::from_fn(|a| pos[a][i[a]]);
+                debug_assert!(!is_mine_owned(l));
                 ghosts.push(linear(my_dims, l));
-            }
-        });
+            },
+        );
         if !ghosts.is_empty() {
             lists.entry(layout.rank_of_block(q)).or_default().0 = ghosts;
         }
@@ -316,26 +400,28 @@ fn build_halo<const D: usize>(layout: &Layout<D>, rank: usize) -> Halo {
     odometer::<D>(std::array::from_fn(|a| near[a].len()), |j| {
         let other: [&(AxisBox, Vec<usize>, usize); D] = std::array::from_fn(|a| &near[a][j[a]]);
         let mut owned = Vec::new();
-        odometer::<D>(std::array::from_fn(|a| other[a].1.len()), |i| {
-            let l: [usize; D] = std::array::from_fn(|a| other[a].1[i[a]]);
-            if (0..D).all(|a| other[a].0.owns(l[a])) {
-                return; // owned there, so it is that block's node, i.e. mine: not a ghost
-            }
-            // Wrapped global index of the node, which lies in my owned range, hence
-            // equals its unwrapped index there.
-            let local: [usize; D] = std::array::from_fn(|a| {
-                let g = other[a].0.node_lo + l[a] as i64;
-                let w = if layout.periodic[a] {
-                    g.rem_euclid(layout.nodes(a) as i64)
-                } else {
-                    g
-                };
-                let m = (w - mine[a].node_lo) as usize;
-                debug_assert!(mine[a].owns(m));
-                m
-            });
-            owned.push(linear(my_dims, local));
-        });
+        // Nodes owned there are that block's nodes, i.e. mine: not ghosts.
+        odometer_outside::<D>(
+            std::array::from_fn(|a| other[a].1.len()),
+            |a, v| other[a].0.owns(other[a].1[v]),
+            |i| {
+                let l: [usize; D] = std::array::from_fn(|a| other[a].1[i[a]]);
+                // Wrapped global index of the node, which lies in my owned range, hence
+                // equals its unwrapped index there.
+                let local: [usize; D] = std::array::from_fn(|a| {
+                    let g = other[a].0.node_lo + l[a] as i64;
+                    let w = if layout.periodic[a] {
+                        g.rem_euclid(layout.nodes(a) as i64)
+                    } else {
+                        g
+                    };
+                    let m = (w - mine[a].node_lo) as usize;
+                    debug_assert!(mine[a].owns(m));
+                    m
+                });
+                owned.push(linear(my_dims, local));
+            },
+        );
         if !owned.is_empty() {
             let q: [usize; D] = std::array::from_fn(|a| other[a].2);
             lists.entry(layout.rank_of_block(q)).or_default().1 = owned;
@@ -464,6 +550,26 @@ mod tests {
                 check_against_brute(&Layout::new(cells, per, procs).unwrap());
             }
         }
+    }
+
+    /// The walk without the interior visits exactly the tuples of the full walk that
+    /// have an outer position, in the same order.
+    #[test]
+    fn odometer_outside_skips_only_the_interior() {
+        let lens = [5usize, 4, 3];
+        let inner = |a: usize, v: usize| [(1..4), (1..3), (0..2)][a].contains(&v);
+        let mut want = Vec::new();
+        odometer(lens, |i| {
+            if !(0..3).all(|a| inner(a, i[a])) {
+                want.push(i);
+            }
+        });
+        let mut got = Vec::new();
+        odometer_outside(lens, inner, |i| got.push(i));
+        assert_eq!(got, want);
+        let mut none = 0;
+        odometer_outside([4, 4], |_, _| true, |_| none += 1);
+        assert_eq!(none, 0);
     }
 
     #[test]

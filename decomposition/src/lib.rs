@@ -12,12 +12,14 @@ pub mod comm;
 pub mod layout;
 pub mod local;
 pub mod migrate;
+pub mod tiles;
 
 pub use block::Block;
 pub use comm::{Communicator, MpiComm, SerialComm};
 pub use layout::{Layout, GHOST};
 pub use local::LocalComm;
 pub use migrate::{Destination, Migrator, Records};
+pub use tiles::{Tiles, TILE};
 
 #[derive(Clone, Debug, thiserror::Error, PartialEq, Eq)]
 pub enum Error {

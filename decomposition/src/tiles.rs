@@ -1,0 +1,464 @@
+//! Sparse storage of a rank's nodal fields: the local node box of a [`crate::Block`]
+//! is cut into tiles of [`TILE`] nodes per axis, and only *active* tiles are stored.
+//!
+//! The local node box stays the address space (a node is named by its local
+//! coordinates, `usize` per axis, so a 65536² or 4096³ box cannot overflow), but
+//! storage is `slot * TILE_NODES + offset`: slot 0 is a read-only *zero tile* that
+//! every missing neighbour points at, slots `1..=permanent` hold the tiles that are
+//! always kept (the halo's), and the remaining slots the tiles the caller touched
+//! since [`Tiles::begin`], in increasing tile key (last axis slowest). Within a tile,
+//! nodes are numbered axis 0 fastest. Fields are stored node-major over this storage
+//! (`field[index * ncomp + c]`), so memory and every loop over the tiles follow the
+//! active set, not the box.
+//!
+//! Finding a node from a neighbouring one is a table look-up: each slot keeps the
+//! slots of its `3^D` neighbouring tiles ([`Tiles::neighbours`], 0 where a neighbour
+//! is not active). A particle's nodes lie within one tile of its cell's tile, and the
+//! grid stencils of MPMCG reach one node, so this table is all they need.
+//!
+//! Tiles are aligned so that their faces along every axis fall on the owned range's
+//! lower corner (`own_lo`) plus multiples of [`TILE`]: with `TILE` equal to the
+//! scatter's slab thickness, a slab of cells is a layer of tiles.
+//!
+//! The crate knows nothing of what the fields mean: which tiles are touched is the
+//! caller's business.
+
+/// Nodes per tile along each axis (a power of two).
+pub const TILE: usize = 4;
+/// `log2(TILE)`.
+pub const TILE_LOG: u32 = 2;
+/// Neighbour table width: `3^D <= 27` entries are used; 32 so that an index masked
+/// with `& 31` needs no bounds check.
+pub const NEIGHBOURS: usize = 32;
+
+/// Active tiles of a local node box and where each one is stored.
+#[derive(Clone, Debug)]
+pub struct Tiles<const D: usize> {
+    /// Local node box size.
+    dims: [usize; D],
+    /// Local node `l` sits at tile coordinate `(l + shift) / TILE`.
+    shift: [usize; D],
+    /// Tiles per axis.
+    tdims: [usize; D],
+    /// Keys of the tiles kept whatever the caller touches, ascending.
+    permanent: Vec<u64>,
+    /// Key of the tile in each slot (slot 0: the zero tile, `u64::MAX`).
+    keys: Vec<u64>,
+    /// (key, slot) ascending by key, for look-ups.
+    lookup: Vec<(u64, u32)>,
+    /// Per slot: tile coordinates times TILE (in shifted node units).
+    origin: Vec<[usize; D]>,
+    /// Per slot: the storage index of the first node of each neighbouring tile (its
+    /// slot times `TILE_NODES`), index `Σ_a (d_a + 1) 3^a` for offsets
+    /// `d ∈ {-1, 0, 1}^D`; 0 (the zero tile) where the neighbour is not active.
+    nbr: Vec<[usize; NEIGHBOURS]>,
+    /// Touched keys since `begin` (scratch), then the non-permanent active keys.
+    touched: Vec<u64>,
+    active: Vec<u64>,
+    /// A direct-mapped memory of recently touched keys, so that the particles of one
+    /// tile (sorted by cell) push its key about once.
+    recent: Vec<u64>,
+}
+
+/// Entries of [`Tiles::recent`] (a power of two).
+const RECENT: usize = 1024;
+
+impl<const D: usize> Tiles<D> {
+    /// Tiles over a local node box of `dims` nodes whose owned range starts at `own_lo`.
+    pub fn new(dims: [usize; D], own_lo: [usize; D]) -> Self {
+        assert!(D <= 3, "tiles are for 1, 2 and 3 dimensions");
+        let shift: [usize; D] = std::array::from_fn(|a| (TILE - own_lo[a] % TILE) % TILE);
+        let tdims: [usize; D] = std::array::from_fn(|a| (dims[a] + shift[a]).div_ceil(TILE));
+        let mut t = Self {
+            dims,
+            shift,
+            tdims,
+            permanent: Vec::new(),
+            keys: Vec::new(),
+            lookup: Vec::new(),
+            origin: Vec::new(),
+            nbr: Vec::new(),
+            touched: Vec::new(),
+            active: Vec::new(),
+            recent: vec![u64::MAX; RECENT],
+        };
+        t.assign();
+        t
+    }
+
+    /// Nodes per tile, `TILE^D`.
+    pub const TILE_NODES: usize = 1 << (TILE_LOG as usize * D);
+
+    /// Nodes per tile, `TILE^D`.
+    #[inline(always)]
+    pub fn tile_nodes(&self) -> usize {
+        Self::TILE_NODES
+    }
+
+    /// Slots in use, the zero tile included.
+    #[inline]
+    pub fn slots(&self) -> usize {
+        self.keys.len()
+    }
+
+    /// Active tiles (the zero tile excluded).
+    pub fn active(&self) -> usize {
+        self.keys.len() - 1
+    }
+
+    /// Length of a one-component field over the storage.
+    #[inline]
+    pub fn nodes(&self) -> usize {
+        self.keys.len() * Self::TILE_NODES
+    }
+
+    /// Local node box size.
+    pub fn dims(&self) -> [usize; D] {
+        self.dims
+    }
+
+    /// Per-axis shift of the tile alignment (local node `l` lies in tile `(l + shift) /
+    /// TILE`).
+    #[inline]
+    pub fn shift(&self) -> [usize; D] {
+        self.shift
+    }
+
+    fn key(&self, t: [usize; D]) -> u64 {
+        let mut k = 0u64;
+        for a in (0..D).rev() {
+            k = k * self.tdims[a] as u64 + t[a] as u64;
+        }
+        k
+    }
+
+    fn coords_of_key(&self, mut k: u64) -> [usize; D] {
+        let mut t = [0usize; D];
+        for a in 0..D {
+            t[a] = (k % self.tdims[a] as u64) as usize;
+            k /= self.tdims[a] as u64;
+        }
+        t
+    }
+
+    /// Key of the tile holding local node `l`.
+    #[inline]
+    pub fn key_of(&self, l: [usize; D]) -> u64 {
+        self.key(std::array::from_fn(|a| (l[a] + self.shift[a]) >> TILE_LOG))
+    }
+
+    /// Keep the tiles of these local nodes whatever is touched (the halo's nodes, so
+    /// that halo lists can be mapped to storage once). Call before the first `begin`.
+    pub fn set_permanent(&mut self, nodes: impl IntoIterator<Item = [usize; D]>) {
+        let mut keys: Vec<u64> = nodes.into_iter().map(|l| self.key_of(l)).collect();
+        keys.sort_unstable();
+        keys.dedup();
+        self.permanent = keys;
+        self.active.clear();
+        self.assign();
+    }
+
+    /// Start collecting the touched tiles of the next active set.
+    pub fn begin(&mut self) {
+        self.touched.clear();
+        self.recent.fill(u64::MAX);
+    }
+
+    /// Touch the tiles of the local nodes `lo..=hi` (per axis, clamped to the box).
+    #[inline]
+    pub fn touch(&mut self, lo: [i64; D], hi: [i64; D]) {
+        let mut t0 = [0usize; D];
+        let mut t1 = [0usize; D];
+        for a in 0..D {
+            let l = lo[a].max(0) as usize;
+            let h = (hi[a].max(0) as usize).min(self.dims[a] - 1);
+            if l > h {
+                return;
+            }
+            t0[a] = (l + self.shift[a]) >> TILE_LOG;
+            t1[a] = (h + self.shift[a]) >> TILE_LOG;
+        }
+        let mut t = t0;
+        loop {
+            let k = self.key(t);
+            let r = &mut self.recent[k as usize & (RECENT - 1)];
+            if *r != k {
+                *r = k;
+                self.touched.push(k);
+            }
+            let mut a = 0;
+            loop {
+                if a == D {
+                    return;
+                }
+                t[a] += 1;
+                if t[a] <= t1[a] {
+                    break;
+                }
+                t[a] = t0[a];
+                a += 1;
+            }
+        }
+    }
+
+    /// Make the touched tiles (and the permanent ones) the active set. Returns whether
+    /// it changed; if not, slots are as before. Storage grows amortised: the caller's
+    /// fields are resized to [`Tiles::nodes`], which keeps their capacity.
+    pub fn finish(&mut self) -> bool {
+        let mut touched = std::mem::take(&mut self.touched);
+        touched.sort_unstable();
+        touched.dedup();
+        // Drop the permanent keys (both lists ascending).
+        let mut p = 0;
+        touched.retain(|&k| {
+            while p < self.permanent.len() && self.permanent[p] < k {
+                p += 1;
+            }
+            !(p < self.permanent.len() && self.permanent[p] == k)
+        });
+        let changed = touched != self.active;
+        if changed {
+            std::mem::swap(&mut self.active, &mut touched);
+            self.assign();
+        }
+        self.touched = touched;
+        changed
+    }
+
+    /// Slots, look-up table, origins and neighbour tables for `permanent` + `active`.
+    fn assign(&mut self) {
+        self.keys.clear();
+        self.keys.push(u64::MAX);
+        self.keys.extend_from_slice(&self.permanent);
+        self.keys.extend_from_slice(&self.active);
+        self.lookup.clear();
+        // Merge the two ascending lists.
+        let np = self.permanent.len();
+        let (mut i, mut j) = (0, 0);
+        while i < np || j < self.active.len() {
+            let take_p = j == self.active.len() || (i < np && self.permanent[i] < self.active[j]);
+            if take_p {
+                self.lookup.push((self.permanent[i], (1 + i) as u32));
+                i += 1;
+            } else {
+                self.lookup.push((self.active[j], (1 + np + j) as u32));
+                j += 1;
+            }
+        }
+        assert!(
+            self.keys.len() < u32::MAX as usize,
+            "more active tiles than a u32 slot can name"
+        );
+        self.origin.clear();
+        self.nbr.clear();
+        self.origin.push([0; D]);
+        self.nbr.push([0; NEIGHBOURS]);
+        for s in 1..self.keys.len() {
+            let t = self.coords_of_key(self.keys[s]);
+            self.origin.push(std::array::from_fn(|a| t[a] << TILE_LOG));
+            let mut row = [0usize; NEIGHBOURS];
+            for (d, e) in row.iter_mut().enumerate().take(3usize.pow(D as u32)) {
+                let mut r = d;
+                let mut n = [0usize; D];
+                let mut inside = true;
+                for a in 0..D {
+                    let o = (r % 3) as i64 - 1;
+                    r /= 3;
+                    let c = t[a] as i64 + o;
+                    inside &= c >= 0 && c < self.tdims[a] as i64;
+                    n[a] = c.max(0) as usize;
+                }
+                if inside {
+                    *e = self.slot_of_key(self.key(n)) as usize * Self::TILE_NODES;
+                }
+            }
+            self.nbr.push(row);
+        }
+    }
+
+    /// Slot of a tile key, 0 if not active.
+    #[inline]
+    pub fn slot_of_key(&self, k: u64) -> u32 {
+        match self.lookup.binary_search_by_key(&k, |e| e.0) {
+            Ok(i) => self.lookup[i].1,
+            Err(_) => 0,
+        }
+    }
+
+    /// Slot of the tile holding local node `l`, 0 if not active.
+    #[inline]
+    pub fn slot_of(&self, l: [usize; D]) -> u32 {
+        self.slot_of_key(self.key_of(l))
+    }
+
+    /// Offset within a tile of tile-local coordinates `r` (each below TILE).
+    #[inline(always)]
+    pub fn offset(r: [usize; D]) -> usize {
+        let mut o = 0;
+        for a in (0..D).rev() {
+            o = (o << TILE_LOG) | r[a];
+        }
+        o
+    }
+
+    /// Storage index of local node `l`, if its tile is active.
+    pub fn index(&self, l: [usize; D]) -> Option<usize> {
+        if (0..D).any(|a| l[a] >= self.dims[a]) {
+            return None;
+        }
+        let s = self.slot_of(l) as usize;
+        let r: [usize; D] = std::array::from_fn(|a| (l[a] + self.shift[a]) & (TILE - 1));
+        (s != 0).then(|| s * Self::TILE_NODES + Self::offset(r))
+    }
+
+    /// Storage index of local node `l` given its tile's slot (from
+    /// [`Tiles::slot_of_key`] of [`Tiles::key_of`]`(l)`).
+    #[inline]
+    pub fn index_in(&self, slot: u32, l: [usize; D]) -> usize {
+        let r: [usize; D] = std::array::from_fn(|a| (l[a] + self.shift[a]) & (TILE - 1));
+        slot as usize * Self::TILE_NODES + Self::offset(r)
+    }
+
+    /// Tile origin of a slot, in shifted node units (`l + shift`).
+    #[inline(always)]
+    pub fn origin(&self, slot: usize) -> [usize; D] {
+        self.origin[slot]
+    }
+
+    /// First storage index of each neighbouring tile of a slot (see the field's docs
+    /// for the numbering).
+    #[inline(always)]
+    pub fn neighbours(&self, slot: usize) -> &[usize; NEIGHBOURS] {
+        &self.nbr[slot]
+    }
+
+    /// Local coordinates of the node at `offset` in `slot`, `None` outside the box.
+    #[inline]
+    pub fn local(&self, slot: usize, offset: usize) -> Option<[usize; D]> {
+        let o = self.origin[slot];
+        let mut l = [0usize; D];
+        for a in 0..D {
+            let m = o[a] + ((offset >> (TILE_LOG * a as u32)) & (TILE - 1));
+            if m < self.shift[a] || m - self.shift[a] >= self.dims[a] {
+                return None;
+            }
+            l[a] = m - self.shift[a];
+        }
+        Some(l)
+    }
+
+    /// Storage indices of the `3^D` nodes `n + d`, `d ∈ {-1, 0, 1}^D` (index
+    /// `Σ_a (d_a + 1) 3^a`), of the node with storage index `n`, into `out`; a
+    /// neighbour in a tile that is not active maps into the zero tile. Entries past
+    /// `3^D` are left as they were (a caller reuses one buffer for many nodes).
+    #[inline]
+    pub fn neighbourhood(&self, n: usize, out: &mut [usize; NEIGHBOURS]) {
+        let slot = n / Self::TILE_NODES;
+        let off = n % Self::TILE_NODES;
+        let nb = &self.nbr[slot];
+        // Per axis and offset: (tile step as 0/1/2, position in that tile).
+        let mut step = [[(0usize, 0usize); 3]; D];
+        for (a, st) in step.iter_mut().enumerate() {
+            let r = (off >> (TILE_LOG * a as u32)) & (TILE - 1);
+            for d in 0..3 {
+                let m = r + d + TILE - 1; // r + (d - 1), shifted by TILE to stay >= 0
+                st[d] = (m >> TILE_LOG, (m & (TILE - 1)) << (TILE_LOG * a as u32));
+            }
+        }
+        for (i, o) in out.iter_mut().enumerate().take(3usize.pow(D as u32)) {
+            let mut r = i;
+            let mut t = 0usize;
+            let mut pow = 1usize;
+            let mut within = 0usize;
+            for st in step.iter() {
+                let (ts, w) = st[r % 3];
+                r /= 3;
+                t += ts * pow;
+                pow *= 3;
+                within |= w;
+            }
+            *o = nb[t & (NEIGHBOURS - 1)] + within;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every node of the touched tiles gets a distinct storage index, missing ones
+    /// none, and the neighbourhood of a node agrees with indexing its neighbours.
+    #[test]
+    fn storage_is_injective_and_neighbourhoods_agree() {
+        let dims = [13usize, 11, 6];
+        let mut t = Tiles::<3>::new(dims, [2, 0, 1]);
+        t.set_permanent([[0, 0, 0]]);
+        t.begin();
+        t.touch([5, 3, 2], [6, 4, 3]);
+        t.touch([11, 9, 4], [12, 10, 5]);
+        assert!(t.finish());
+        t.begin();
+        t.touch([11, 9, 4], [12, 10, 5]);
+        t.touch([5, 3, 2], [6, 4, 3]);
+        assert!(!t.finish(), "same set in another order is no change");
+        let mut seen = std::collections::BTreeSet::new();
+        let mut count = 0;
+        for x in 0..dims[0] {
+            for y in 0..dims[1] {
+                for z in 0..dims[2] {
+                    if let Some(i) = t.index([x, y, z]) {
+                        assert!(i >= t.tile_nodes() && i < t.nodes());
+                        assert!(seen.insert(i));
+                        assert_eq!(
+                            t.local(i / t.tile_nodes(), i % t.tile_nodes()),
+                            Some([x, y, z])
+                        );
+                        count += 1;
+                        let mut nb = [0; NEIGHBOURS];
+                        t.neighbourhood(i, &mut nb);
+                        for d in 0..27 {
+                            let o = [d % 3, (d / 3) % 3, d / 9];
+                            let l: [i64; 3] =
+                                std::array::from_fn(|a| [x, y, z][a] as i64 + o[a] as i64 - 1);
+                            // Outside the box a neighbour is a phantom node of a
+                            // partly covered tile, which no caller reads.
+                            if l.iter()
+                                .zip(&dims)
+                                .all(|(&v, &n)| v >= 0 && (v as usize) < n)
+                            {
+                                match t.index(l.map(|v| v as usize)) {
+                                    Some(w) => assert_eq!(nb[d], w),
+                                    None => assert!(
+                                        nb[d] < t.tile_nodes(),
+                                        "missing maps to the zero tile"
+                                    ),
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert!(count > 0 && count <= t.active() * t.tile_nodes());
+        assert!(t.index([5, 3, 2]).is_some() && t.index([12, 10, 5]).is_some());
+        assert!(t.index([0, 10, 5]).is_none());
+    }
+
+    /// Keys of a 4096³ box's node box do not overflow, and a touched tile far out is
+    /// found again.
+    #[test]
+    fn huge_boxes_do_not_overflow() {
+        let mut t = Tiles::<3>::new([4097, 4097, 4097], [0, 0, 0]);
+        t.begin();
+        t.touch([4090, 4095, 4094], [4091, 4096, 4095]);
+        t.finish();
+        assert_eq!(t.active(), 2); // straddles a tile face along y only
+        assert!(t.index([4091, 4096, 4095]).is_some());
+        let mut t2 = Tiles::<2>::new([65537, 65537], [0, 0]);
+        t2.begin();
+        t2.touch([65535, 65535], [65536, 65536]);
+        t2.finish();
+        assert!(t2.index([65536, 65536]).is_some());
+        assert_eq!(t2.nodes(), (1 + t2.active()) * 16);
+    }
+}

@@ -1,0 +1,146 @@
+#!/usr/bin/env python3
+"""The sparse grid's benchmark (issue 13): the same block in its tight box and in a box
+4x wider per axis at the same cell size, time per step and peak memory.
+
+The block drop of scripts/bench_peers.py: a neo-Hookean block [0.2, 0.8]^D (E = 1e3,
+nu = 0.2, rho = 1) under gravity with slip walls, cfl = 0.3, MUSL, mpmcg gradient.
+Tight box: [0, 1]^D with N cells per axis. Wide box: [-1.5, 2.5]^D with 4N cells per
+axis, so the cells, the particles and their global cell offsets modulo 4 are the same
+(the block sits 6N/4 cells further from the origin) and the runs are the same physics
+(the walls are far from the block for the few steps timed); the final momenta agree to
+round-off (the positions are rounded against another grid origin).
+
+Time per step: each configuration runs twice, to `warm` and to `warm + steps` steps,
+and the step time is the difference of the wall seconds of summary.json divided by the
+difference of the steps (start-up and the first steps drop out). Peak memory: the
+maximum resident set of the longer run (GNU time's %M). Runs are pinned to one core
+(`--cpu`), repeated `--repeats` times interleaved (tight, wide, tight, ...), and the
+table gives min and median; the ratio is wide/tight of the medians.
+
+Only the standard library. Usage:
+    scripts/bench_sparse.py --mpmcg target/release/mpmcg [--dims 2 3] [--repeats 5]
+        [--cpu 1] [--size full|small]
+"""
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+
+YOUNG, NU, RHO, GRAVITY, CFL = 1.0e3, 0.2, 1.0, -9.81, 0.3
+
+SIZES = {
+    # dim: (cells of the tight box per axis, particles per cell per axis, warm, steps)
+    "full": {2: (256, 4, 5, 40), 3: (64, 2, 3, 15)},
+    "small": {2: (128, 4, 5, 40), 3: (32, 2, 5, 30)},
+}
+
+
+def scene(dim, cells, ppc, wide, steps):
+    lo, hi, n = (-1.5, 2.5, 4 * cells) if wide else (0.0, 1.0, cells)
+    v = lambda x: "[" + ", ".join(repr(x) for _ in range(dim)) + "]"  # noqa: E731
+    g = [0.0] * dim
+    g[1] = GRAVITY
+    faces = ", ".join(f'{ax}_{side} = "slip"' for ax in "xyz"[:dim] for side in ("lower", "upper"))
+    mu = YOUNG / (2 * (1 + NU))
+    lam = YOUNG * NU / ((1 + NU) * (1 - 2 * NU))
+    dt = CFL * (1.0 / cells) / ((lam + 2 * mu) / RHO) ** 0.5
+    return f"""name = "block_drop_{dim}d_{'wide' if wide else 'tight'}"
+dim = {dim}
+[time]
+end = {(steps - 0.5) * dt!r}
+cfl = {CFL}
+[method]
+gradient = "mpmcg"
+update = "musl"
+[grid]
+lower = {v(lo)}
+upper = {v(hi)}
+cells = {v(n)}
+boundary = {{ {faces} }}
+[[materials]]
+name = "block"
+model = "neo_hookean"
+density = {RHO}
+youngs_modulus = {YOUNG}
+poisson_ratio = {NU}
+[[bodies]]
+material = "block"
+shape = {{ box = {{ lower = {v(0.2)}, upper = {v(0.8)} }} }}
+particles_per_cell = {ppc}
+[gravity]
+value = [{", ".join(str(x) for x in g)}]
+[output]
+snapshots = false
+"""
+
+
+def run(a, tmp, dim, cells, ppc, wide, steps):
+    """(steps, wall seconds, peak RSS in MB, final momentum) of one run."""
+    path = os.path.join(tmp, f"{dim}d_{wide}_{steps}.toml")
+    with open(path, "w") as f:
+        f.write(scene(dim, cells, ppc, wide, steps))
+    out = os.path.join(tmp, "out")
+    rss = os.path.join(tmp, "rss")
+    cmd = ["/usr/bin/time", "-f", "%M", "-o", rss]
+    if a.cpu is not None:
+        cmd += ["taskset", "-c", str(a.cpu)]
+    cmd += [a.mpmcg, "run", path, "--out", out, "--quiet", "--threads", "1"]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        sys.exit(f"mpmcg failed ({r.returncode}): {' '.join(cmd)}\n{r.stderr}")
+    with open(os.path.join(out, "summary.json")) as f:
+        s = json.load(f)
+    with open(rss) as f:
+        peak = int(f.read().split()[-1]) / 1024.0
+    return s["steps"], s["wall_seconds"], peak, s["momentum"]["final"], s["particles"]
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--mpmcg", default="target/release/mpmcg")
+    p.add_argument("--dims", type=int, nargs="+", default=[2, 3])
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--cpu", type=int, default=None)
+    p.add_argument("--size", choices=SIZES, default="full")
+    a = p.parse_args()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for dim in a.dims:
+            cells, ppc, warm, steps = SIZES[a.size][dim]
+            times = {False: [], True: []}
+            mems = {False: [], True: []}
+            moms = {}
+            for _ in range(a.repeats):
+                for wide in (False, True):
+                    s0, w0, _, _, n = run(a, tmp, dim, cells, ppc, wide, warm)
+                    s1, w1, m1, mom, _ = run(a, tmp, dim, cells, ppc, wide, warm + steps)
+                    times[wide].append((w1 - w0) / (s1 - s0))
+                    mems[wide].append(m1)
+                    moms[wide] = mom
+            scale = max(abs(x) for x in moms[False] + moms[True]) or 1.0
+            diff = max(abs(a - b) for a, b in zip(moms[False], moms[True])) / scale
+            rows.append((dim, cells, n, times, mems, diff))
+    print(f"mpmcg: {a.mpmcg}, size {a.size}, {a.repeats} repeats, cpu {a.cpu}")
+    print("| dim | box | cells per axis | particles | step ms (min / median) | peak MB (min / median) |")
+    print("| --- | --- | ---: | ---: | ---: | ---: |")
+    for dim, cells, n, times, mems, diff in rows:
+        for wide in (False, True):
+            t, m = times[wide], mems[wide]
+            print(
+                f"| {dim}D | {'4x wider' if wide else 'tight'} | {4 * cells if wide else cells} | {n} "
+                f"| {1e3 * min(t):.1f} / {1e3 * statistics.median(t):.1f} "
+                f"| {min(m):.0f} / {statistics.median(m):.0f} |"
+            )
+        rt = statistics.median(times[True]) / statistics.median(times[False])
+        rm = statistics.median(mems[True]) / statistics.median(mems[False])
+        print(f"{dim}D wide/tight: time per step {rt:.3f}x, peak memory {rm:.3f}x; "
+              f"final momentum differs by {diff:.1e} (relative; positions round "
+              f"differently against another grid origin)")
+
+
+if __name__ == "__main__":
+    main()
