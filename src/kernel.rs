@@ -620,7 +620,9 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
             }
             if m.move_now {
                 s.x[p] += vm * m.dt;
-            } else {
+            } else if !m.two_step {
+                // (A two-step scheme's stress pass sets the increment: MUSL moves it
+                // with the reconstruction of the remapped velocity.)
                 s.dx[p] = vm * m.dt;
             }
             if m.speed {
@@ -651,9 +653,13 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
                 // the remapped velocity (and its velocity into a slip wall is clipped to
                 // that, as in the gather).
                 let vm = moving_velocity(ctx, &k, vel, avg, m.slot);
-                let mut v = s.v[p];
-                t.work += clip_at_slip_walls(ctx, &k, &mut v, &vm, s.mass[p]);
-                s.v[p] = v;
+                // Only particles touching a wall's nodes can be clipped: the others'
+                // velocities are neither read nor written here.
+                if k.ends.iter().flatten().any(|&e| e) {
+                    let mut v = s.v[p];
+                    t.work += clip_at_slip_walls(ctx, &k, &mut v, &vm, s.mass[p]);
+                    s.v[p] = v;
+                }
                 s.dx[p] = vm * m.dt;
             }
             if m.speed {
