@@ -57,12 +57,14 @@ def wave_dt(cells):
     return CFL * (1.0 / cells) / math.sqrt((lam + 2 * mu) / RHO)
 
 
-def scene(dim, cells, ppc, gradient, update, end):
+def scene(dim, cells, ppc, gradient, update, end, lower=0.0, upper=1.0, name=None):
+    """The block drop's scene file: the block [LO, HI]^D in the box [lower, upper]^D with
+    `cells` cells per axis (scripts/bench_sparse.py widens the box)."""
     v = lambda x: "[" + ", ".join(str(x) for _ in range(dim)) + "]"  # noqa: E731
     g = [0.0] * dim
     g[1] = GRAVITY
     faces = ", ".join(f'{ax}_{side} = "slip"' for ax in "xyz"[:dim] for side in ("lower", "upper"))
-    return f"""name = "block_drop_{dim}d"
+    return f"""name = "{name or f'block_drop_{dim}d'}"
 dim = {dim}
 [time]
 end = {end!r}
@@ -71,8 +73,8 @@ cfl = {CFL}
 gradient = "{gradient}"
 update = "{update}"
 [grid]
-lower = {v(0.0)}
-upper = {v(1.0)}
+lower = {v(lower)}
+upper = {v(upper)}
 cells = {v(cells)}
 boundary = {{ {faces} }}
 [[materials]]

@@ -30,7 +30,9 @@ import subprocess
 import sys
 import tempfile
 
-YOUNG, NU, RHO, GRAVITY, CFL = 1.0e3, 0.2, 1.0, -9.81, 0.3
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import bench_peers  # noqa: E402  (the block drop's scene, shared)
+
 
 SIZES = {
     # dim: (cells of the tight box per axis, particles per cell per axis, warm, steps)
@@ -40,42 +42,12 @@ SIZES = {
 
 
 def scene(dim, cells, ppc, wide, steps):
+    """bench_peers.py's block drop, MPMCG with MUSL, to about `steps` steps, in the tight
+    box or the 4x wider one."""
     lo, hi, n = (-1.5, 2.5, 4 * cells) if wide else (0.0, 1.0, cells)
-    v = lambda x: "[" + ", ".join(repr(x) for _ in range(dim)) + "]"  # noqa: E731
-    g = [0.0] * dim
-    g[1] = GRAVITY
-    faces = ", ".join(f'{ax}_{side} = "slip"' for ax in "xyz"[:dim] for side in ("lower", "upper"))
-    mu = YOUNG / (2 * (1 + NU))
-    lam = YOUNG * NU / ((1 + NU) * (1 - 2 * NU))
-    dt = CFL * (1.0 / cells) / ((lam + 2 * mu) / RHO) ** 0.5
-    return f"""name = "block_drop_{dim}d_{'wide' if wide else 'tight'}"
-dim = {dim}
-[time]
-end = {(steps - 0.5) * dt!r}
-cfl = {CFL}
-[method]
-gradient = "mpmcg"
-update = "musl"
-[grid]
-lower = {v(lo)}
-upper = {v(hi)}
-cells = {v(n)}
-boundary = {{ {faces} }}
-[[materials]]
-name = "block"
-model = "neo_hookean"
-density = {RHO}
-youngs_modulus = {YOUNG}
-poisson_ratio = {NU}
-[[bodies]]
-material = "block"
-shape = {{ box = {{ lower = {v(0.2)}, upper = {v(0.8)} }} }}
-particles_per_cell = {ppc}
-[gravity]
-value = [{", ".join(str(x) for x in g)}]
-[output]
-snapshots = false
-"""
+    name = f"block_drop_{dim}d_{'wide' if wide else 'tight'}"
+    end = (steps - 0.5) * bench_peers.wave_dt(cells)
+    return bench_peers.scene(dim, n, ppc, "mpmcg", "musl", end, lo, hi, name)
 
 
 def run(a, tmp, dim, cells, ppc, wide, steps):
