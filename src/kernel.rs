@@ -573,6 +573,7 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
     parts: Slices<'_, D>,
     vel: &[f64],
     avg: &[f64],
+    xpic: Option<&[f64]>,
     m: GatherMode,
 ) -> Tally {
     par(parts, &|mut s: Slices<'_, D>| {
@@ -591,7 +592,20 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
                 }
             }
             let old = s.v[p];
-            let mut new = (old + dv) * m.flip + vn * (1.0 - m.flip);
+            let mut new = match xpic {
+                // XPIC(m): V = S v⁺ + S ((m − 1) v − m v*), the field precomputed.
+                Some(x) => {
+                    let mut u = vn;
+                    for n in 0..N {
+                        let at = k.idx[n] * D;
+                        for a in 0..D {
+                            u[a] += k.s[n] * x[at + a];
+                        }
+                    }
+                    u
+                }
+                None => (old + dv) * m.flip + vn * (1.0 - m.flip),
+            };
             // The velocity the particle moves with: the grid's, or for a two-step
             // scheme whose L̄ and v̄ of slot 1 are at hand, their reconstruction.
             let vm = if m.recon {
@@ -681,6 +695,9 @@ pub struct ScatterParts<'a, const D: usize> {
     pub half: &'a [[f64; D]],
     /// Storage index of each particle's cell's lower corner node.
     pub tile: &'a [u32],
+    /// A grid field of D numbers per node whose interpolation at the particle replaces
+    /// its velocity in the momentum ([`ScatterMode::from_grid`]; XPIC's `S⁺S`).
+    pub src: &'a [f64],
 }
 
 /// The particle order of the coloured scatter: particle indices grouped by slab.
@@ -763,6 +780,9 @@ pub struct ScatterMode {
     /// Also accumulate Σ(1−α) v σ S and the nodes' covered volume Σ v S (two-step
     /// schemes).
     pub two_step: bool,
+    /// Momentum of the grid field `src` interpolated at each particle instead of the
+    /// particle's velocity (grid → particle → grid in one pass, for XPIC).
+    pub from_grid: bool,
 }
 
 /// The scatter's view of the node records, shared by its threads.
@@ -847,7 +867,18 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
         let half = if ctx.gimp { Some(&parts.half[p]) } else { None };
         let k = ctx.kern::<NA, N>(&parts.x[p], half, parts.tile[p]);
         let mass = parts.mass[p];
-        let mv = parts.v[p] * mass;
+        let mv = if m.from_grid {
+            let mut u = Vector::<D>::zeros();
+            for n in 0..N {
+                let at = k.idx[n] * D;
+                for a in 0..D {
+                    u[a] += k.s[n] * parts.src[at + a];
+                }
+            }
+            u * mass
+        } else {
+            parts.v[p] * mass
+        };
         let vol = parts.vol[p];
         let vs = parts.stress[p] * vol;
         let fe = if m.forces {

@@ -136,6 +136,9 @@ pub struct Summary {
     pub gradient: String,
     pub update: String,
     pub flip: f64,
+    /// The XPIC order, when XPIC replaced the FLIP/PIC blend.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub xpic: Option<u32>,
     /// `SI`, or `dimensionless` for benchmark scenes (as in the snapshots).
     pub units: String,
     /// `completed`, `unstable` or `interrupted`.
@@ -730,6 +733,7 @@ fn run_dim<const D: usize>(
         gradient: scene.method.gradient.name().into(),
         update: scene.method.update.name().into(),
         flip: scene.method.flip,
+        xpic: scene.method.xpic,
         units: Labels::of::<D>(scene).units,
         status: status.into(),
         message: message.clone(),

@@ -859,6 +859,27 @@ fn other_validation() {
         .key("method.flip")
         .at("1.5")
         .says("[0, 1]");
+    check("xpic_zero", edit(BAR, "flip = 1.0", "flip = 1.0\nxpic = 0"))
+        .key("method.xpic")
+        .at_in("xpic = 0", "0")
+        .says("integer in [1, 8]");
+    check("xpic_high", edit(BAR, "flip = 1.0", "flip = 1.0\nxpic = 9"))
+        .key("method.xpic")
+        .at_in("xpic = 9", "9")
+        .says("integer in [1, 8]");
+    check(
+        "xpic_with_blend",
+        edit(BAR, "flip = 1.0", "flip = 0.5\nxpic = 2"),
+    )
+    .key("method.xpic")
+    .says("leave method.flip at 1");
+    check(
+        "xpic_fraction",
+        edit(BAR, "flip = 1.0", "flip = 1.0\nxpic = 2.5"),
+    )
+    .key("method.xpic")
+    .at("2.5")
+    .says("expected a non-negative integer, got the float 2.5");
     check("duplicate_material", edit(DISKS, "[[bodies]]", "[[materials]]\nname = \"elastic\"\nmodel = \"neo_hookean\"\ndensity = 1.0\nyoungs_modulus = 1.0\npoisson_ratio = 0.3\n\n[[bodies]]"))
         .key("materials[1].name")
         .says("duplicate material name");
