@@ -42,6 +42,7 @@ use crate::io::{self, agree, h5err, lockstep, Entry, IoError, Writer};
 use crate::particles::{Carries, Particles};
 use crate::shape::Geom;
 use crate::solver::{Solver, Totals};
+use decomposition::splitmix::mix;
 use decomposition::{Communicator, Layout};
 use hdf5::types::VarLenUnicode;
 use std::path::{Path, PathBuf};
@@ -142,14 +143,6 @@ fn totals_from(v: &[f64], particles: u64) -> Totals {
         momentum: v[5..].to_vec(),
         particles,
     }
-}
-
-/// splitmix64: a well-mixed 64-bit hash step.
-fn mix(mut z: u64) -> u64 {
-    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
 }
 
 /// Hash contribution of row `k` (counted within its writer rank) of a record matrix.

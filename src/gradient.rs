@@ -531,25 +531,8 @@ pub(crate) mod tests {
 
     type Pairs<const D: usize> = Vec<([i64; D], [f64; D])>;
 
-    /// splitmix64: deterministic pseudo-random numbers without a dependency (also
-    /// used by the solver's tests).
-    pub(crate) struct Rng(pub(crate) u64);
-
-    impl Rng {
-        fn next(&mut self) -> u64 {
-            self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-            z ^ (z >> 31)
-        }
-        pub(crate) fn f64(&mut self) -> f64 {
-            (self.next() >> 11) as f64 / (1u64 << 53) as f64
-        }
-        fn below(&mut self, n: usize) -> usize {
-            (self.next() % n as u64) as usize
-        }
-    }
+    /// Also used by the solver's tests.
+    pub(crate) use decomposition::splitmix::Rng;
 
     /// A grid with non-square cells, 3 to 6 cells per axis, each axis periodic with
     /// probability 1/3 if `periodic`.

@@ -12,6 +12,7 @@ pub mod comm;
 pub mod layout;
 pub mod local;
 pub mod migrate;
+pub mod splitmix;
 pub mod tiles;
 
 pub use block::Block;
