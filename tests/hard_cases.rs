@@ -2,6 +2,8 @@
 //! schemes it is compared with; every test asserts the stability property and prints
 //! what it measured (`cargo test --test hard_cases -- --nocapture`).
 
+#![forbid(unsafe_code)]
+
 mod common;
 use common::{history, run_scene, snapshots, Snapshot};
 use mpmcg::run::RunError;
