@@ -9,17 +9,21 @@ use crate::layout::{Layout, GHOST};
 /// One rank's view of the grid.
 #[derive(Clone, Debug)]
 pub struct Block<const D: usize> {
+    /// The rank that owns this block.
     pub rank: usize,
-    /// Owned cells `[cell_lo, cell_hi)`, global indices.
+    /// First owned cell (global index): the block owns `[cell_lo, cell_hi)`.
     pub cell_lo: [usize; D],
+    /// One past the last owned cell (global index).
     pub cell_hi: [usize; D],
     /// Global (unwrapped) index of local node 0 along each axis; negative on a periodic
     /// axis whose ghost layer wraps below 0.
     pub node_lo: [i64; D],
     /// Local node box size along each axis.
     pub node_dims: [usize; D],
-    /// Owned nodes in local indices, `[own_lo, own_hi)` along each axis.
+    /// First owned node in local indices: the block owns `[own_lo, own_hi)` along
+    /// each axis.
     pub own_lo: [usize; D],
+    /// One past the last owned node in local indices.
     pub own_hi: [usize; D],
     halo: Halo,
 }
@@ -40,6 +44,7 @@ struct Halo {
 }
 
 impl<const D: usize> Block<D> {
+    /// The block of `rank` in `layout`, with its halo exchange lists.
     pub fn new(layout: &Layout<D>, rank: usize) -> Self {
         let (cell_lo, cell_hi) = layout.block_cells(rank);
         let (node_lo, node_dims, own_lo, own_hi) = node_box(layout, rank);
@@ -57,6 +62,7 @@ impl<const D: usize> Block<D> {
         b
     }
 
+    /// Nodes in the local box, ghosts included.
     pub fn num_nodes(&self) -> usize {
         self.node_dims.iter().product()
     }
@@ -92,6 +98,7 @@ impl<const D: usize> Block<D> {
         g
     }
 
+    /// Whether a local node is owned (not a ghost).
     pub fn is_owned(&self, local: [usize; D]) -> bool {
         (0..D).all(|a| local[a] >= self.own_lo[a] && local[a] < self.own_hi[a])
     }
