@@ -1,6 +1,10 @@
 //! Problems with exact solutions (the scene's `[benchmark]` table): initial state, body
 //! force and exact displacement/velocity of each particle from its reference position.
-//! Formulas and sources: `shared/reference/benchmarks.md` and the README.
+//! The formulas are at each kind below; sources: the vibrating bar of Bardenhagen &
+//! Kober (2004), the axis-aligned manufactured solution of Steffen, Kirby & Berzins
+//! (2008, Uintah's `AA` problem), the generalized vortex of Kamojjala, Brannon,
+//! Sadeghirad & Guilkey and of Wang, Coombs, Augarde et al. (2019). The README
+//! ("Scenes in `inputs/`", "Verification") says what each is checked against.
 
 use crate::material::{lame, Material};
 use crate::scene::{BenchmarkKind, Scene, Shape};

@@ -42,6 +42,7 @@ use crate::io::{self, agree, h5err, lockstep, Entry, IoError, Writer};
 use crate::particles::{Carries, Particles};
 use crate::shape::Geom;
 use crate::solver::{Solver, Totals};
+use decomposition::splitmix::mix;
 use decomposition::{Communicator, Layout};
 use hdf5::types::VarLenUnicode;
 use std::path::{Path, PathBuf};
@@ -144,14 +145,6 @@ fn totals_from(v: &[f64], particles: u64) -> Totals {
     }
 }
 
-/// splitmix64: a well-mixed 64-bit hash step.
-fn mix(mut z: u64) -> u64 {
-    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
-
 /// Hash contribution of row `k` (counted within its writer rank) of a record matrix.
 fn row_hash(k: u64, row: &[f64]) -> u64 {
     let w = row.len() as u64;
@@ -224,158 +217,28 @@ pub fn write<const D: usize>(
     let (external_work, local_speed) = solver.local_state();
     let mut speed = [local_speed];
     comm.max_f64(&mut speed);
-    let parts = &solver.parts;
-    let n = parts.len() as u64;
+    let n = solver.parts.len() as u64;
     let offset = comm.exclusive_scan_u64(n);
     let mut sums = [n, if root { run.history.len() as u64 } else { 0 }];
     comm.sum_u64(&mut sums);
     let (total, history_len) = (sums[0], sums[1]);
-    let carries = solver.carries();
-    let width = Particles::<D>::record_width(carries);
 
     let file = io::create(comm, &tmp)?;
+    let o = Out {
+        comm,
+        file: &file,
+        path: &tmp,
+    };
     let result = (|| -> Result<(), IoError> {
-        // Every step agreed over all ranks (see `io::lockstep`).
-        let e = |r: hdf5::Result<()>| lockstep(comm, r.map_err(|e| h5err(&tmp, e)));
-        let format: VarLenUnicode = FORMAT.parse().expect("ASCII");
-        e(file
-            .new_attr::<VarLenUnicode>()
-            .create("format")
-            .and_then(|a| a.write_scalar(&format)))?;
-        let u = |name: &str, v: u64| {
-            e(file
-                .new_attr::<u64>()
-                .create(name)
-                .and_then(|a| a.write_scalar(&v)))
-        };
-        let f = |name: &str, v: f64| {
-            e(file
-                .new_attr::<f64>()
-                .create(name)
-                .and_then(|a| a.write_scalar(&v)))
-        };
-        let fs = |name: &str, v: &[f64]| {
-            e(file
-                .new_attr_builder()
-                .with_data(v)
-                .create(name)
-                .map(|_| ()))
-        };
-        let us = |name: &str, v: &[u64]| {
-            e(file
-                .new_attr_builder()
-                .with_data(v)
-                .create(name)
-                .map(|_| ()))
-        };
-        let id: VarLenUnicode = lineage
-            .id
-            .parse()
-            .map_err(|_| IoError(format!("{}: lineage id is not text", tmp.display())))?;
-        e(file
-            .new_attr::<VarLenUnicode>()
-            .create("lineage")
-            .and_then(|a| a.write_scalar(&id)))?;
-        u("version", VERSION)?;
-        u("dim", D as u64)?;
-        u("step", step)?;
-        f("time", solver.t)?;
-        f("dt", solver.dt)?;
-        f("max_speed", speed[0])?;
-        u("ranks", comm.size() as u64)?;
-        us("blocks", &solver.layout.procs.map(|p| p as u64))?;
-        us("cells", &solver.layout.cells.map(|c| c as u64))?;
-        u("particles", total)?;
-        u("record_width", width as u64)?;
-        u("carries_def_grad", u64::from(carries.def_grad))?;
-        u("carries_x0", u64::from(carries.x0))?;
-        u("carries_half", u64::from(carries.half))?;
-        u("carries_plastic", u64::from(carries.plastic))?;
-        u("carries_damage", u64::from(carries.damage))?;
-        u("carries_stress_zz", u64::from(carries.stress_zz))?;
-        fs("initial_totals", &totals_vec(&run.initial))?;
-        u("initial_particles", run.initial.particles)?;
-        fs("last_totals", &totals_vec(&run.last))?;
-        u("last_particles", run.last.particles)?;
-        f("energy_scale", run.energy_scale)?;
-        f("max_energy_deviation", run.max_energy_dev)?;
-        fs("max_errors", &[run.max_err.0, run.max_err.1])?;
-        u("has_last_errors", u64::from(run.last_err.is_some()))?;
-        let le = run.last_err.unwrap_or((f64::NAN, f64::NAN));
-        fs("last_errors", &[le.0, le.1])?;
-        f("next_history_time", run.next_history)?;
-        u("last_history_step", run.last_history_step)?;
-        f("next_snapshot_time", run.next_snapshot)?;
-        f("next_checkpoint_time", run.next_checkpoint)?;
-
-        // Particles: one packed record per row, this rank's rows at its offset.
-        let mut buf = Vec::with_capacity(parts.len() * width);
-        let mut rec = Vec::with_capacity(width);
-        let mut hash = 0u64;
-        for p in 0..parts.len() {
-            parts.pack(p, carries, &mut rec);
-            debug_assert_eq!(rec.len(), width);
-            hash = hash.wrapping_add(row_hash(p as u64, &rec));
-            buf.extend_from_slice(&rec);
-        }
-        let rows = Writer {
-            comm,
-            file: &file,
-            path: &tmp,
-            offset,
-            count: n,
-            total,
-        };
-        rows.floats("particles", &buf, width)?;
-        drop(buf);
-        crash_for_tests(step);
-        e(file.dataset("particles").and_then(|ds| {
-            let cols: VarLenUnicode = columns(D, carries).parse().expect("ASCII");
-            ds.new_attr::<VarLenUnicode>()
-                .create("columns")
-                .and_then(|a| a.write_scalar(&cols))
-        }))?;
+        write_header(&o, solver, &lineage.id, speed[0], total)?;
+        write_run_state(&o, run)?;
+        let hash = write_particles(&o, solver, offset, total)?;
         // One value per writer rank.
-        let per_rank = Writer {
-            comm,
-            file: &file,
-            path: &tmp,
-            offset: comm.rank() as u64,
-            count: 1,
-            total: comm.size() as u64,
-        };
+        let per_rank = o.rows(comm.rank() as u64, 1, comm.size() as u64);
         per_rank.u64s("rank_rows", &[n])?;
         per_rank.floats("external_work", &[external_work], 0)?;
         per_rank.u64s("checksum", &[hash])?;
-        // Data rank 0 writes alone (the others take part with empty selections).
-        let only_root = |len: usize| Writer {
-            comm,
-            file: &file,
-            path: &tmp,
-            offset: 0,
-            count: if root { len as u64 } else { 0 },
-            total: len as u64,
-        };
-        let pick = |b: &[u8]| if root { b.to_vec() } else { Vec::new() };
-        only_root(scene_text.len()).bytes("scene", &pick(scene_text.as_bytes()))?;
-        let hist = Writer {
-            comm,
-            file: &file,
-            path: &tmp,
-            offset: 0,
-            count: if root { history_len } else { 0 },
-            total: history_len,
-        };
-        hist.bytes("history", &pick(&run.history))?;
-        let k = run.snapshots.len();
-        let steps: Vec<u64> = run.snapshots.iter().map(|s| s.step).collect();
-        let times: Vec<f64> = run.snapshots.iter().map(|s| s.time).collect();
-        let counts: Vec<u64> = run.snapshots.iter().map(|s| s.particles).collect();
-        let mine = |v: Vec<u64>| if root { v } else { Vec::new() };
-        only_root(k).u64s("snapshot_steps", &mine(steps))?;
-        only_root(k).floats("snapshot_times", &if root { times } else { Vec::new() }, 0)?;
-        only_root(k).u64s("snapshot_particles", &mine(counts))?;
-        Ok(())
+        write_root_data(&o, scene_text, run, history_len)
     })();
     // Closing is collective: after it every rank's rows are in the file. On failure
     // the partial file is gone and the earlier checkpoints are untouched.
@@ -395,6 +258,164 @@ pub fn write<const D: usize>(
         Some(m) => Err(IoError(m)),
         None => Ok(path),
     }
+}
+
+/// A checkpoint file being written by every rank: each attribute and dataset is a
+/// step all ranks take and agree on (see `io::lockstep`).
+struct Out<'a> {
+    comm: &'a dyn Communicator,
+    file: &'a hdf5::File,
+    path: &'a Path,
+}
+
+impl Out<'_> {
+    /// One step's outcome, agreed over all ranks.
+    fn agree(&self, r: hdf5::Result<()>) -> Result<(), IoError> {
+        lockstep(self.comm, r.map_err(|e| h5err(self.path, e)))
+    }
+
+    fn u64(&self, name: &str, v: u64) -> Result<(), IoError> {
+        let a = self.file.new_attr::<u64>().create(name);
+        self.agree(a.and_then(|a| a.write_scalar(&v)))
+    }
+
+    fn f64(&self, name: &str, v: f64) -> Result<(), IoError> {
+        let a = self.file.new_attr::<f64>().create(name);
+        self.agree(a.and_then(|a| a.write_scalar(&v)))
+    }
+
+    fn f64s(&self, name: &str, v: &[f64]) -> Result<(), IoError> {
+        let a = self.file.new_attr_builder().with_data(v).create(name);
+        self.agree(a.map(|_| ()))
+    }
+
+    fn u64s(&self, name: &str, v: &[u64]) -> Result<(), IoError> {
+        let a = self.file.new_attr_builder().with_data(v).create(name);
+        self.agree(a.map(|_| ()))
+    }
+
+    fn text(&self, name: &str, v: &VarLenUnicode) -> Result<(), IoError> {
+        let a = self.file.new_attr::<VarLenUnicode>().create(name);
+        self.agree(a.and_then(|a| a.write_scalar(v)))
+    }
+
+    /// A writer of this rank's `count` rows at `offset` of datasets of `total` rows.
+    fn rows(&self, offset: u64, count: u64, total: u64) -> Writer<'_> {
+        Writer {
+            comm: self.comm,
+            file: self.file,
+            path: self.path,
+            offset,
+            count,
+            total,
+        }
+    }
+}
+
+/// The root attributes that say what the file is and what its particle records hold.
+fn write_header<const D: usize>(
+    o: &Out,
+    solver: &Solver<D>,
+    lineage: &str,
+    max_speed: f64,
+    total: u64,
+) -> Result<(), IoError> {
+    let carries = solver.carries();
+    o.text("format", &FORMAT.parse().expect("ASCII"))?;
+    let id: VarLenUnicode = lineage
+        .parse()
+        .map_err(|_| IoError(format!("{}: lineage id is not text", o.path.display())))?;
+    o.text("lineage", &id)?;
+    o.u64("version", VERSION)?;
+    o.u64("dim", D as u64)?;
+    o.u64("step", solver.step)?;
+    o.f64("time", solver.t)?;
+    o.f64("dt", solver.dt)?;
+    o.f64("max_speed", max_speed)?;
+    o.u64("ranks", o.comm.size() as u64)?;
+    o.u64s("blocks", &solver.layout.procs.map(|p| p as u64))?;
+    o.u64s("cells", &solver.layout.cells.map(|c| c as u64))?;
+    o.u64("particles", total)?;
+    o.u64("record_width", Particles::<D>::record_width(carries) as u64)?;
+    o.u64("carries_def_grad", u64::from(carries.def_grad))?;
+    o.u64("carries_x0", u64::from(carries.x0))?;
+    o.u64("carries_half", u64::from(carries.half))?;
+    o.u64("carries_plastic", u64::from(carries.plastic))?;
+    o.u64("carries_damage", u64::from(carries.damage))?;
+    o.u64("carries_stress_zz", u64::from(carries.stress_zz))
+}
+
+/// The run loop's diagnostics and schedule as root attributes.
+fn write_run_state(o: &Out, run: &RunState) -> Result<(), IoError> {
+    o.f64s("initial_totals", &totals_vec(&run.initial))?;
+    o.u64("initial_particles", run.initial.particles)?;
+    o.f64s("last_totals", &totals_vec(&run.last))?;
+    o.u64("last_particles", run.last.particles)?;
+    o.f64("energy_scale", run.energy_scale)?;
+    o.f64("max_energy_deviation", run.max_energy_dev)?;
+    o.f64s("max_errors", &[run.max_err.0, run.max_err.1])?;
+    o.u64("has_last_errors", u64::from(run.last_err.is_some()))?;
+    let le = run.last_err.unwrap_or((f64::NAN, f64::NAN));
+    o.f64s("last_errors", &[le.0, le.1])?;
+    o.f64("next_history_time", run.next_history)?;
+    o.u64("last_history_step", run.last_history_step)?;
+    o.f64("next_snapshot_time", run.next_snapshot)?;
+    o.f64("next_checkpoint_time", run.next_checkpoint)
+}
+
+/// The `particles` dataset: one packed record per row, this rank's rows at `offset`
+/// of `total`, with the attribute `columns`. Returns the hash of this rank's rows.
+fn write_particles<const D: usize>(
+    o: &Out,
+    solver: &Solver<D>,
+    offset: u64,
+    total: u64,
+) -> Result<u64, IoError> {
+    let (parts, carries) = (&solver.parts, solver.carries());
+    let width = Particles::<D>::record_width(carries);
+    let mut buf = Vec::with_capacity(parts.len() * width);
+    let mut rec = Vec::with_capacity(width);
+    let mut hash = 0u64;
+    for p in 0..parts.len() {
+        parts.pack(p, carries, &mut rec);
+        debug_assert_eq!(rec.len(), width);
+        hash = hash.wrapping_add(row_hash(p as u64, &rec));
+        buf.extend_from_slice(&rec);
+    }
+    let rows = o.rows(offset, parts.len() as u64, total);
+    rows.floats("particles", &buf, width)?;
+    drop(buf);
+    crash_for_tests(solver.step);
+    o.agree(o.file.dataset("particles").and_then(|ds| {
+        let cols: VarLenUnicode = columns(D, carries).parse().expect("ASCII");
+        ds.new_attr::<VarLenUnicode>()
+            .create("columns")
+            .and_then(|a| a.write_scalar(&cols))
+    }))?;
+    Ok(hash)
+}
+
+/// The data rank 0 writes alone (the others take part with empty selections): the
+/// scene text, `history.csv` so far (`history_len` bytes) and the snapshot list.
+fn write_root_data(
+    o: &Out,
+    scene_text: &str,
+    run: &RunState,
+    history_len: u64,
+) -> Result<(), IoError> {
+    let root = o.comm.rank() == 0;
+    let only_root = |len: u64| o.rows(0, if root { len } else { 0 }, len);
+    let pick = |b: &[u8]| if root { b.to_vec() } else { Vec::new() };
+    only_root(scene_text.len() as u64).bytes("scene", &pick(scene_text.as_bytes()))?;
+    only_root(history_len).bytes("history", &pick(&run.history))?;
+    let k = run.snapshots.len() as u64;
+    let steps: Vec<u64> = run.snapshots.iter().map(|s| s.step).collect();
+    let times: Vec<f64> = run.snapshots.iter().map(|s| s.time).collect();
+    let counts: Vec<u64> = run.snapshots.iter().map(|s| s.particles).collect();
+    let mine = |v: Vec<u64>| if root { v } else { Vec::new() };
+    only_root(k).u64s("snapshot_steps", &mine(steps))?;
+    only_root(k).floats("snapshot_times", &if root { times } else { Vec::new() }, 0)?;
+    only_root(k).u64s("snapshot_particles", &mine(counts))
 }
 
 /// Test hook: `MPMCG_TEST_CRASH_IN_CHECKPOINT=STEP` aborts every rank in the middle of
@@ -677,110 +698,165 @@ pub fn read<const D: usize>(
     carries: Carries,
 ) -> Result<Restored<D>, String> {
     let path = &header.path;
-    let p = path.display();
     let f = open(path)?;
-    if header.dim != D {
-        return Err(format!(
-            "{p}: damaged checkpoint: dim {} != {D}",
-            header.dim
-        ));
-    }
-    let cells: Vec<u64> = attr_vec(&f, path, "cells", D)?;
-    if cells
-        .iter()
-        .zip(&layout.cells)
-        .any(|(&a, &b)| a != b as u64)
-    {
-        return Err(format!(
-            "{p}: damaged checkpoint: cells {cells:?} differ from the stored scene's {:?}",
-            layout.cells
-        ));
-    }
-    let stored = Carries {
-        def_grad: attr_u64(&f, path, "carries_def_grad")? != 0,
-        x0: attr_u64(&f, path, "carries_x0")? != 0,
-        half: attr_u64(&f, path, "carries_half")? != 0,
-        plastic: attr_u64(&f, path, "carries_plastic")? != 0,
-        damage: attr_u64(&f, path, "carries_damage")? != 0,
-        stress_zz: attr_u64(&f, path, "carries_stress_zz")? != 0,
+    let rows = Rows::open::<D>(&f, header, layout, carries)?;
+    let writers = Writers::read(&f, path, header)?;
+    let same = header.ranks == layout.ranks()
+        && header.blocks.iter().zip(&layout.procs).all(|(a, b)| a == b);
+    let (parts, external_work) = if same {
+        rows.own(&writers, rank, carries)?
+    } else {
+        rows.all(&writers, rank, layout, geom, carries)?
     };
-    let width = Particles::<D>::record_width(carries);
-    if stored != carries || attr_u64(&f, path, "record_width")? != width as u64 {
-        return Err(format!(
-            "{p}: damaged checkpoint: its particle arrays ({stored:?}) are not those the stored scene needs ({carries:?})"
-        ));
+    let run = read_run_state::<D>(&f, path, rank)?;
+    let solver = SolverState {
+        t: attr_f64(&f, path, "time")?,
+        step: attr_u64(&f, path, "step")?,
+        dt: attr_f64(&f, path, "dt")?,
+        external_work,
+        max_speed: attr_f64(&f, path, "max_speed")?,
+    };
+    Ok(Restored { parts, solver, run })
+}
+
+/// The `particles` dataset of a checkpoint whose records are those `carries` needs.
+struct Rows<'a> {
+    ds: hdf5::Dataset,
+    path: &'a Path,
+    /// Values per row.
+    width: usize,
+    /// Rows in all.
+    n: usize,
+}
+
+impl<'a> Rows<'a> {
+    /// Check that the checkpoint's grid and particle records are the scene's (`layout`,
+    /// `carries`), and open its particle rows.
+    fn open<const D: usize>(
+        f: &hdf5::File,
+        header: &'a Header,
+        layout: &Layout<D>,
+        carries: Carries,
+    ) -> Result<Self, String> {
+        let path = &header.path;
+        let p = path.display();
+        if header.dim != D {
+            return Err(format!(
+                "{p}: damaged checkpoint: dim {} != {D}",
+                header.dim
+            ));
+        }
+        let cells: Vec<u64> = attr_vec(f, path, "cells", D)?;
+        if cells
+            .iter()
+            .zip(&layout.cells)
+            .any(|(&a, &b)| a != b as u64)
+        {
+            return Err(format!(
+                "{p}: damaged checkpoint: cells {cells:?} differ from the stored scene's {:?}",
+                layout.cells
+            ));
+        }
+        let stored = Carries {
+            def_grad: attr_u64(f, path, "carries_def_grad")? != 0,
+            x0: attr_u64(f, path, "carries_x0")? != 0,
+            half: attr_u64(f, path, "carries_half")? != 0,
+            plastic: attr_u64(f, path, "carries_plastic")? != 0,
+            damage: attr_u64(f, path, "carries_damage")? != 0,
+            stress_zz: attr_u64(f, path, "carries_stress_zz")? != 0,
+        };
+        let width = Particles::<D>::record_width(carries);
+        if stored != carries || attr_u64(f, path, "record_width")? != width as u64 {
+            return Err(format!(
+                "{p}: damaged checkpoint: its particle arrays ({stored:?}) are not those the stored scene needs ({carries:?})"
+            ));
+        }
+        let n = header.particles as usize;
+        let ds = f
+            .dataset("particles")
+            .map_err(|e| format!("{p}: damaged checkpoint: dataset `particles`: {e}"))?;
+        if ds.shape() != [n, width] {
+            return Err(format!(
+                "{p}: damaged checkpoint: dataset `particles` has shape {:?}, expected [{n}, {width}]",
+                ds.shape()
+            ));
+        }
+        Ok(Self { ds, path, width, n })
     }
-    let n = header.particles as usize;
-    let ds = f
-        .dataset("particles")
-        .map_err(|e| format!("{p}: damaged checkpoint: dataset `particles`: {e}"))?;
-    if ds.shape() != [n, width] {
-        return Err(format!(
-            "{p}: damaged checkpoint: dataset `particles` has shape {:?}, expected [{n}, {width}]",
-            ds.shape()
-        ));
-    }
-    let writers = header.ranks;
-    let rows: Vec<u64> = dataset(&f, path, "rank_rows", writers)?;
-    if rows.iter().sum::<u64>() != n as u64 {
-        return Err(format!(
-            "{p}: damaged checkpoint: rank_rows {rows:?} do not add up to {n} particles"
-        ));
-    }
-    let work: Vec<f64> = dataset(&f, path, "external_work", writers)?;
-    let sums: Vec<u64> = dataset(&f, path, "checksum", writers)?;
-    let starts: Vec<usize> = rows
-        .iter()
-        .scan(0usize, |acc, &r| {
-            let s = *acc;
-            *acc += r as usize;
-            Some(s)
-        })
-        .collect();
-    let read_rows = |r0: usize, r1: usize| -> Result<Vec<f64>, String> {
+
+    /// Rows `r0..r1`, back to back.
+    fn read(&self, r0: usize, r1: usize) -> Result<Vec<f64>, String> {
         if r0 == r1 {
             return Ok(Vec::new());
         }
-        ds.read_slice_2d::<f64, _>((r0..r1, ..))
+        self.ds
+            .read_slice_2d::<f64, _>((r0..r1, ..))
             .map(|a| a.iter().copied().collect())
-            .map_err(|e| format!("{p}: cannot read particles {r0}..{r1}: {e}"))
-    };
-    let corrupt = |w: usize| {
-        format!("{p}: corrupt checkpoint: the particle rows of writer rank {w} do not match their checksum")
-    };
-    let mut parts = Particles::<D>::default();
-    let same =
-        writers == layout.ranks() && header.blocks.iter().zip(&layout.procs).all(|(a, b)| a == b);
-    let external_work;
-    if same {
-        // Own rows, in the writer's memory order.
-        let (r0, r1) = (starts[rank], starts[rank] + rows[rank] as usize);
+            .map_err(|e| {
+                format!(
+                    "{}: cannot read particles {r0}..{r1}: {e}",
+                    self.path.display()
+                )
+            })
+    }
+
+    /// The rows of writer rank `w` do not match their checksum.
+    fn corrupt(&self, w: usize) -> String {
+        format!(
+            "{}: corrupt checkpoint: the particle rows of writer rank {w} do not match their checksum",
+            self.path.display()
+        )
+    }
+
+    /// Same rank count and process grid as the writer's: this rank's own rows, in the
+    /// writer's memory order, and its external work.
+    fn own<const D: usize>(
+        &self,
+        writers: &Writers,
+        rank: usize,
+        carries: Carries,
+    ) -> Result<(Particles<D>, f64), String> {
+        let mut parts = Particles::<D>::default();
+        let r0 = writers.starts[rank];
+        let r1 = r0 + writers.rows[rank] as usize;
         let mut hash = 0u64;
         let mut k = 0u64;
         let mut at = r0;
         while at < r1 {
             let end = (at + CHUNK_ROWS).min(r1);
-            let buf = read_rows(at, end)?;
-            for rec in buf.chunks_exact(width) {
+            let buf = self.read(at, end)?;
+            for rec in buf.chunks_exact(self.width) {
                 hash = hash.wrapping_add(row_hash(k, rec));
                 k += 1;
                 parts.unpack(rec, carries);
             }
             at = end;
         }
-        if hash != sums[rank] {
-            return Err(corrupt(rank));
+        if hash != writers.sums[rank] {
+            return Err(self.corrupt(rank));
         }
-        external_work = work[rank];
-    } else {
-        // Every row, keeping those in this rank's cells.
-        let mut hash = vec![0u64; writers];
+        Ok((parts, writers.work[rank]))
+    }
+
+    /// Another rank count or process grid: every row, keeping those in this rank's
+    /// cells; rank 0 carries the external work of all writers.
+    fn all<const D: usize>(
+        &self,
+        writers: &Writers,
+        rank: usize,
+        layout: &Layout<D>,
+        geom: &Geom<D>,
+        carries: Carries,
+    ) -> Result<(Particles<D>, f64), String> {
+        let mut parts = Particles::<D>::default();
+        let (rows, starts) = (&writers.rows, &writers.starts);
+        let mut hash = vec![0u64; rows.len()];
         let mut w = 0usize;
         let mut at = 0usize;
-        while at < n {
-            let end = (at + CHUNK_ROWS).min(n);
-            let buf = read_rows(at, end)?;
-            for (i, rec) in buf.chunks_exact(width).enumerate() {
+        while at < self.n {
+            let end = (at + CHUNK_ROWS).min(self.n);
+            let buf = self.read(at, end)?;
+            for (i, rec) in buf.chunks_exact(self.width).enumerate() {
                 let row = at + i;
                 while row >= starts[w] + rows[w] as usize {
                     w += 1;
@@ -796,35 +872,84 @@ pub fn read<const D: usize>(
             }
             at = end;
         }
-        if let Some(w) = (0..writers).find(|&w| hash[w] != sums[w]) {
-            return Err(corrupt(w));
+        if let Some(w) = (0..rows.len()).find(|&w| hash[w] != writers.sums[w]) {
+            return Err(self.corrupt(w));
         }
-        external_work = if rank == 0 { work.iter().sum() } else { 0.0 };
+        let external_work = if rank == 0 {
+            writers.work.iter().sum()
+        } else {
+            0.0
+        };
+        Ok((parts, external_work))
     }
+}
 
+/// Per writer rank: its rows, where they start, its external work and its checksum.
+struct Writers {
+    rows: Vec<u64>,
+    starts: Vec<usize>,
+    work: Vec<f64>,
+    sums: Vec<u64>,
+}
+
+impl Writers {
+    fn read(f: &hdf5::File, path: &Path, header: &Header) -> Result<Self, String> {
+        let (writers, n) = (header.ranks, header.particles);
+        let rows: Vec<u64> = dataset(f, path, "rank_rows", writers)?;
+        if rows.iter().sum::<u64>() != n {
+            return Err(format!(
+                "{}: damaged checkpoint: rank_rows {rows:?} do not add up to {n} particles",
+                path.display()
+            ));
+        }
+        let work: Vec<f64> = dataset(f, path, "external_work", writers)?;
+        let sums: Vec<u64> = dataset(f, path, "checksum", writers)?;
+        let starts: Vec<usize> = rows
+            .iter()
+            .scan(0usize, |acc, &r| {
+                let s = *acc;
+                *acc += r as usize;
+                Some(s)
+            })
+            .collect();
+        Ok(Self {
+            rows,
+            starts,
+            work,
+            sums,
+        })
+    }
+}
+
+/// The run loop's state (`history.csv` on rank 0 only).
+fn read_run_state<const D: usize>(
+    f: &hdf5::File,
+    path: &Path,
+    rank: usize,
+) -> Result<RunState, String> {
     let nt = 5 + D;
-    let le: Vec<f64> = attr_vec(&f, path, "last_errors", 2)?;
-    let me: Vec<f64> = attr_vec(&f, path, "max_errors", 2)?;
-    let steps: Vec<u64> = dataset_any(&f, path, "snapshot_steps")?;
-    let times: Vec<f64> = dataset(&f, path, "snapshot_times", steps.len())?;
-    let counts: Vec<u64> = dataset(&f, path, "snapshot_particles", steps.len())?;
-    let run = RunState {
+    let le: Vec<f64> = attr_vec(f, path, "last_errors", 2)?;
+    let me: Vec<f64> = attr_vec(f, path, "max_errors", 2)?;
+    let steps: Vec<u64> = dataset_any(f, path, "snapshot_steps")?;
+    let times: Vec<f64> = dataset(f, path, "snapshot_times", steps.len())?;
+    let counts: Vec<u64> = dataset(f, path, "snapshot_particles", steps.len())?;
+    Ok(RunState {
         initial: totals_from(
-            &attr_vec::<f64>(&f, path, "initial_totals", nt)?,
-            attr_u64(&f, path, "initial_particles")?,
+            &attr_vec::<f64>(f, path, "initial_totals", nt)?,
+            attr_u64(f, path, "initial_particles")?,
         ),
         last: totals_from(
-            &attr_vec::<f64>(&f, path, "last_totals", nt)?,
-            attr_u64(&f, path, "last_particles")?,
+            &attr_vec::<f64>(f, path, "last_totals", nt)?,
+            attr_u64(f, path, "last_particles")?,
         ),
-        energy_scale: attr_f64(&f, path, "energy_scale")?,
-        max_energy_dev: attr_f64(&f, path, "max_energy_deviation")?,
+        energy_scale: attr_f64(f, path, "energy_scale")?,
+        max_energy_dev: attr_f64(f, path, "max_energy_deviation")?,
         max_err: (me[0], me[1]),
-        last_err: (attr_u64(&f, path, "has_last_errors")? != 0).then_some((le[0], le[1])),
-        next_history: attr_f64(&f, path, "next_history_time")?,
-        last_history_step: attr_u64(&f, path, "last_history_step")?,
-        next_snapshot: attr_f64(&f, path, "next_snapshot_time")?,
-        next_checkpoint: attr_f64(&f, path, "next_checkpoint_time")?,
+        last_err: (attr_u64(f, path, "has_last_errors")? != 0).then_some((le[0], le[1])),
+        next_history: attr_f64(f, path, "next_history_time")?,
+        last_history_step: attr_u64(f, path, "last_history_step")?,
+        next_snapshot: attr_f64(f, path, "next_snapshot_time")?,
+        next_checkpoint: attr_f64(f, path, "next_checkpoint_time")?,
         snapshots: (0..steps.len())
             .map(|k| Entry {
                 step: steps[k],
@@ -833,17 +958,9 @@ pub fn read<const D: usize>(
             })
             .collect(),
         history: if rank == 0 {
-            dataset_any(&f, path, "history")?
+            dataset_any(f, path, "history")?
         } else {
             Vec::new()
         },
-    };
-    let solver = SolverState {
-        t: attr_f64(&f, path, "time")?,
-        step: attr_u64(&f, path, "step")?,
-        dt: attr_f64(&f, path, "dt")?,
-        external_work,
-        max_speed: attr_f64(&f, path, "max_speed")?,
-    };
-    Ok(Restored { parts, solver, run })
+    })
 }

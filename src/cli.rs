@@ -8,7 +8,7 @@ use crate::scene::{self, SceneError};
 use crate::signals;
 use clap::{Parser, Subcommand};
 use decomposition::{Communicator, MpiComm};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 #[derive(Parser, Debug)]
@@ -252,24 +252,10 @@ fn run_main(
         },
         (None, None) => unreachable!("a fresh run has its scene"),
     };
-    let threads = threads.unwrap_or(if comm.size() > 1 {
-        1
-    } else {
-        std::thread::available_parallelism().map_or(1, |n| n.get())
-    });
-    if threads == 0 || threads > MAX_THREADS {
-        if root {
-            eprintln!("error: --threads must be between 1 and {MAX_THREADS} (threads per rank), got {threads}");
-        }
-        return ExitCode::from(2);
-    }
-    if let Err(e) = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build_global()
-    {
-        eprintln!("error: cannot start {threads} threads: {e}");
-        return ExitCode::from(1);
-    }
+    let threads = match start_threads(&comm, threads) {
+        Ok(t) => t,
+        Err(code) => return code,
+    };
     if let Err(m) = signals::install() {
         if root {
             eprintln!(
@@ -277,22 +263,57 @@ fn run_main(
             );
         }
     }
-    let default_out = match &restart {
-        Some(ckpt) => ckpt
-            .parent()
-            .filter(|p| !p.as_os_str().is_empty())
-            .map_or_else(|| PathBuf::from("."), PathBuf::from),
-        None => PathBuf::from("out").join(&sc.name),
-    };
     let opts = RunOptions {
-        out: out.unwrap_or(default_out),
+        out: out.unwrap_or_else(|| default_out(restart.as_deref(), &sc.name)),
         quiet,
         threads,
         scene_text: Some(text),
         restart,
         progress_every,
     };
-    match run::run(&sc, &comm, &opts) {
+    let result = run::run(&sc, &comm, &opts);
+    report(result, root, &opts.out)
+}
+
+/// The thread count per rank (`--threads`, else 1 under mpirun with several ranks and
+/// every core alone) and rayon's pool of them; the exit status if that fails.
+fn start_threads(comm: &MpiComm, threads: Option<usize>) -> Result<usize, ExitCode> {
+    let threads = threads.unwrap_or(if comm.size() > 1 {
+        1
+    } else {
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    });
+    if threads == 0 || threads > MAX_THREADS {
+        if comm.rank() == 0 {
+            eprintln!("error: --threads must be between 1 and {MAX_THREADS} (threads per rank), got {threads}");
+        }
+        return Err(ExitCode::from(2));
+    }
+    if let Err(e) = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build_global()
+    {
+        eprintln!("error: cannot start {threads} threads: {e}");
+        return Err(ExitCode::from(1));
+    }
+    Ok(threads)
+}
+
+/// The output folder without `--out`: a restart's checkpoint folder, else
+/// `out/<scene name>`.
+fn default_out(restart: Option<&Path>, name: &str) -> PathBuf {
+    match restart {
+        Some(ckpt) => ckpt
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .map_or_else(|| PathBuf::from("."), PathBuf::from),
+        None => PathBuf::from("out").join(name),
+    }
+}
+
+/// The last line of a run (rank 0) and its exit status.
+fn report(result: Result<run::Summary, RunError>, root: bool, out: &Path) -> ExitCode {
+    match result {
         // The last line says where the files are, with --quiet too.
         Ok(s) => {
             if root {
@@ -303,14 +324,14 @@ fn run_main(
                     s.time,
                     s.wall_seconds,
                     s.particle_updates_per_second,
-                    opts.out.display()
+                    out.display()
                 );
             }
             ExitCode::SUCCESS
         }
         Err(e) => {
             if root {
-                let dir = opts.out.display();
+                let dir = out.display();
                 match e {
                     RunError::Interrupted(_) => eprintln!("interrupted: {e}; output in {dir}"),
                     RunError::Unstable(_) => eprintln!("error: {e}; output in {dir}"),

@@ -1,7 +1,8 @@
 //! Reference evaluation of the effective gradient `G_i(x)` of every scheme at a point:
 //! slow and written for clarity, independent of the production code paths (the per-
 //! particle [`crate::shape`] stencils and the solver's two-step assembly), so that tests
-//! can check one against the other and both against the identities of DESIGN.md §2.
+//! can check one against the other and both against the identities `Σ_i G_i = 0` and
+//! `Σ_i x_i ⊗ G_i = I`.
 //!
 //! - `mpm`:      `G_i = ∇S_i` (linear hat functions).
 //! - `gimp`:     uniform GIMP, `S_i(x) = (1/2l) ∫_{x−l}^{x+l} N_i` per axis.
@@ -91,7 +92,7 @@ impl<const D: usize> Domain<D> {
     }
 }
 
-/// The gradient schemes of DESIGN.md §2.
+/// The gradient schemes of the module documentation (and README, "The schemes").
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Scheme<const D: usize> {
     Mpm,
@@ -531,25 +532,8 @@ pub(crate) mod tests {
 
     type Pairs<const D: usize> = Vec<([i64; D], [f64; D])>;
 
-    /// splitmix64: deterministic pseudo-random numbers without a dependency (also
-    /// used by the solver's tests).
-    pub(crate) struct Rng(pub(crate) u64);
-
-    impl Rng {
-        fn next(&mut self) -> u64 {
-            self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-            z ^ (z >> 31)
-        }
-        pub(crate) fn f64(&mut self) -> f64 {
-            (self.next() >> 11) as f64 / (1u64 << 53) as f64
-        }
-        fn below(&mut self, n: usize) -> usize {
-            (self.next() % n as u64) as usize
-        }
-    }
+    /// Also used by the solver's tests.
+    pub(crate) use decomposition::splitmix::Rng;
 
     /// A grid with non-square cells, 3 to 6 cells per axis, each axis periodic with
     /// probability 1/3 if `periodic`.
@@ -621,10 +605,10 @@ pub(crate) mod tests {
         ]
     }
 
-    /// The identities of DESIGN.md §2 at 200 random points per scheme, many in cells on
-    /// the grid boundary, on grids with non-square cells and some periodic axes. GIMP
-    /// included: its particle domain is kept inside the grid (the truncated variant
-    /// fails there, see `gimp_truncation_breaks_partition_of_unity`).
+    /// The identities `Σ_i G_i = 0` and `Σ_i x_i ⊗ G_i = I` at 200 random points per
+    /// scheme, many in cells on the grid boundary, on grids with non-square cells and
+    /// some periodic axes. GIMP included: its particle domain is kept inside the grid
+    /// (the truncated variant fails there, see `gimp_truncation_breaks_partition_of_unity`).
     fn check_identities<const D: usize>(seed: u64) {
         let mut rng = Rng(seed);
         let mut worst = [(0.0f64, 0.0f64); 4];
@@ -1105,7 +1089,7 @@ pub(crate) mod tests {
 
     /// A regular lattice of `ppc` particles per cell and axis filling the grid covers
     /// every node fully: every cell weighs 1, the domain of all cells (the closed forms
-    /// of DESIGN.md), so interior results are those of `w ≡ 1`.
+    /// of the whole grid), so interior results are those of `w ≡ 1`.
     #[test]
     fn full_lattice_weighs_one_everywhere() {
         fn check<const D: usize>(seed: u64) {

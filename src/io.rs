@@ -554,122 +554,146 @@ pub(crate) struct Writer<'a> {
     pub total: u64,
 }
 
+/// The element types [`Writer`] stores, each with the HDF5 native type that describes
+/// it in memory. Sealed (implemented here only): `H5Dwrite` reads the buffer as
+/// `mem_type`, so a type id that does not describe `Self` exactly (another size, or a
+/// variable-length type whose elements are pointers) would read memory it must not.
+pub(crate) trait Native: Copy + hdf5::H5Type + sealed::Sealed {
+    /// The HDF5 native memory type of `Self`.
+    fn mem_type() -> hdf5_sys::h5i::hid_t;
+}
+
+mod sealed {
+    pub trait Sealed {}
+    impl Sealed for u8 {}
+    impl Sealed for u64 {}
+    impl Sealed for i64 {}
+    impl Sealed for f64 {}
+}
+
+impl Native for u8 {
+    fn mem_type() -> hdf5_sys::h5i::hid_t {
+        *h5t::H5T_NATIVE_UINT8
+    }
+}
+
+impl Native for u64 {
+    fn mem_type() -> hdf5_sys::h5i::hid_t {
+        *h5t::H5T_NATIVE_UINT64
+    }
+}
+
+impl Native for i64 {
+    fn mem_type() -> hdf5_sys::h5i::hid_t {
+        *h5t::H5T_NATIVE_INT64
+    }
+}
+
+impl Native for f64 {
+    fn mem_type() -> hdf5_sys::h5i::hid_t {
+        *h5t::H5T_NATIVE_DOUBLE
+    }
+}
+
 impl Writer<'_> {
     pub fn u64s(&self, name: &str, data: &[u64]) -> Result<(), IoError> {
-        let r = self
-            .file
-            .new_dataset::<u64>()
-            .shape([self.total as usize])
-            .create(name);
-        self.write(name, r, data, 0, *h5t::H5T_NATIVE_UINT64)
+        self.dataset(name, data, 0)
     }
 
     pub fn bytes(&self, name: &str, data: &[u8]) -> Result<(), IoError> {
-        let r = self
-            .file
-            .new_dataset::<u8>()
-            .shape([self.total as usize])
-            .create(name);
-        self.write(name, r, data, 0, *h5t::H5T_NATIVE_UINT8)
+        self.dataset(name, data, 0)
     }
 
     /// A dataset of `total × cols` values, or of `total` values if `cols == 0`.
     pub fn floats(&self, name: &str, data: &[f64], cols: usize) -> Result<(), IoError> {
+        self.dataset(name, data, cols)
+    }
+
+    pub fn ints(&self, name: &str, data: &[i64]) -> Result<(), IoError> {
+        self.dataset(name, data, 0)
+    }
+
+    /// Create the dataset `name` of `total × cols` values (`total` if `cols == 0`),
+    /// write this rank's rows from `data`, then agree with the other ranks on the
+    /// outcome.
+    fn dataset<T: Native>(&self, name: &str, data: &[T], cols: usize) -> Result<(), IoError> {
         let shape = if cols == 0 {
             vec![self.total as usize]
         } else {
             vec![self.total as usize, cols]
         };
-        let r = self.file.new_dataset::<f64>().shape(shape).create(name);
-        self.write(name, r, data, cols, *h5t::H5T_NATIVE_DOUBLE)
-    }
-
-    pub fn ints(&self, name: &str, data: &[i64]) -> Result<(), IoError> {
         let r = self
             .file
-            .new_dataset::<i64>()
-            .shape([self.total as usize])
-            .create(name);
-        self.write(name, r, data, 0, *h5t::H5T_NATIVE_INT64)
-    }
-
-    /// Write a created dataset (unless its creation failed), then agree with the other
-    /// ranks on the outcome.
-    fn write<T: Copy>(
-        &self,
-        name: &str,
-        created: hdf5::Result<hdf5::Dataset>,
-        data: &[T],
-        cols: usize,
-        ty: hdf5_sys::h5i::hid_t,
-    ) -> Result<(), IoError> {
-        let r = created
+            .new_dataset::<T>()
+            .shape(shape)
+            .create(name)
             .map_err(|e| e.to_string())
-            .and_then(|ds| self.raw_write(&ds, data, cols, ty))
+            .and_then(|ds| self.raw_write(&ds, data, cols))
             .map_err(|m| IoError(format!("{}: writing `{name}`: {m}", self.path.display())));
         lockstep(self.comm, r)
     }
 
     /// Collective (with MPI-IO) write of this rank's rows `[offset, offset + count)`
     /// from `data`; `cols == 0` means a 1-D dataset. A rank without rows takes part with
-    /// an empty selection. `ty` is the HDF5 memory type of `T` (its size is checked).
-    fn raw_write<T: Copy>(
+    /// an empty selection. Every HDF5 call's result is checked: a failure names the
+    /// call.
+    fn raw_write<T: Native>(
         &self,
         ds: &hdf5::Dataset,
         data: &[T],
         cols: usize,
-        ty: hdf5_sys::h5i::hid_t,
     ) -> Result<(), String> {
         let (start, count): (Vec<u64>, Vec<u64>) = if cols == 0 {
             (vec![self.offset], vec![self.count])
         } else {
             (vec![self.offset, 0], vec![self.count, cols as u64])
         };
-        // HDF5 reads `count × max(cols, 1)` values of `ty` from the buffer.
+        // HDF5 reads `count × max(cols, 1)` values of `T` from the buffer.
         let values = self.count as usize * cols.max(1);
         if data.len() != values {
             return Err(format!("{} values for a selection of {values}", data.len()));
         }
         let id = ds.id();
+        let ty = T::mem_type();
         // `create` opens files with MPI-IO exactly when there is an MPI communicator
         // (asking the file instead duplicates the communicator, a collective call).
         let parallel = self.comm.raw_mpi().is_some();
-        let check = |r: i64, what: &str| {
-            if r < 0 {
-                Err(format!("{what} failed"))
-            } else {
-                Ok(())
-            }
-        };
         hdf5::sync::sync(|| {
-            // SAFETY: `ty` is a type id whose size is checked to be that of `T`, so the
-            // `values` elements HDF5 reads from `data` (checked above) lie inside it;
-            // every other id is created here and closed by its `Owned` guard.
+            // SAFETY: `ty` describes `T` (the sealed `Native`), and its size is checked
+            // as well, so the `values` elements HDF5 reads from `data` (checked above)
+            // lie inside it; `start` and `count` have the dataset's rank and outlive the
+            // calls that read them; every other id is created here and closed by its
+            // `Owned` guard.
             unsafe {
                 let size = h5t::H5Tget_size(ty);
+                if size == 0 {
+                    return Err("H5Tget_size failed".into());
+                }
                 if size != std::mem::size_of::<T>() {
                     return Err(format!(
                         "memory type of {size} bytes for values of {}",
                         std::mem::size_of::<T>()
                     ));
                 }
-                let fspace = Owned(h5d::H5Dget_space(id), h5s::H5Sclose);
-                check(fspace.0, "H5Dget_space")?;
-                let dxpl = Owned(h5p::H5Pcreate(*h5p::H5P_CLS_DATASET_XFER), h5p::H5Pclose);
-                check(dxpl.0, "H5Pcreate")?;
+                let fspace = Owned::new(h5d::H5Dget_space(id), h5s::H5Sclose, "H5Dget_space")?;
+                let dxpl = Owned::new(
+                    h5p::H5Pcreate(*h5p::H5P_CLS_DATASET_XFER),
+                    h5p::H5Pclose,
+                    "H5Pcreate",
+                )?;
                 if parallel {
                     let r =
                         h5p::H5Pset_dxpl_mpio(dxpl.0, h5p::H5FD_mpio_xfer_t::H5FD_MPIO_COLLECTIVE);
-                    check(r.into(), "H5Pset_dxpl_mpio")?;
+                    check(r, "H5Pset_dxpl_mpio")?;
                 }
-                let mspace = Owned(
+                let mspace = Owned::new(
                     h5s::H5Screate_simple(count.len() as i32, count.as_ptr(), std::ptr::null()),
                     h5s::H5Sclose,
-                );
-                check(mspace.0, "H5Screate_simple")?;
+                    "H5Screate_simple",
+                )?;
                 if self.count == 0 {
-                    check(h5s::H5Sselect_none(fspace.0).into(), "H5Sselect_none")?;
-                    check(h5s::H5Sselect_none(mspace.0).into(), "H5Sselect_none")?;
+                    check(h5s::H5Sselect_none(fspace.0), "H5Sselect_none")?;
+                    check(h5s::H5Sselect_none(mspace.0), "H5Sselect_none")?;
                 } else {
                     let r = h5s::H5Sselect_hyperslab(
                         fspace.0,
@@ -679,21 +703,50 @@ impl Writer<'_> {
                         count.as_ptr(),
                         std::ptr::null(),
                     );
-                    check(r.into(), "H5Sselect_hyperslab")?;
+                    check(r, "H5Sselect_hyperslab")?;
                 }
                 let r = h5d::H5Dwrite(id, ty, mspace.0, fspace.0, dxpl.0, data.as_ptr().cast());
-                check(r.into(), "H5Dwrite")
+                check(r, "H5Dwrite")?;
+                mspace.close("H5Sclose")?;
+                dxpl.close("H5Pclose")?;
+                fspace.close("H5Sclose")
             }
         })
     }
 }
 
-/// An HDF5 id, closed with its close function when dropped (ids < 0 are failures
-/// and not closed).
-struct Owned(
-    hdf5_sys::h5i::hid_t,
-    unsafe extern "C" fn(hdf5_sys::h5i::hid_t) -> hdf5_sys::h5::herr_t,
-);
+/// An HDF5 status (`herr_t`) as a result naming the call.
+fn check(r: hdf5_sys::h5::herr_t, call: &str) -> Result<(), String> {
+    if r < 0 {
+        Err(format!("{call} failed"))
+    } else {
+        Ok(())
+    }
+}
+
+type CloseFn = unsafe extern "C" fn(hdf5_sys::h5i::hid_t) -> hdf5_sys::h5::herr_t;
+
+/// An HDF5 id, closed with its close function: by [`Owned::close`], which reports a
+/// failure, or when dropped on the way out of an error, which is already reported.
+struct Owned(hdf5_sys::h5i::hid_t, CloseFn);
+
+impl Owned {
+    /// The id an HDF5 call `call` returned, or its failure (a negative id).
+    fn new(id: hdf5_sys::h5i::hid_t, close: CloseFn, call: &str) -> Result<Self, String> {
+        if id < 0 {
+            Err(format!("{call} failed"))
+        } else {
+            Ok(Self(id, close))
+        }
+    }
+
+    /// Close the id now; `call` names the close function in the error.
+    fn close(mut self, call: &str) -> Result<(), String> {
+        let id = std::mem::replace(&mut self.0, -1);
+        // SAFETY: as in `drop`; the guard no longer holds the id, so it is closed once.
+        check(unsafe { (self.1)(id) }, call)
+    }
+}
 
 impl Drop for Owned {
     fn drop(&mut self) {

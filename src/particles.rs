@@ -295,7 +295,6 @@ impl<const D: usize> Particles<D> {
         cell_hi: [usize; D],
     ) -> Self {
         let carries = Carries::for_scene(scene);
-        let (needs_f, gimp) = (carries.def_grad, carries.half);
         let mut p = Particles::<D>::default();
         // Benchmarks may start displaced: look that many cells beyond the block.
         let disp = match benchmark {
@@ -309,89 +308,33 @@ impl<const D: usize> Particles<D> {
                 .iter()
                 .position(|m| m.name == body.material)
                 .expect("validated");
-            let mat = &materials[mi];
             let n = body.particles_per_cell;
             let sub = n.pow(D as u32);
-            let vol0 = geom.cell_volume() / sub as f64;
+            let seed = BodySeed {
+                mat: &materials[mi],
+                index: mi as u16,
+                vol0: geom.cell_volume() / sub as f64,
+                half: std::array::from_fn(|a| 0.5 * geom.h[a] / n as f64),
+                carries,
+            };
             let (c0, c1) = body_cells::<D>(body, geom);
             // Restrict to the block, padded by the initial displacement.
             let pad: [usize; D] =
                 std::array::from_fn(|a| 1 + (disp * geom.inv_h[a]).ceil() as usize);
-            let mut r0 = [0usize; D];
-            let mut r1 = [0usize; D];
-            let mut empty = false;
-            for a in 0..D {
-                r0[a] = c0[a].max(cell_lo[a].saturating_sub(pad[a]));
-                r1[a] = c1[a].min(cell_hi[a] + pad[a]);
-                if r0[a] >= r1[a] {
-                    empty = true;
-                }
-            }
+            let r0: [usize; D] =
+                std::array::from_fn(|a| c0[a].max(cell_lo[a].saturating_sub(pad[a])));
+            let r1: [usize; D] = std::array::from_fn(|a| c1[a].min(cell_hi[a] + pad[a]));
             let dims: [usize; D] = std::array::from_fn(|a| c1[a] - c0[a]);
             let body_cells: usize = dims.iter().product();
-            if !empty {
+            if (0..D).all(|a| r0[a] < r1[a]) {
                 lattice_points::<D>(body, geom, (c0, c1), (r0, r1), |lin, s, xref| {
                     let xr = vector::<D>(&xref);
-                    let (mut x, mut v, mut f) = (xr, Vector::<D>::zeros(), Mat::<D>::identity());
-                    if let Some(b) = benchmark {
-                        let (u, vel) = b.exact(&xr, 0.0);
-                        x += u;
-                        v = vel;
-                        f = b.deformation_gradient(&xr, 0.0);
-                    }
-                    if let Some(bv) = &body.velocity {
-                        v += vector::<D>(bv);
-                    }
-                    if let Some(g) = &body.velocity_gradient {
-                        for (i, row) in g.value.iter().enumerate() {
-                            for (j, gij) in row.iter().enumerate() {
-                                let c = g.about.as_ref().map_or(0.0, |c| c[j]);
-                                v[i] += gij * (xr[j] - c);
-                            }
-                        }
-                    }
+                    let (x, v, f) = initial_motion(body, benchmark, &xr);
                     let (c, _) = geom.locate(&std::array::from_fn(|a| x[a]));
                     if (0..D).any(|a| c[a] < cell_lo[a] as i64 || c[a] >= cell_hi[a] as i64) {
                         return true;
                     }
-                    let j = det(&f);
-                    p.x.push(x);
-                    p.v.push(v);
-                    p.mass.push(mat.density() * vol0);
-                    p.vol0.push(vol0);
-                    p.vol.push(vol0 * j);
-                    let mut st = Mat::<D>::zeros();
-                    if mat.needs_def_grad() {
-                        let none = crate::material::Internal {
-                            plastic: None,
-                            damage: None,
-                            stress_zz: None,
-                        };
-                        mat.update_stress(&mut st, &Mat::<D>::zeros(), &f, 0.0, none);
-                    }
-                    p.stress.push(st);
-                    if needs_f {
-                        p.def_grad.push(f);
-                    }
-                    p.mat.push(mi as u16);
-                    p.id.push(id_base + (lin * sub + s) as u64);
-                    if carries.x0 {
-                        p.x0.push(xr);
-                    }
-                    if carries.plastic {
-                        p.be.push(Matrix3::identity());
-                        p.eps_p.push(0.0);
-                    }
-                    if carries.damage {
-                        p.damage.push(0.0);
-                    }
-                    if carries.stress_zz {
-                        p.stress_zz.push(0.0);
-                    }
-                    if gimp {
-                        p.half
-                            .push(std::array::from_fn(|a| 0.5 * geom.h[a] / n as f64));
-                    }
+                    p.push_seeded(&seed, id_base + (lin * sub + s) as u64, xr, (x, v, f));
                     true
                 });
             }
@@ -399,6 +342,97 @@ impl<const D: usize> Particles<D> {
         }
         p
     }
+
+    /// Append a new particle of `seed`'s body: reference position `xr`, position,
+    /// velocity and deformation gradient `(x, v, f)`, the stress of `f`, and every
+    /// other array the scene carries at its initial value.
+    fn push_seeded(
+        &mut self,
+        seed: &BodySeed<D>,
+        id: u64,
+        xr: Vector<D>,
+        (x, v, f): (Vector<D>, Vector<D>, Mat<D>),
+    ) {
+        let (mat, vol0, carries) = (seed.mat, seed.vol0, seed.carries);
+        let j = det(&f);
+        self.x.push(x);
+        self.v.push(v);
+        self.mass.push(mat.density() * vol0);
+        self.vol0.push(vol0);
+        self.vol.push(vol0 * j);
+        let mut st = Mat::<D>::zeros();
+        if mat.needs_def_grad() {
+            let none = crate::material::Internal {
+                plastic: None,
+                damage: None,
+                stress_zz: None,
+            };
+            mat.update_stress(&mut st, &Mat::<D>::zeros(), &f, 0.0, none);
+        }
+        self.stress.push(st);
+        if carries.def_grad {
+            self.def_grad.push(f);
+        }
+        self.mat.push(seed.index);
+        self.id.push(id);
+        if carries.x0 {
+            self.x0.push(xr);
+        }
+        if carries.plastic {
+            self.be.push(Matrix3::identity());
+            self.eps_p.push(0.0);
+        }
+        if carries.damage {
+            self.damage.push(0.0);
+        }
+        if carries.stress_zz {
+            self.stress_zz.push(0.0);
+        }
+        if carries.half {
+            self.half.push(seed.half);
+        }
+    }
+}
+
+/// What the particles of one body share when they are seeded.
+struct BodySeed<'m, const D: usize> {
+    mat: &'m Material,
+    /// The material's index.
+    index: u16,
+    /// Initial volume of each particle.
+    vol0: f64,
+    /// GIMP half-widths.
+    half: [f64; D],
+    carries: Carries,
+}
+
+/// The initial position, velocity and deformation gradient of the particle at
+/// reference position `xr`: a benchmark's exact state at t = 0 (or rest), plus the
+/// body's velocity and velocity gradient.
+fn initial_motion<const D: usize>(
+    body: &BodySpec,
+    benchmark: Option<&Benchmark<D>>,
+    xr: &Vector<D>,
+) -> (Vector<D>, Vector<D>, Mat<D>) {
+    let (mut x, mut v, mut f) = (*xr, Vector::<D>::zeros(), Mat::<D>::identity());
+    if let Some(b) = benchmark {
+        let (u, vel) = b.exact(xr, 0.0);
+        x += u;
+        v = vel;
+        f = b.deformation_gradient(xr, 0.0);
+    }
+    if let Some(bv) = &body.velocity {
+        v += vector::<D>(bv);
+    }
+    if let Some(g) = &body.velocity_gradient {
+        for (i, row) in g.value.iter().enumerate() {
+            for (j, gij) in row.iter().enumerate() {
+                let c = g.about.as_ref().map_or(0.0, |c| c[j]);
+                v[i] += gij * (xr[j] - c);
+            }
+        }
+    }
+    (x, v, f)
 }
 
 /// The grid cells `c0..c1` overlapping a body's bounding box (at least one per axis; it

@@ -12,7 +12,7 @@ use crate::solver::{Failure, Solver, Totals};
 use decomposition::{Communicator, Layout};
 use serde::Serialize;
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 #[derive(Clone, Debug, Default)]
@@ -252,6 +252,55 @@ struct History {
 }
 
 impl History {
+    /// Collective: `history.csv` on rank 0, a new file with its header or, after a
+    /// restart, the restored text up to the checkpoint; every rank learns of a failure.
+    fn open<const D: usize>(
+        comm: &dyn Communicator,
+        out: &Path,
+        solver: &Solver<D>,
+        restored: Option<&RunState>,
+    ) -> Result<Self, RunError> {
+        let path = out.join("history.csv");
+        let mut h = History {
+            file: None,
+            path: path.clone(),
+            text: Vec::new(),
+            error: None,
+        };
+        if comm.rank() == 0 {
+            match std::fs::File::create(&path) {
+                Ok(f) => h.file = Some(std::io::BufWriter::new(f)),
+                Err(e) => h.error = Some(format!("{}: {e}", path.display())),
+            }
+            match restored {
+                Some(st) => h.write(&String::from_utf8_lossy(&st.history)),
+                None => h.write(&Self::header(solver)),
+            }
+        }
+        if let Some(m) = agree(comm, h.error.clone()) {
+            return Err(RunError::Io(m));
+        }
+        Ok(h)
+    }
+
+    /// The column names of a fresh file.
+    fn header<const D: usize>(solver: &Solver<D>) -> String {
+        let mut head = String::from("step,time,dt,kinetic,strain,external_work,total");
+        for a in 0..D {
+            head += &format!(",momentum_{a}");
+        }
+        for a in 0..D {
+            head += &format!(",velocity_cm_{a}");
+        }
+        if solver.benchmark.is_some() {
+            head += ",displacement_l2,velocity_l2";
+        }
+        if solver.carries().plastic {
+            head += ",plastic_work";
+        }
+        head + "\n"
+    }
+
     fn write(&mut self, s: &str) {
         if let Some(f) = &mut self.file {
             self.text.extend_from_slice(s.as_bytes());
@@ -388,20 +437,37 @@ fn run_dim<const D: usize>(
     if opts.restart.is_none() {
         check_bodies(scene).map_err(RunError::Input)?;
     }
+    // One run at a time in a folder; the lock goes when `_lock` is dropped, on every
+    // path out of this function.
+    let _lock = claim_output(comm, &opts.out)?;
+    let scene_text = match &opts.scene_text {
+        Some(t) => t.clone(),
+        None => toml::to_string(scene).unwrap_or_default(),
+    };
+    let set_up = set_up::<D>(scene, comm, &layout, opts)?;
+    let mut run = Run::start(scene, comm, opts, scene_text, set_up)?;
+    let ending = run.steps()?;
+    run.finish(ending)
+}
+
+/// Collective: create the output folder and lock it (rank 0); every rank learns of a
+/// failure. Returns rank 0's lock (`None` elsewhere).
+fn claim_output(
+    comm: &dyn Communicator,
+    out: &Path,
+) -> Result<Option<crate::lock::Lock>, RunError> {
     let root = comm.rank() == 0;
     let made = if root {
-        std::fs::create_dir_all(&opts.out)
+        std::fs::create_dir_all(out)
             .err()
-            .map(|e| format!("{}: {e}", opts.out.display()))
+            .map(|e| format!("{}: {e}", out.display()))
     } else {
         None
     };
     if let Some(m) = agree(comm, made) {
         return Err(RunError::Io(m));
     }
-    // One run at a time in a folder; the lock goes when `_lock` is dropped, on every
-    // path out of this function.
-    let (_lock, locked) = match root.then(|| crate::lock::acquire(&opts.out)) {
+    let (lock, locked) = match root.then(|| crate::lock::acquire(out)) {
         Some(Ok(l)) => (Some(l), None),
         Some(Err(e)) => (None, Some(e)),
         None => (None, None),
@@ -417,14 +483,18 @@ fn run_dim<const D: usize>(
             RunError::Io(m)
         });
     }
-    let scene_text = match &opts.scene_text {
-        Some(t) => t.clone(),
-        None => toml::to_string(scene).unwrap_or_default(),
-    };
-    let schedule = scene.checkpoint.as_ref().map(|c| c.schedule());
-    let keep = scene.checkpoint.as_ref().map_or(2, |c| c.keep);
-    let (mut solver, restored, restarted_from, stored) = set_up::<D>(scene, comm, &layout, opts)?;
-    // Pruning deletes only checkpoints of this run and the runs it continues.
+    Ok(lock)
+}
+
+/// Collective: the checkpoint lineage of this run, `stored` (a restart's) or a fresh
+/// one, which rank 0 makes and every rank receives. Pruning deletes only checkpoints of
+/// this run and the runs it continues; rank 0 warns of the others in `out`.
+fn lineage(
+    comm: &dyn Communicator,
+    out: &Path,
+    stored: Option<String>,
+    keep: usize,
+) -> checkpoint::Lineage {
     let id = match stored {
         Some(id) => id,
         None => {
@@ -433,351 +503,573 @@ fn run_dim<const D: usize>(
         }
     };
     let mut lineage = checkpoint::Lineage::continued(id, keep);
-    if root {
-        let others = lineage.scan(&opts.out);
+    if comm.rank() == 0 {
+        let others = lineage.scan(out);
         if let (Some(first), Some(last)) = (others.first(), others.last()) {
             eprintln!(
                 "warning: {} holds {} checkpoint(s) of another run ({first} ... {last}); this run does not delete them",
-                opts.out.display(),
+                out.display(),
                 others.len()
             );
         }
     }
-    let has_bench = solver.benchmark.is_some();
-    let diag_dt = scene.time.end / 1000.0;
+    lineage
+}
 
-    // history.csv: a new file, or the restored one up to the checkpoint.
-    let hpath = opts.out.join("history.csv");
-    let mut history = History {
-        file: None,
-        path: hpath.clone(),
-        text: Vec::new(),
-        error: None,
-    };
-    if root {
-        match std::fs::File::create(&hpath) {
-            Ok(f) => history.file = Some(std::io::BufWriter::new(f)),
-            Err(e) => history.error = Some(format!("{}: {e}", hpath.display())),
-        }
-        match &restored {
-            Some(st) => {
-                let text = String::from_utf8_lossy(&st.history).into_owned();
-                history.write(&text);
-            }
-            None => {
-                let mut head = String::from("step,time,dt,kinetic,strain,external_work,total");
-                for a in 0..D {
-                    head += &format!(",momentum_{a}");
-                }
-                for a in 0..D {
-                    head += &format!(",velocity_cm_{a}");
-                }
-                if has_bench {
-                    head += ",displacement_l2,velocity_l2";
-                }
-                if solver.carries().plastic {
-                    head += ",plastic_work";
-                }
-                history.write(&(head + "\n"));
-            }
-        }
-    }
-    if let Some(m) = agree(comm, history.error.clone()) {
-        return Err(RunError::Io(m));
+/// Snapshots at multiples of `every` in simulated time, which the steps land on; an
+/// infinite `every` writes the initial and final states only.
+struct SnapshotSchedule {
+    writer: Snapshots,
+    every: f64,
+}
+
+impl SnapshotSchedule {
+    /// The scene's snapshots, `None` if it asks for none.
+    fn of<const D: usize>(scene: &Scene, out: &Path) -> Option<Self> {
+        scene.snapshot_plan().map(|o| Self {
+            writer: Snapshots::new(out, &o.fields, Labels::of::<D>(scene)),
+            every: o.every,
+        })
     }
 
-    // (writer, interval); an infinite interval writes the initial and final states.
-    let mut snaps = scene.snapshot_plan().map(|o| {
-        (
-            Snapshots::new(&opts.out, &o.fields, Labels::of::<D>(scene)),
-            o.every,
-        )
-    });
-    let start = Instant::now();
-    let mut output_seconds = OutputSeconds::default();
-    let mut st = match restored {
-        Some(mut st) => {
-            if let Some((sn, _)) = &mut snaps {
-                // Keep the earlier snapshots that are in this output folder (rank 0
-                // decides, every rank keeps the same list).
-                let mask: Vec<u8> = st
-                    .snapshots
-                    .iter()
-                    .map(|e| u8::from(root && opts.out.join(e.file()).is_file()))
-                    .collect();
-                let mask = comm.broadcast_bytes(&mask);
-                let mut k = 0;
-                st.snapshots.retain(|_| {
-                    k += 1;
-                    mask[k - 1] == 1
-                });
-                sn.set_entries(st.snapshots.clone());
-            }
-            st
-        }
-        None => {
-            let mut next_snapshot = f64::INFINITY;
-            if let Some((sn, every)) = &mut snaps {
-                sn.write(comm, &solver.parts, &solver.materials, 0, 0.0)
-                    .map_err(|e| RunError::Io(e.to_string()))?;
-                next_snapshot = *every;
-                output_seconds.snapshots += start.elapsed().as_secs_f64();
-            }
-            let tot0 = solver.totals();
-            let err0 = solver.errors();
-            history.row(&solver, &tot0, err0);
-            RunState {
-                energy_scale: tot0.total_energy().abs().max(tot0.kinetic + tot0.strain),
-                max_energy_dev: 0.0,
-                max_err: err0.unwrap_or((0.0, 0.0)),
-                last_err: err0,
-                next_history: diag_dt,
-                last_history_step: 0,
-                next_snapshot,
-                next_checkpoint: match schedule {
-                    Some(CheckpointEvery::Time(t)) => t,
-                    _ => f64::INFINITY,
-                },
-                snapshots: Vec::new(),
-                history: Vec::new(),
-                last: tot0.clone(),
-                initial: tot0,
-            }
-        }
-    };
-    let e0 = st.initial.total_energy();
-    let (t_start, step_start) = (solver.t, solver.step);
-    let mut progress = Progress::new(root && !opts.quiet, opts.progress_every, start, t_start);
-    let mut failure: Option<Failure> = None;
-    let mut stopped_by = 0i32;
-    let mut last_checkpoint: Option<PathBuf> = opts.restart.clone();
-    let mut checkpoint_clock = Instant::now();
-    let mut checkpoint_step = opts.restart.as_ref().map(|_| solver.step);
-    let mut rescue = Rescue::default();
-    rescue.keep(&solver, &st, history.text.len());
-    while !solver.done() {
-        // Requests every rank must agree on travel with the step's own reduction: a
-        // stop signal (any rank), a wall-clock checkpoint (rank 0's clock), a failed
-        // history write (rank 0).
-        let wall_due = root
-            && matches!(schedule, Some(CheckpointEvery::Seconds(s))
-                if checkpoint_clock.elapsed().as_secs_f64() >= s);
-        // Snapshots at exact output times: the step that would pass one is shortened.
-        solver.stop_at = st.next_snapshot;
-        let mut flags = [
-            f64::from(signals::pending()),
-            f64::from(u8::from(wall_due)),
-            f64::from(u8::from(history.error.is_some())),
-        ];
-        if let Err(f) = solver.advance_with(&mut flags) {
-            failure = Some(f);
-            break;
-        }
-        if flags[2] > 0.0 {
-            return Err(RunError::Io(history.error.take().unwrap_or_else(|| {
-                format!("{}: writing failed on rank 0", hpath.display())
-            })));
-        }
-        if has_bench {
-            st.last_err = solver.errors();
-            if let Some((u, v)) = st.last_err {
-                st.max_err.0 = st.max_err.0.max(u);
-                st.max_err.1 = st.max_err.1.max(v);
-            }
-        }
-        // A history sample every thousandth of the run, but no closer than
-        // DIAG_MIN_STEPS steps: each costs a pass over the particles.
-        if (solver.t >= st.next_history && solver.step >= st.last_history_step + DIAG_MIN_STEPS)
-            || solver.done()
-        {
-            st.next_history = solver.t + diag_dt;
-            st.last_history_step = solver.step;
-            st.last = solver.totals();
-            st.energy_scale = st.energy_scale.max(st.last.kinetic + st.last.strain);
-            st.max_energy_dev = st.max_energy_dev.max((st.last.total_energy() - e0).abs());
-            history.row(&solver, &st.last, st.last_err);
-        }
-        if let Some((sn, every)) = &mut snaps {
-            // Write when an output time is reached (the step landed on it, to round-off).
-            if solver.t >= st.next_snapshot - 1e-3 * solver.dt || solver.done() {
-                let t0 = Instant::now();
-                sn.write(
-                    comm,
-                    &solver.parts,
-                    &solver.materials,
-                    solver.step,
-                    solver.t,
-                )
-                .map_err(|e| RunError::Io(e.to_string()))?;
-                output_seconds.snapshots += t0.elapsed().as_secs_f64();
-                // k·every by one multiplication: a sum of intervals would drift.
-                while st.next_snapshot <= solver.t + 1e-3 * solver.dt {
-                    let next = ((st.next_snapshot / *every).round() + 1.0) * *every;
-                    st.next_snapshot = past(st.next_snapshot, next, solver.t, *every);
-                }
-            }
-        }
-        let signal = flags[0] as i32;
-        let due = signal != 0
-            || match schedule {
-                Some(CheckpointEvery::Time(_)) => solver.t >= st.next_checkpoint - 1e-3 * solver.dt,
-                Some(CheckpointEvery::Steps(n)) => solver.step.is_multiple_of(n),
-                Some(CheckpointEvery::Seconds(_)) => flags[1] > 0.0,
-                None => false,
-            };
-        // A finished run needs no checkpoint.
-        if due && !solver.done() {
-            if let Some(CheckpointEvery::Time(every)) = schedule {
-                while st.next_checkpoint <= solver.t + 1e-3 * solver.dt {
-                    let next = st.next_checkpoint + every;
-                    st.next_checkpoint = past(st.next_checkpoint, next, solver.t, every);
-                }
-            }
-            history.flush();
-            st.history = std::mem::take(&mut history.text);
-            st.snapshots = snaps
-                .as_ref()
-                .map_or_else(Vec::new, |(sn, _)| sn.entries().to_vec());
-            let t0 = Instant::now();
-            let written =
-                checkpoint::write(comm, &opts.out, &solver, &st, &scene_text, &mut lineage);
-            output_seconds.checkpoints += t0.elapsed().as_secs_f64();
-            history.text = std::mem::take(&mut st.history);
-            last_checkpoint = Some(written.map_err(|e| RunError::Io(e.to_string()))?);
-            checkpoint_step = Some(solver.step);
-            checkpoint_clock = Instant::now();
-        }
-        if solver.step.is_multiple_of(RESCUE_EVERY) {
-            rescue.keep(&solver, &st, history.text.len());
-        }
-        progress.tick(solver.step, solver.t, solver.end, solver.dt);
-        if signal != 0 && !solver.done() {
-            stopped_by = signal;
-            break;
-        }
+    /// Whether the step just taken reached the output time `next` (it landed on it, to
+    /// round-off) or ended the run.
+    fn due<const D: usize>(&self, solver: &Solver<D>, next: f64) -> bool {
+        solver.t >= next - 1e-3 * solver.dt || solver.done()
     }
-    let mut last = st.last.clone();
-    let mut message = None;
-    if failure.is_some() || stopped_by != 0 {
-        last = solver.totals();
+
+    /// The first output time after time `t` (step `dt`), from the current one `next`:
+    /// k·every by one multiplication, since a sum of intervals would drift.
+    fn after(&self, mut next: f64, t: f64, dt: f64) -> f64 {
+        while next <= t + 1e-3 * dt {
+            let k = ((next / self.every).round() + 1.0) * self.every;
+            next = past(next, k, t, self.every);
+        }
+        next
     }
-    let (fail_step, fail_t) = (solver.step, solver.t);
-    if failure.is_some() {
-        // Report the failing rank's own reason on rank 0, not "failed elsewhere".
-        let mine = match &failure {
-            Some(Failure::Elsewhere(_)) | None => String::new(),
-            Some(f) => format!("rank {}: {f}", comm.rank()),
-        };
-        let all = comm.gather_bytes(mine.as_bytes());
-        if let Some(m) = all.iter().find(|m| !m.is_empty()) {
-            failure = Some(Failure::Elsewhere(String::from_utf8_lossy(m).into_owned()));
-        }
-        // The failed state cannot be continued or inspected usefully: checkpoint the
-        // last state known good instead (unless a regular checkpoint already holds it).
-        if checkpoint_step != Some(rescue.solver.step) {
-            rescue.restore(&mut solver, &mut st, &mut history.text);
-            st.snapshots = snaps
-                .as_ref()
-                .map_or_else(Vec::new, |(sn, _)| sn.entries().to_vec());
-            st.snapshots.retain(|e| e.step <= rescue.solver.step);
-            let t0 = Instant::now();
-            let written =
-                checkpoint::write(comm, &opts.out, &solver, &st, &scene_text, &mut lineage);
-            output_seconds.checkpoints += t0.elapsed().as_secs_f64();
-            history.text = std::mem::take(&mut st.history);
-            last_checkpoint = Some(written.map_err(|e| RunError::Io(e.to_string()))?);
-        }
-        let ckpt = last_checkpoint
-            .as_ref()
-            .map_or(String::new(), |p| p.display().to_string());
-        message = failure.as_ref().map(|f| {
-            format!(
-                "{f}; the last good state (step {}, t = {:.6e}) is checkpointed in {ckpt}",
-                rescue.solver.step, rescue.solver.t
+
+    /// Collective: write the particles now, adding the time taken to `seconds`.
+    fn write<const D: usize>(
+        &mut self,
+        comm: &dyn Communicator,
+        solver: &Solver<D>,
+        seconds: &mut f64,
+    ) -> Result<(), RunError> {
+        let t0 = Instant::now();
+        self.writer
+            .write(
+                comm,
+                &solver.parts,
+                &solver.materials,
+                solver.step,
+                solver.t,
             )
-        });
-    } else if stopped_by != 0 {
-        message = Some(format!(
-            "stopped by {} after step {} (t = {:.6e}); the last checkpoint is {}: continue with `mpmcg run --restart {}`",
-            signals::name(stopped_by),
-            solver.step,
-            solver.t,
-            last_checkpoint
-                .as_ref()
-                .map_or_else(String::new, |p| p.display().to_string()),
-            last_checkpoint
-                .as_ref()
-                .map_or_else(|| "CHECKPOINT".to_string(), |p| p.display().to_string())
-        ));
+            .map_err(|e| RunError::Io(e.to_string()))?;
+        *seconds += t0.elapsed().as_secs_f64();
+        Ok(())
     }
-    progress.finish();
-    let wall = start.elapsed().as_secs_f64();
-    let mut lo = [solver.parts.len() as f64, solver.tiles.active() as f64];
-    let mut hi = lo;
-    let mut sum = [solver.tiles.active() as u64];
-    comm.min_f64(&mut lo);
-    comm.max_f64(&mut hi);
-    comm.sum_u64(&mut sum);
-    history.flush();
-    let tot0 = &st.initial;
-    let status = if failure.is_some() {
-        "unstable"
-    } else if stopped_by != 0 {
-        "interrupted"
-    } else {
-        "completed"
-    };
-    let summary = Summary {
-        scene: scene.name.clone(),
-        dim: D,
-        gradient: scene.method.gradient.name().into(),
-        update: scene.method.update.name().into(),
-        flip: scene.method.flip,
-        xpic: scene.method.xpic,
-        units: Labels::of::<D>(scene).units,
-        status: status.into(),
-        message: message.clone(),
-        ranks: comm.size(),
-        threads: opts.threads,
-        blocks: layout.procs.to_vec(),
-        particles_per_rank: RankLoad {
+}
+
+/// When to write checkpoints (the scene's `[checkpoint]` interval in simulated time,
+/// steps or wall-clock seconds, or a stop signal) and which one is the newest.
+struct CheckpointSchedule {
+    every: Option<CheckpointEvery>,
+    /// Wall clock since the last checkpoint, for `every_seconds`.
+    clock: Instant,
+    /// The newest checkpoint: written by this run, or the one it restarted from.
+    last: Option<PathBuf>,
+    /// The step of `last`.
+    last_step: Option<u64>,
+}
+
+impl CheckpointSchedule {
+    fn new(scene: &Scene, restart: Option<&PathBuf>, step: u64) -> Self {
+        Self {
+            every: scene.checkpoint.as_ref().map(|c| c.schedule()),
+            clock: Instant::now(),
+            last: restart.cloned(),
+            last_step: restart.map(|_| step),
+        }
+    }
+
+    /// The first checkpoint time of a fresh run (infinite unless the interval is in
+    /// simulated time).
+    fn first_time(&self) -> f64 {
+        match self.every {
+            Some(CheckpointEvery::Time(t)) => t,
+            _ => f64::INFINITY,
+        }
+    }
+
+    /// On rank 0: whether the wall-clock interval has passed. The ranks agree on it
+    /// through [`Requests`].
+    fn wall_due(&self) -> bool {
+        matches!(self.every, Some(CheckpointEvery::Seconds(s))
+            if self.clock.elapsed().as_secs_f64() >= s)
+    }
+
+    /// Whether to checkpoint after the step just taken: a stop signal asks for one, or
+    /// the interval is reached (simulated time `next`, a multiple of the steps, or the
+    /// agreed wall clock).
+    fn due<const D: usize>(&self, solver: &Solver<D>, next: f64, req: &Requests) -> bool {
+        req.signal() != 0
+            || match self.every {
+                Some(CheckpointEvery::Time(_)) => solver.t >= next - 1e-3 * solver.dt,
+                Some(CheckpointEvery::Steps(n)) => solver.step.is_multiple_of(n),
+                Some(CheckpointEvery::Seconds(_)) => req.wall_checkpoint(),
+                None => false,
+            }
+    }
+
+    /// The first checkpoint time after time `t` (step `dt`), from the current one
+    /// `next`; unchanged unless the interval is in simulated time.
+    fn after(&self, mut next: f64, t: f64, dt: f64) -> f64 {
+        if let Some(CheckpointEvery::Time(every)) = self.every {
+            while next <= t + 1e-3 * dt {
+                next = past(next, next + every, t, every);
+            }
+        }
+        next
+    }
+
+    /// A regular checkpoint of step `step` was written to `path`.
+    fn written(&mut self, path: PathBuf, step: u64) {
+        self.last = Some(path);
+        self.last_step = Some(step);
+        self.clock = Instant::now();
+    }
+
+    /// The newest checkpoint's path, or `""`.
+    fn last_name(&self) -> String {
+        self.last
+            .as_ref()
+            .map_or_else(String::new, |p| p.display().to_string())
+    }
+}
+
+/// Requests every rank must agree on after a step. They travel with the step's own
+/// reduction (a maximum): a stop signal (any rank), a wall-clock checkpoint (rank 0's
+/// clock), a failed history write (rank 0).
+struct Requests([f64; 3]);
+
+impl Requests {
+    fn new(signal: i32, wall_checkpoint: bool, history_failed: bool) -> Self {
+        Self([
+            f64::from(signal),
+            f64::from(u8::from(wall_checkpoint)),
+            f64::from(u8::from(history_failed)),
+        ])
+    }
+
+    /// The stop signal some rank received (0: none).
+    fn signal(&self) -> i32 {
+        self.0[0] as i32
+    }
+
+    fn wall_checkpoint(&self) -> bool {
+        self.0[1] > 0.0
+    }
+
+    fn history_failed(&self) -> bool {
+        self.0[2] > 0.0
+    }
+}
+
+/// History samples every thousandth of the run, but no closer than [`DIAG_MIN_STEPS`]
+/// steps (each costs a pass over the particles), and one at the end.
+struct HistorySchedule {
+    every: f64,
+}
+
+impl HistorySchedule {
+    fn of(scene: &Scene) -> Self {
+        Self {
+            every: scene.time.end / 1000.0,
+        }
+    }
+
+    fn due<const D: usize>(&self, solver: &Solver<D>, st: &RunState) -> bool {
+        (solver.t >= st.next_history && solver.step >= st.last_history_step + DIAG_MIN_STEPS)
+            || solver.done()
+    }
+}
+
+/// How the step loop ended.
+enum Ending {
+    Completed,
+    Unstable(Failure),
+    /// By this stop signal, after a checkpoint.
+    Stopped(i32),
+}
+
+/// A run under way: the solver, the state a checkpoint keeps, the output schedules and
+/// what the summary reports.
+struct Run<'a, const D: usize> {
+    scene: &'a Scene,
+    comm: &'a dyn Communicator,
+    out: &'a Path,
+    /// Stored verbatim in checkpoints.
+    scene_text: String,
+    solver: Solver<'a, D>,
+    st: RunState,
+    history: History,
+    sampling: HistorySchedule,
+    snaps: Option<SnapshotSchedule>,
+    checkpoints: CheckpointSchedule,
+    lineage: checkpoint::Lineage,
+    rescue: Rescue<D>,
+    progress: Progress,
+    start: Instant,
+    output_seconds: OutputSeconds,
+    /// Total energy at t = 0.
+    e0: f64,
+    /// The step this run started from (0, or the checkpoint's).
+    step_start: u64,
+    threads: usize,
+    restarted_from: Option<RestartSummary>,
+}
+
+impl<'a, const D: usize> Run<'a, D> {
+    /// Collective: the lineage, `history.csv` and the run state, restored or (fresh run)
+    /// of the initial state, whose snapshot and history row are written.
+    fn start(
+        scene: &'a Scene,
+        comm: &'a dyn Communicator,
+        opts: &'a RunOptions,
+        scene_text: String,
+        (solver, restored, restarted_from, stored): SetUp<'a, D>,
+    ) -> Result<Self, RunError> {
+        let keep = scene.checkpoint.as_ref().map_or(2, |c| c.keep);
+        let lineage = lineage(comm, &opts.out, stored, keep);
+        let mut history = History::open(comm, &opts.out, &solver, restored.as_ref())?;
+        let sampling = HistorySchedule::of(scene);
+        let checkpoints = CheckpointSchedule::new(scene, opts.restart.as_ref(), solver.step);
+        let mut snaps = SnapshotSchedule::of::<D>(scene, &opts.out);
+        let start = Instant::now();
+        let mut output_seconds = OutputSeconds::default();
+        let st = match restored {
+            Some(st) => resumed(comm, &opts.out, st, snaps.as_mut()),
+            None => {
+                if let Some(sn) = &mut snaps {
+                    sn.write(comm, &solver, &mut output_seconds.snapshots)?;
+                }
+                let next_snapshot = snaps.as_ref().map_or(f64::INFINITY, |sn| sn.every);
+                let st = initial(
+                    &solver,
+                    next_snapshot,
+                    sampling.every,
+                    checkpoints.first_time(),
+                );
+                history.row(&solver, &st.initial, st.last_err);
+                st
+            }
+        };
+        let root = comm.rank() == 0;
+        let progress = Progress::new(root && !opts.quiet, opts.progress_every, start, solver.t);
+        let mut rescue = Rescue::default();
+        rescue.keep(&solver, &st, history.text.len());
+        Ok(Self {
+            scene,
+            comm,
+            out: &opts.out,
+            scene_text,
+            e0: st.initial.total_energy(),
+            step_start: solver.step,
+            solver,
+            st,
+            history,
+            sampling,
+            snaps,
+            checkpoints,
+            lineage,
+            rescue,
+            progress,
+            start,
+            output_seconds,
+            threads: opts.threads,
+            restarted_from,
+        })
+    }
+
+    /// The step loop: until the end time, an instability or a stop signal, with the
+    /// diagnostics and output each step calls for.
+    fn steps(&mut self) -> Result<Ending, RunError> {
+        let root = self.comm.rank() == 0;
+        // The wall-clock interval counts from the first step, not from the set-up.
+        self.checkpoints.clock = Instant::now();
+        while !self.solver.done() {
+            let wall_due = root && self.checkpoints.wall_due();
+            // Snapshots at exact output times: the step that would pass one is shortened.
+            self.solver.stop_at = self.st.next_snapshot;
+            let mut req = Requests::new(signals::pending(), wall_due, self.history.error.is_some());
+            if let Err(f) = self.solver.advance_with(&mut req.0) {
+                return Ok(Ending::Unstable(f));
+            }
+            if req.history_failed() {
+                return Err(RunError::Io(self.history.error.take().unwrap_or_else(
+                    || format!("{}: writing failed on rank 0", self.history.path.display()),
+                )));
+            }
+            self.track_errors();
+            if self.sampling.due(&self.solver, &self.st) {
+                self.sample_history();
+            }
+            if let Some(sn) = &mut self.snaps {
+                if sn.due(&self.solver, self.st.next_snapshot) {
+                    sn.write(self.comm, &self.solver, &mut self.output_seconds.snapshots)?;
+                    let s = &self.solver;
+                    self.st.next_snapshot = sn.after(self.st.next_snapshot, s.t, s.dt);
+                }
+            }
+            let due = self
+                .checkpoints
+                .due(&self.solver, self.st.next_checkpoint, &req);
+            // A finished run needs no checkpoint.
+            if due && !self.solver.done() {
+                self.checkpoint()?;
+            }
+            if self.solver.step.is_multiple_of(RESCUE_EVERY) {
+                self.rescue
+                    .keep(&self.solver, &self.st, self.history.text.len());
+            }
+            let s = &self.solver;
+            self.progress.tick(s.step, s.t, s.end, s.dt);
+            if req.signal() != 0 && !self.solver.done() {
+                return Ok(Ending::Stopped(req.signal()));
+            }
+        }
+        Ok(Ending::Completed)
+    }
+
+    /// Benchmarks: the error norms after this step, and their maxima so far.
+    fn track_errors(&mut self) {
+        if self.solver.benchmark.is_none() {
+            return;
+        }
+        self.st.last_err = self.solver.errors();
+        if let Some((u, v)) = self.st.last_err {
+            self.st.max_err.0 = self.st.max_err.0.max(u);
+            self.st.max_err.1 = self.st.max_err.1.max(v);
+        }
+    }
+
+    /// Collective: the totals now, into the energy bounds and a row of `history.csv`.
+    fn sample_history(&mut self) {
+        let (s, st) = (&self.solver, &mut self.st);
+        st.next_history = s.t + self.sampling.every;
+        st.last_history_step = s.step;
+        st.last = s.totals();
+        st.energy_scale = st.energy_scale.max(st.last.kinetic + st.last.strain);
+        st.max_energy_dev = st
+            .max_energy_dev
+            .max((st.last.total_energy() - self.e0).abs());
+        self.history.row(s, &st.last, st.last_err);
+    }
+
+    /// Collective: a regular checkpoint of the state after this step.
+    fn checkpoint(&mut self) -> Result<(), RunError> {
+        let s = &self.solver;
+        self.st.next_checkpoint = self.checkpoints.after(self.st.next_checkpoint, s.t, s.dt);
+        self.history.flush();
+        self.st.history = std::mem::take(&mut self.history.text);
+        self.st.snapshots = self.snapshot_entries();
+        let path = self.write_checkpoint()?;
+        self.checkpoints.written(path, self.solver.step);
+        Ok(())
+    }
+
+    /// The snapshots written so far.
+    fn snapshot_entries(&self) -> Vec<crate::io::Entry> {
+        self.snaps
+            .as_ref()
+            .map_or_else(Vec::new, |sn| sn.writer.entries().to_vec())
+    }
+
+    /// Collective: write the solver and `self.st` to a checkpoint; `self.st.history`
+    /// holds `history.csv`'s text for the time of the write and gives it back.
+    fn write_checkpoint(&mut self) -> Result<PathBuf, RunError> {
+        let t0 = Instant::now();
+        let written = checkpoint::write(
+            self.comm,
+            self.out,
+            &self.solver,
+            &self.st,
+            &self.scene_text,
+            &mut self.lineage,
+        );
+        self.output_seconds.checkpoints += t0.elapsed().as_secs_f64();
+        self.history.text = std::mem::take(&mut self.st.history);
+        written.map_err(|e| RunError::Io(e.to_string()))
+    }
+
+    /// Collective, after an instability: the failing rank's own reason on rank 0 (not
+    /// "failed elsewhere"), and a checkpoint of the last state known good, since the
+    /// failed state can be neither continued nor usefully inspected (unless a regular
+    /// checkpoint already holds it). Returns the message.
+    fn rescue(&mut self, failure: &Failure) -> Result<String, RunError> {
+        let mine = match failure {
+            Failure::Elsewhere(_) => String::new(),
+            f => format!("rank {}: {f}", self.comm.rank()),
+        };
+        let all = self.comm.gather_bytes(mine.as_bytes());
+        let reason = match all.iter().find(|m| !m.is_empty()) {
+            Some(m) => String::from_utf8_lossy(m).into_owned(),
+            None => failure.to_string(),
+        };
+        let good = self.rescue.solver;
+        if self.checkpoints.last_step != Some(good.step) {
+            let history = &mut self.history.text;
+            self.rescue.restore(&mut self.solver, &mut self.st, history);
+            self.st.snapshots = self.snapshot_entries();
+            self.st.snapshots.retain(|e| e.step <= good.step);
+            self.checkpoints.last = Some(self.write_checkpoint()?);
+        }
+        Ok(format!(
+            "{reason}; the last good state (step {}, t = {:.6e}) is checkpointed in {}",
+            good.step,
+            good.t,
+            self.checkpoints.last_name()
+        ))
+    }
+
+    /// After a stop signal: where to continue from.
+    fn stop_message(&self, signal: i32) -> String {
+        let last = self.checkpoints.last_name();
+        let restart = match self.checkpoints.last {
+            Some(_) => last.clone(),
+            None => "CHECKPOINT".to_string(),
+        };
+        format!(
+            "stopped by {} after step {} (t = {:.6e}); the last checkpoint is {last}: continue with `mpmcg run --restart {restart}`",
+            signals::name(signal),
+            self.solver.step,
+            self.solver.t,
+        )
+    }
+
+    /// Collective: the rescue checkpoint of an unstable run, the summary (written by
+    /// rank 0) and the outcome.
+    fn finish(mut self, ending: Ending) -> Result<Summary, RunError> {
+        // The final totals: the last sample's, unless the loop broke off.
+        let last = match ending {
+            Ending::Completed => self.st.last.clone(),
+            _ => self.solver.totals(),
+        };
+        // Before the rescue puts the last good state back.
+        let end = (self.solver.step, self.solver.t);
+        let (status, message) = match &ending {
+            Ending::Completed => ("completed", None),
+            Ending::Unstable(f) => ("unstable", Some(self.rescue(f)?)),
+            Ending::Stopped(signal) => ("interrupted", Some(self.stop_message(*signal))),
+        };
+        self.progress.finish();
+        let wall = self.start.elapsed().as_secs_f64();
+        let summary = self.summary(status, message.clone(), &last, end, wall);
+        let failed = self.history.error.take();
+        write_summary(self.comm, self.out, &summary, failed)?;
+        match ending {
+            Ending::Completed => Ok(summary),
+            Ending::Unstable(_) => Err(RunError::Unstable(message.unwrap_or_default())),
+            Ending::Stopped(_) => Err(RunError::Interrupted(message.unwrap_or_default())),
+        }
+    }
+
+    /// Collective: the summary of the run that ended at `end` (step, time) with the
+    /// totals `last`, after `wall` seconds.
+    fn summary(
+        &mut self,
+        status: &str,
+        message: Option<String>,
+        last: &Totals,
+        (steps, time): (u64, f64),
+        wall: f64,
+    ) -> Summary {
+        let (particles_per_rank, grid) = self.loads(last.particles);
+        self.history.flush();
+        let (scene, solver, tot0) = (self.scene, &self.solver, &self.st.initial);
+        Summary {
+            scene: scene.name.clone(),
+            dim: D,
+            gradient: scene.method.gradient.name().into(),
+            update: scene.method.update.name().into(),
+            flip: scene.method.flip,
+            xpic: scene.method.xpic,
+            units: Labels::of::<D>(scene).units,
+            status: status.into(),
+            message,
+            ranks: self.comm.size(),
+            threads: self.threads,
+            blocks: solver.layout.procs.to_vec(),
+            particles_per_rank,
+            grid,
+            particles: tot0.particles,
+            cells: scene.grid.cells.clone(),
+            steps,
+            time,
+            end_time: scene.time.end,
+            wall_seconds: wall,
+            particle_updates_per_second: tot0.particles as f64
+                * (solver.step - self.step_start) as f64
+                / wall.max(1e-9),
+            mass: MassSummary {
+                initial: tot0.mass,
+                r#final: last.mass,
+            },
+            momentum: MomentumSummary {
+                initial: tot0.momentum.clone(),
+                r#final: last.momentum.clone(),
+            },
+            energy: self.energy(last),
+            error: self.errors(),
+            last_checkpoint: self
+                .checkpoints
+                .last
+                .as_ref()
+                .map(|p| p.display().to_string()),
+            restarted_from: self.restarted_from.clone(),
+            output_seconds: self.output_seconds.clone(),
+        }
+    }
+
+    /// Collective: particles and active grid tiles per rank; `particles` in all.
+    fn loads(&self, particles: u64) -> (RankLoad, GridSummary) {
+        let (comm, solver) = (self.comm, &self.solver);
+        let mut lo = [solver.parts.len() as f64, solver.tiles.active() as f64];
+        let mut hi = lo;
+        let mut sum = [solver.tiles.active() as u64];
+        comm.min_f64(&mut lo);
+        comm.max_f64(&mut hi);
+        comm.sum_u64(&mut sum);
+        let ranks = comm.size() as f64;
+        let particles = RankLoad {
             min: lo[0] as u64,
-            mean: last.particles as f64 / comm.size() as f64,
+            mean: particles as f64 / ranks,
             max: hi[0] as u64,
-        },
-        grid: GridSummary {
+        };
+        let grid = GridSummary {
             tile_nodes: solver.tiles.tile_nodes(),
             active_tiles: sum[0],
             active_tiles_per_rank: RankLoad {
                 min: lo[1] as u64,
-                mean: sum[0] as f64 / comm.size() as f64,
+                mean: sum[0] as f64 / ranks,
                 max: hi[1] as u64,
             },
-            box_tiles: scene
+            box_tiles: self
+                .scene
                 .grid
                 .cells
                 .iter()
                 .map(|&c| (c + 1).div_ceil(decomposition::TILE) as f64)
                 .product(),
-        },
-        particles: tot0.particles,
-        cells: scene.grid.cells.clone(),
-        steps: fail_step,
-        time: fail_t,
-        end_time: scene.time.end,
-        wall_seconds: wall,
-        particle_updates_per_second: tot0.particles as f64 * (solver.step - step_start) as f64
-            / wall.max(1e-9),
-        mass: MassSummary {
-            initial: tot0.mass,
-            r#final: last.mass,
-        },
-        momentum: MomentumSummary {
-            initial: tot0.momentum.clone(),
-            r#final: last.momentum.clone(),
-        },
-        energy: EnergySummary {
-            initial_total: e0,
+        };
+        (particles, grid)
+    }
+
+    /// The energy balance, from the initial state to `last`.
+    fn energy(&self, last: &Totals) -> EnergySummary {
+        let st = &self.st;
+        EnergySummary {
+            initial_total: self.e0,
             final_total: last.total_energy(),
             max_relative_drift: if st.energy_scale > 0.0 {
                 st.max_energy_dev / st.energy_scale
@@ -787,9 +1079,14 @@ fn run_dim<const D: usize>(
             final_kinetic: last.kinetic,
             final_strain: last.strain,
             external_work: last.external_work,
-            plastic_work: solver.carries().plastic.then_some(last.plastic_work),
-        },
-        error: has_bench.then(|| {
+            plastic_work: self.solver.carries().plastic.then_some(last.plastic_work),
+        }
+    }
+
+    /// Benchmarks: the largest and the final error norms.
+    fn errors(&self) -> Option<ErrorSummary> {
+        let st = &self.st;
+        self.solver.benchmark.is_some().then(|| {
             let (fu, fv) = st.last_err.unwrap_or((f64::NAN, f64::NAN));
             ErrorSummary {
                 displacement_l2: st.max_err.0,
@@ -797,18 +1094,78 @@ fn run_dim<const D: usize>(
                 final_displacement_l2: fu,
                 final_velocity_l2: fv,
             }
-        }),
-        last_checkpoint: last_checkpoint.as_ref().map(|p| p.display().to_string()),
-        restarted_from,
-        output_seconds,
-    };
-    let mut written = history.error.take();
-    if root && written.is_none() {
-        let path = opts.out.join("summary.json");
-        let text = serde_json::to_string_pretty(&summary).expect("summary serialises");
+        })
+    }
+}
+
+/// Collective: a restored run state, keeping the earlier snapshots that are in this
+/// output folder (rank 0 decides, every rank keeps the same list).
+fn resumed(
+    comm: &dyn Communicator,
+    out: &Path,
+    mut st: RunState,
+    snaps: Option<&mut SnapshotSchedule>,
+) -> RunState {
+    if let Some(sn) = snaps {
+        let root = comm.rank() == 0;
+        let mask: Vec<u8> = st
+            .snapshots
+            .iter()
+            .map(|e| u8::from(root && out.join(e.file()).is_file()))
+            .collect();
+        let mask = comm.broadcast_bytes(&mask);
+        let mut k = 0;
+        st.snapshots.retain(|_| {
+            k += 1;
+            mask[k - 1] == 1
+        });
+        sn.writer.set_entries(st.snapshots.clone());
+    }
+    st
+}
+
+/// Collective: the run state of a fresh run, from the initial totals and errors, with
+/// the first snapshot, history sample and checkpoint at these times.
+fn initial<const D: usize>(
+    solver: &Solver<D>,
+    next_snapshot: f64,
+    next_history: f64,
+    next_checkpoint: f64,
+) -> RunState {
+    let tot0 = solver.totals();
+    let err0 = solver.errors();
+    RunState {
+        energy_scale: tot0.total_energy().abs().max(tot0.kinetic + tot0.strain),
+        max_energy_dev: 0.0,
+        max_err: err0.unwrap_or((0.0, 0.0)),
+        last_err: err0,
+        next_history,
+        last_history_step: 0,
+        next_snapshot,
+        next_checkpoint,
+        snapshots: Vec::new(),
+        history: Vec::new(),
+        last: tot0.clone(),
+        initial: tot0,
+    }
+}
+
+/// Collective: rank 0 writes `summary.json`, unless writing `history.csv` `failed`.
+/// No rank leaves before rank 0 has written everything: mpirun ends the whole job as
+/// soon as one rank exits with a non-zero status.
+fn write_summary(
+    comm: &dyn Communicator,
+    out: &Path,
+    summary: &Summary,
+    failed: Option<String>,
+) -> Result<(), RunError> {
+    let mut written = failed;
+    if comm.rank() == 0 && written.is_none() {
+        let path = out.join("summary.json");
+        let text = serde_json::to_string_pretty(summary).expect("summary serialises");
         // Via a temporary file: a full disk leaves the previous summary (or none), never
         // a truncated one.
-        let tmp = opts.out.join(".summary.json.tmp");
+        let tmp = out.join(".summary.json.tmp");
         written = std::fs::write(&tmp, text + "\n")
             .and_then(|()| std::fs::rename(&tmp, &path))
             .err()
@@ -817,16 +1174,10 @@ fn run_dim<const D: usize>(
                 format!("{}: {e}", path.display())
             });
     }
-    // No rank leaves before rank 0 has written everything: mpirun ends the whole job
-    // as soon as one rank exits with a non-zero status.
     if let Some(m) = agree(comm, written) {
         return Err(RunError::Io(m));
     }
-    match (failure, stopped_by) {
-        (Some(_), _) => Err(RunError::Unstable(message.unwrap_or_default())),
-        (None, 0) => Ok(summary),
-        (None, _) => Err(RunError::Interrupted(message.unwrap_or_default())),
-    }
+    Ok(())
 }
 
 /// The next output time `next` after `last` on a grid of `every`, or, where `every`

@@ -641,13 +641,43 @@ fn toml_words(expected: &str) -> String {
     }
 }
 
+/// A deserialisation error explained: the key, its byte offset, the message.
+type Explained = (Option<String>, Option<usize>, String);
+
 /// Turns a deserialisation error into (key, byte offset, message) with the full key
 /// path and what the key expects.
-fn explain(
-    text: &str,
-    path: &serde_path_to_error::Path,
-    inner: &toml::de::Error,
-) -> (Option<String>, Option<usize>, String) {
+fn explain(text: &str, path: &serde_path_to_error::Path, inner: &toml::de::Error) -> Explained {
+    let parts = key_parts(path);
+    let pos = inner.span().map(|s| s.start);
+    let msg = inner.message();
+    // A required key is absent: name it, not the table that lacks it.
+    if let Some(field) = msg
+        .strip_prefix("missing field `")
+        .and_then(|m| m.strip_suffix('`'))
+    {
+        return missing_key(parts, field, pos);
+    }
+    // Unknown keys in an enum variant's table (the toml crate checks those itself).
+    if let Some((extra, available)) = msg
+        .strip_prefix("unexpected keys in table: ")
+        .and_then(|m| m.split_once(", available keys: "))
+    {
+        return unknown_keys(parts, extra, available, pos);
+    }
+    if let Some(rest) = msg.strip_prefix("unknown field ") {
+        return (join_key(&parts), pos, format!("unknown key {rest}"));
+    }
+    if let Some(e) = enum_form(text, &parts, msg, pos) {
+        return e;
+    }
+    if let Some(e) = wrong_value(text, join_key(&parts), msg, pos) {
+        return e;
+    }
+    (join_key(&parts), pos, msg.to_string())
+}
+
+/// The keys of a serde path, an array index joined to its key (`bodies[0]`).
+fn key_parts(path: &serde_path_to_error::Path) -> Vec<String> {
     use serde_path_to_error::Segment;
     let mut parts: Vec<String> = Vec::new();
     for seg in path.iter() {
@@ -661,115 +691,122 @@ fn explain(
             Segment::Unknown => parts.push("?".into()),
         }
     }
-    let join = |p: &[String]| (!p.is_empty()).then(|| p.join("."));
-    let generic = |p: &[String]| {
-        p.iter()
-            .map(|s| match s.find('[') {
-                Some(i) => format!("{}[]", &s[..i]),
-                None => s.clone(),
-            })
-            .collect::<Vec<_>>()
-            .join(".")
-    };
-    let key = join(&parts);
-    let mut pos = inner.span().map(|s| s.start);
-    let msg = inner.message();
+    parts
+}
 
-    // A required key is absent: name it, not the table that lacks it.
-    if let Some(field) = msg
-        .strip_prefix("missing field `")
-        .and_then(|m| m.strip_suffix('`'))
-    {
-        let message = if parts.is_empty() {
-            // The span is the whole file; a position would only mislead.
-            pos = None;
-            match field {
-                "time" | "grid" => format!("the required table [{field}] is missing"),
-                "materials" | "bodies" => {
-                    format!("missing; at least one [[{field}]] entry is required")
-                }
-                _ => "this required key is missing".to_string(),
+/// `bodies[0].shape`; `None` for the root.
+fn join_key(p: &[String]) -> Option<String> {
+    (!p.is_empty()).then(|| p.join("."))
+}
+
+/// The key without its indices: `bodies[].shape`.
+fn generic_key(p: &[String]) -> String {
+    p.iter()
+        .map(|s| match s.find('[') {
+            Some(i) => format!("{}[]", &s[..i]),
+            None => s.clone(),
+        })
+        .collect::<Vec<_>>()
+        .join(".")
+}
+
+/// The required key `field` of the table at `parts` is missing.
+fn missing_key(mut parts: Vec<String>, field: &str, mut pos: Option<usize>) -> Explained {
+    let message = if parts.is_empty() {
+        // The span is the whole file; a position would only mislead.
+        pos = None;
+        match field {
+            "time" | "grid" => format!("the required table [{field}] is missing"),
+            "materials" | "bodies" => {
+                format!("missing; at least one [[{field}]] entry is required")
             }
-        } else {
-            "this required key is missing".to_string()
-        };
-        parts.push(field.to_string());
-        return (join(&parts), pos, message);
-    }
-    // Unknown keys in an enum variant's table (the toml crate checks those itself).
-    if let Some((extra, available)) = msg
-        .strip_prefix("unexpected keys in table: ")
-        .and_then(|m| m.split_once(", available keys: "))
-    {
-        let extra: Vec<&str> = extra.split(", ").collect();
-        let available: Vec<&str> = available.split(", ").collect();
-        let mut message = format!(
-            "unknown key `{}`, expected {}",
-            extra[0],
-            one_of(&available)
-        );
-        if extra.len() > 1 {
-            let more: Vec<String> = extra[1..].iter().map(|k| format!("`{k}`")).collect();
-            message.push_str(&format!(" (also unknown: {})", more.join(", ")));
+            _ => "this required key is missing".to_string(),
         }
-        parts.push(extra[0].to_string());
-        return (join(&parts), pos, message);
-    }
-    if let Some(rest) = msg.strip_prefix("unknown field ") {
-        return (key, pos, format!("unknown key {rest}"));
-    }
-    // Errors about an enum's form rather than about a variant's contents: the toml
-    // crate may have stepped into the variant (`gradient = { mpm = 1 }`) or reported
-    // a string where a table variant was expected (`shape = "box"`).
-    let enum_at = if choices(&generic(&parts)).is_some() {
-        Some(parts.len())
-    } else if parts.len() > 1 && choices(&generic(&parts[..parts.len() - 1])).is_some() {
-        let shape = generic(&parts[..parts.len() - 1]) == "bodies[].shape";
-        (!shape || msg.contains("unit variant")).then(|| parts.len() - 1)
     } else {
-        None
+        "this required key is missing".to_string()
     };
-    if let Some(n) = enum_at {
-        if msg.starts_with("unknown variant") {
-            return (join(&parts[..n]), pos, msg.to_string());
-        }
-        let k = join(&parts[..n]).unwrap_or_default();
-        let names = choices(&generic(&parts[..n])).unwrap_or(&[]);
-        let expected = if generic(&parts[..n]) == "bodies[].shape" {
-            format!(
-                "a table with exactly one of the keys {}, e.g. `shape = {{ box = {{ lower = [...], upper = [...] }} }}`",
-                names.iter().map(|n| format!("`{n}`")).collect::<Vec<_>>().join(", ")
-            )
-        } else {
-            format!("a string, {}", one_of(names))
-        };
-        let got = describe(text, &k).map_or(String::new(), |g| format!(", got {g}"));
-        pos = locate(text, &k).or(pos);
-        return (Some(k), pos, format!("expected {expected}{got}"));
+    parts.push(field.to_string());
+    (join_key(&parts), pos, message)
+}
+
+/// Unknown keys `extra` (comma-separated) in a table whose keys are `available`.
+fn unknown_keys(
+    mut parts: Vec<String>,
+    extra: &str,
+    available: &str,
+    pos: Option<usize>,
+) -> Explained {
+    let extra: Vec<&str> = extra.split(", ").collect();
+    let available: Vec<&str> = available.split(", ").collect();
+    let mut message = format!(
+        "unknown key `{}`, expected {}",
+        extra[0],
+        one_of(&available)
+    );
+    if extra.len() > 1 {
+        let more: Vec<String> = extra[1..].iter().map(|k| format!("`{k}`")).collect();
+        message.push_str(&format!(" (also unknown: {})", more.join(", ")));
     }
-    // "invalid type: string \"heavy\", expected f64" and the like.
-    for prefix in ["invalid type: ", "invalid value: "] {
-        if let Some((unexpected, expected)) = msg
-            .strip_prefix(prefix)
+    parts.push(extra[0].to_string());
+    (join_key(&parts), pos, message)
+}
+
+/// Errors about an enum's form rather than about a variant's contents: the toml crate
+/// may have stepped into the variant (`gradient = { mpm = 1 }`) or reported a string
+/// where a table variant was expected (`shape = "box"`). `None` if not an enum's.
+fn enum_form(text: &str, parts: &[String], msg: &str, pos: Option<usize>) -> Option<Explained> {
+    let n = if choices(&generic_key(parts)).is_some() {
+        parts.len()
+    } else if parts.len() > 1 && choices(&generic_key(&parts[..parts.len() - 1])).is_some() {
+        let shape = generic_key(&parts[..parts.len() - 1]) == "bodies[].shape";
+        (!shape || msg.contains("unit variant")).then(|| parts.len() - 1)?
+    } else {
+        return None;
+    };
+    if msg.starts_with("unknown variant") {
+        return Some((join_key(&parts[..n]), pos, msg.to_string()));
+    }
+    let k = join_key(&parts[..n]).unwrap_or_default();
+    let names = choices(&generic_key(&parts[..n])).unwrap_or(&[]);
+    let expected = if generic_key(&parts[..n]) == "bodies[].shape" {
+        format!(
+            "a table with exactly one of the keys {}, e.g. `shape = {{ box = {{ lower = [...], upper = [...] }} }}`",
+            names.iter().map(|n| format!("`{n}`")).collect::<Vec<_>>().join(", ")
+        )
+    } else {
+        format!("a string, {}", one_of(names))
+    };
+    let got = describe(text, &k).map_or(String::new(), |g| format!(", got {g}"));
+    let pos = locate(text, &k).or(pos);
+    Some((Some(k), pos, format!("expected {expected}{got}")))
+}
+
+/// "invalid type: string \"heavy\", expected f64" and the like, in TOML's words, for
+/// the value at `key`. `None` for other errors.
+fn wrong_value(
+    text: &str,
+    key: Option<String>,
+    msg: &str,
+    pos: Option<usize>,
+) -> Option<Explained> {
+    let (unexpected, expected) = ["invalid type: ", "invalid value: "].iter().find_map(|p| {
+        msg.strip_prefix(p)
             .and_then(|m| m.rsplit_once(", expected "))
-        {
-            let got = match unexpected.strip_suffix(" as i128") {
-                Some(n) => format!("{n}, which is out of range"),
-                None => key
-                    .as_deref()
-                    .and_then(|k| describe(text, k))
-                    .unwrap_or_else(|| unexpected.to_string()),
-            };
-            let expected = match key.as_deref() {
-                Some(k @ ("materials" | "bodies")) if expected == "a sequence" => {
-                    format!("[[{k}]] entries (an array of tables)")
-                }
-                _ => toml_words(expected),
-            };
-            return (key, pos, format!("expected {expected}, got {got}"));
+    })?;
+    let got = match unexpected.strip_suffix(" as i128") {
+        Some(n) => format!("{n}, which is out of range"),
+        None => key
+            .as_deref()
+            .and_then(|k| describe(text, k))
+            .unwrap_or_else(|| unexpected.to_string()),
+    };
+    let expected = match key.as_deref() {
+        Some(k @ ("materials" | "bodies")) if expected == "a sequence" => {
+            format!("[[{k}]] entries (an array of tables)")
         }
-    }
-    (key, pos, msg.to_string())
+        _ => toml_words(expected),
+    };
+    Some((key, pos, format!("expected {expected}, got {got}")))
 }
 
 /// Parse and validate a scene. `file` is used in messages only.
@@ -1036,6 +1073,23 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
         return Err(("dim".into(), format!("must be 1, 2 or 3, got {d}")));
     }
     plain_name(&s.name)?;
+    validate_time(s)?;
+    validate_method(s)?;
+    validate_grid(s)?;
+    validate_materials(s)?;
+    validate_bodies(s)?;
+    validate_benchmark_table(s)?;
+    if let Some(gr) = &s.gravity {
+        vector("gravity.value", &gr.value, s.dim)?;
+    }
+    validate_output(s)?;
+    validate_checkpoint(s)?;
+    Ok(())
+}
+
+/// `[time]`: a positive end, and either a CFL number in (0, 1] or a step that does not
+/// make more than [`MAX_STEPS`] steps.
+fn validate_time(s: &Scene) -> Result<(), Invalid> {
     positive("time.end", s.time.end)?;
     match (s.time.cfl, s.time.dt) {
         (Some(_), Some(_)) => {
@@ -1065,6 +1119,11 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
         }
         (None, None) => {}
     }
+    Ok(())
+}
+
+/// `[method]`: the FLIP fraction and the XPIC order.
+fn validate_method(s: &Scene) -> Result<(), Invalid> {
     finite("method.flip", s.method.flip)?;
     if !(0.0..=1.0).contains(&s.method.flip) {
         return Err((
@@ -1092,6 +1151,12 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
             ));
         }
     }
+    Ok(())
+}
+
+/// `[grid]`: bounds and cells per axis, paired periodic faces, no face beyond `dim`.
+fn validate_grid(s: &Scene) -> Result<(), Invalid> {
+    let d = s.dim;
     let g = &s.grid;
     vector("grid.lower", &g.lower, d)?;
     vector("grid.upper", &g.upper, d)?;
@@ -1152,6 +1217,12 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
             ));
         }
     }
+    Ok(())
+}
+
+/// `[[materials]]`: at least one, unique names, elastic constants in range and each
+/// model's own parameters.
+fn validate_materials(s: &Scene) -> Result<(), Invalid> {
     if s.materials.is_empty() {
         return Err((
             "materials".into(),
@@ -1175,33 +1246,44 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
                 format!("must be in (-1, 0.5), got {}", m.poisson_ratio),
             ));
         }
-        // Each model's own parameters: rejected elsewhere; a required one must be
-        // > 0, an optional one (default 0) >= 0.
-        let own = [
-            ("yield_stress", m.yield_stress, Model::J2Plastic, true),
-            ("hardening", m.hardening, Model::J2Plastic, false),
-            ("tensile_strength", m.tensile_strength, Model::Brittle, true),
-        ];
-        for (key, v, model, required) in own {
-            let name = variants::<Model>()[model as usize];
-            match v {
-                Some(_) if m.model != model => {
-                    return Err((k(key), format!("is a parameter of model = \"{name}\" only")))
-                }
-                Some(x) if required => positive(&k(key), x)?,
-                Some(x) => {
-                    finite(&k(key), x)?;
-                    if x < 0.0 {
-                        return Err((k(key), format!("must be >= 0, got {x}")));
-                    }
-                }
-                None if required && m.model == model => {
-                    return Err((k(key), format!("is required by model = \"{name}\"")))
-                }
-                None => {}
+        model_parameters(i, m)?;
+    }
+    Ok(())
+}
+
+/// The parameters of one model (`materials[i]`): rejected for the other models; a
+/// required one must be > 0, an optional one (default 0) >= 0.
+fn model_parameters(i: usize, m: &MaterialSpec) -> Result<(), Invalid> {
+    let k = |f: &str| format!("materials[{i}].{f}");
+    let own = [
+        ("yield_stress", m.yield_stress, Model::J2Plastic, true),
+        ("hardening", m.hardening, Model::J2Plastic, false),
+        ("tensile_strength", m.tensile_strength, Model::Brittle, true),
+    ];
+    for (key, v, model, required) in own {
+        let name = variants::<Model>()[model as usize];
+        match v {
+            Some(_) if m.model != model => {
+                return Err((k(key), format!("is a parameter of model = \"{name}\" only")))
             }
+            Some(x) if required => positive(&k(key), x)?,
+            Some(x) => {
+                finite(&k(key), x)?;
+                if x < 0.0 {
+                    return Err((k(key), format!("must be >= 0, got {x}")));
+                }
+            }
+            None if required && m.model == model => {
+                return Err((k(key), format!("is required by model = \"{name}\"")))
+            }
+            None => {}
         }
     }
+    Ok(())
+}
+
+/// `[[bodies]]`: at least one, each valid.
+fn validate_bodies(s: &Scene) -> Result<(), Invalid> {
     if s.bodies.is_empty() {
         return Err((
             "bodies".into(),
@@ -1209,138 +1291,158 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
         ));
     }
     for (i, b) in s.bodies.iter().enumerate() {
-        let k = |f: &str| format!("bodies[{i}].{f}");
-        if !s.materials.iter().any(|m| m.name == b.material) {
-            let names: Vec<_> = s.materials.iter().map(|m| m.name.as_str()).collect();
+        validate_body(s, i, b)?;
+    }
+    Ok(())
+}
+
+/// `bodies[i]`: a defined material, particles per cell in 1..=16, velocities of `dim`
+/// components, a valid shape inside the grid (or cut by slip faces only).
+fn validate_body(s: &Scene, i: usize, b: &BodySpec) -> Result<(), Invalid> {
+    let k = |f: &str| format!("bodies[{i}].{f}");
+    let (d, g) = (s.dim, &s.grid);
+    if !s.materials.iter().any(|m| m.name == b.material) {
+        let names: Vec<_> = s.materials.iter().map(|m| m.name.as_str()).collect();
+        return Err((
+            k("material"),
+            format!(
+                "unknown material {:?}; defined materials: {names:?}",
+                b.material
+            ),
+        ));
+    }
+    if b.particles_per_cell == 0 {
+        return Err((k("particles_per_cell"), "must be >= 1, got 0".into()));
+    }
+    if b.particles_per_cell > 16 {
+        return Err((
+            k("particles_per_cell"),
+            format!("must be <= 16 per direction, got {}", b.particles_per_cell),
+        ));
+    }
+    if let Some(v) = &b.velocity {
+        vector(&k("velocity"), v, d)?;
+    }
+    if let Some(g) = &b.velocity_gradient {
+        if g.value.len() != d {
             return Err((
-                k("material"),
+                k("velocity_gradient.value"),
+                format!("must have dim = {d} rows, got {}", g.value.len()),
+            ));
+        }
+        for (r, row) in g.value.iter().enumerate() {
+            vector(&k(&format!("velocity_gradient.value[{r}]")), row, d)?;
+        }
+        if let Some(c) = &g.about {
+            vector(&k("velocity_gradient.about"), c, d)?;
+        }
+    }
+    let (blo, bhi) = body_bounds(b, d, &k)?;
+    for a in 0..d {
+        if bhi[a] <= g.lower[a] || blo[a] >= g.upper[a] {
+            return Err((
+                k("shape"),
                 format!(
-                    "unknown material {:?}; defined materials: {names:?}",
-                    b.material
+                    "the body lies entirely outside the grid on axis {a}: body [{}, {}], grid [{}, {}]",
+                    blo[a], bhi[a], g.lower[a], g.upper[a]
                 ),
             ));
         }
-        if b.particles_per_cell == 0 {
-            return Err((k("particles_per_cell"), "must be >= 1, got 0".into()));
-        }
-        if b.particles_per_cell > 16 {
+        // A slip face may cut a body: it is a symmetry plane, and only the part
+        // inside the grid is modelled (a quarter of the Taylor bar).
+        let tol = 1e-12 * (g.upper[a] - g.lower[a]);
+        let out_lo = blo[a] < g.lower[a] - tol && g.boundary.face(a, false) != Face::Slip;
+        let out_hi = bhi[a] > g.upper[a] + tol && g.boundary.face(a, true) != Face::Slip;
+        if out_lo || out_hi {
             return Err((
-                k("particles_per_cell"),
-                format!("must be <= 16 per direction, got {}", b.particles_per_cell),
+                k("shape"),
+                format!(
+                    "the body sticks out of the grid on axis {a}: body [{}, {}], grid [{}, {}] \
+                     (only a slip face, a symmetry plane, may cut a body)",
+                    blo[a], bhi[a], g.lower[a], g.upper[a]
+                ),
             ));
         }
-        if let Some(v) = &b.velocity {
-            vector(&k("velocity"), v, d)?;
-        }
-        if let Some(g) = &b.velocity_gradient {
-            if g.value.len() != d {
-                return Err((
-                    k("velocity_gradient.value"),
-                    format!("must have dim = {d} rows, got {}", g.value.len()),
-                ));
-            }
-            for (r, row) in g.value.iter().enumerate() {
-                vector(&k(&format!("velocity_gradient.value[{r}]")), row, d)?;
-            }
-            if let Some(c) = &g.about {
-                vector(&k("velocity_gradient.about"), c, d)?;
-            }
-        }
-        let (blo, bhi) = match &b.shape {
-            Shape::Box { lower, upper } => {
-                vector(&k("shape.box.lower"), lower, d)?;
-                vector(&k("shape.box.upper"), upper, d)?;
-                for a in 0..d {
-                    if lower[a] >= upper[a] {
-                        return Err((
-                            k("shape.box.upper"),
-                            format!(
-                                "must be greater than lower on every axis; axis {a}: {} >= {}",
-                                lower[a], upper[a]
-                            ),
-                        ));
-                    }
-                }
-                (lower.clone(), upper.clone())
-            }
-            Shape::Sphere { center, radius } => {
-                vector(&k("shape.sphere.center"), center, d)?;
-                positive(&k("shape.sphere.radius"), *radius)?;
-                (
-                    center.iter().map(|c| c - radius).collect(),
-                    center.iter().map(|c| c + radius).collect(),
-                )
-            }
-            Shape::Cylinder { center, radius, z } => {
-                if d != 3 {
-                    return Err((k("shape.cylinder"), "a cylinder needs dim = 3".into()));
-                }
-                vector(&k("shape.cylinder.center"), center, 2)?;
-                positive(&k("shape.cylinder.radius"), *radius)?;
-                vector(&k("shape.cylinder.z"), z, 2)?;
-                if z[0] >= z[1] {
+    }
+    Ok(())
+}
+
+/// A body's shape, checked, and its bounding box; `k` names a key of the body.
+fn body_bounds(
+    b: &BodySpec,
+    d: usize,
+    k: &dyn Fn(&str) -> String,
+) -> Result<(Vec<f64>, Vec<f64>), Invalid> {
+    Ok(match &b.shape {
+        Shape::Box { lower, upper } => {
+            vector(&k("shape.box.lower"), lower, d)?;
+            vector(&k("shape.box.upper"), upper, d)?;
+            for a in 0..d {
+                if lower[a] >= upper[a] {
                     return Err((
-                        k("shape.cylinder.z"),
-                        format!("must be [bottom, top] with bottom < top, got {z:?}"),
-                    ));
-                }
-                (
-                    vec![center[0] - radius, center[1] - radius, z[0]],
-                    vec![center[0] + radius, center[1] + radius, z[1]],
-                )
-            }
-            Shape::Annulus {
-                center,
-                inner,
-                outer,
-            } => {
-                vector(&k("shape.annulus.center"), center, d)?;
-                if d != 2 {
-                    return Err((k("shape.annulus"), "an annulus needs dim = 2".into()));
-                }
-                finite(&k("shape.annulus.inner"), *inner)?;
-                positive(&k("shape.annulus.outer"), *outer)?;
-                if !(0.0 <= *inner && inner < outer) {
-                    return Err((
-                        k("shape.annulus.inner"),
+                        k("shape.box.upper"),
                         format!(
-                            "must satisfy 0 <= inner < outer, got inner {inner}, outer {outer}"
+                            "must be greater than lower on every axis; axis {a}: {} >= {}",
+                            lower[a], upper[a]
                         ),
                     ));
                 }
-                (
-                    center.iter().map(|c| c - outer).collect(),
-                    center.iter().map(|c| c + outer).collect(),
-                )
             }
-        };
-        for a in 0..d {
-            if bhi[a] <= g.lower[a] || blo[a] >= g.upper[a] {
-                return Err((
-                    k("shape"),
-                    format!(
-                        "the body lies entirely outside the grid on axis {a}: body [{}, {}], grid [{}, {}]",
-                        blo[a], bhi[a], g.lower[a], g.upper[a]
-                    ),
-                ));
-            }
-            // A slip face may cut a body: it is a symmetry plane, and only the part
-            // inside the grid is modelled (a quarter of the Taylor bar).
-            let tol = 1e-12 * (g.upper[a] - g.lower[a]);
-            let out_lo = blo[a] < g.lower[a] - tol && g.boundary.face(a, false) != Face::Slip;
-            let out_hi = bhi[a] > g.upper[a] + tol && g.boundary.face(a, true) != Face::Slip;
-            if out_lo || out_hi {
-                return Err((
-                    k("shape"),
-                    format!(
-                        "the body sticks out of the grid on axis {a}: body [{}, {}], grid [{}, {}] \
-                         (only a slip face, a symmetry plane, may cut a body)",
-                        blo[a], bhi[a], g.lower[a], g.upper[a]
-                    ),
-                ));
-            }
+            (lower.clone(), upper.clone())
         }
-    }
+        Shape::Sphere { center, radius } => {
+            vector(&k("shape.sphere.center"), center, d)?;
+            positive(&k("shape.sphere.radius"), *radius)?;
+            (
+                center.iter().map(|c| c - radius).collect(),
+                center.iter().map(|c| c + radius).collect(),
+            )
+        }
+        Shape::Cylinder { center, radius, z } => {
+            if d != 3 {
+                return Err((k("shape.cylinder"), "a cylinder needs dim = 3".into()));
+            }
+            vector(&k("shape.cylinder.center"), center, 2)?;
+            positive(&k("shape.cylinder.radius"), *radius)?;
+            vector(&k("shape.cylinder.z"), z, 2)?;
+            if z[0] >= z[1] {
+                return Err((
+                    k("shape.cylinder.z"),
+                    format!("must be [bottom, top] with bottom < top, got {z:?}"),
+                ));
+            }
+            (
+                vec![center[0] - radius, center[1] - radius, z[0]],
+                vec![center[0] + radius, center[1] + radius, z[1]],
+            )
+        }
+        Shape::Annulus {
+            center,
+            inner,
+            outer,
+        } => {
+            vector(&k("shape.annulus.center"), center, d)?;
+            if d != 2 {
+                return Err((k("shape.annulus"), "an annulus needs dim = 2".into()));
+            }
+            finite(&k("shape.annulus.inner"), *inner)?;
+            positive(&k("shape.annulus.outer"), *outer)?;
+            if !(0.0 <= *inner && inner < outer) {
+                return Err((
+                    k("shape.annulus.inner"),
+                    format!("must satisfy 0 <= inner < outer, got inner {inner}, outer {outer}"),
+                ));
+            }
+            (
+                center.iter().map(|c| c - outer).collect(),
+                center.iter().map(|c| c + outer).collect(),
+            )
+        }
+    })
+}
+
+/// `[benchmark]`: its numbers, then what the kind needs of the scene.
+fn validate_benchmark_table(s: &Scene) -> Result<(), Invalid> {
     if let Some(b) = &s.benchmark {
         if let Some(a) = b.amplitude {
             finite("benchmark.amplitude", a)?;
@@ -1353,9 +1455,12 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
         }
         validate_benchmark(s, b)?;
     }
-    if let Some(gr) = &s.gravity {
-        vector("gravity.value", &gr.value, d)?;
-    }
+    Ok(())
+}
+
+/// `[output]`: no snapshot keys with `snapshots = false`, an interval that makes a
+/// bounded number of snapshots, fields that some material carries.
+fn validate_output(s: &Scene) -> Result<(), Invalid> {
     if let Some(o) = &s.output {
         if o.snapshots == Some(false) {
             if let Some(k) = [("every", o.every.is_some()), ("fields", o.fields.is_some())]
@@ -1390,6 +1495,11 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
             }
         }
     }
+    Ok(())
+}
+
+/// `[checkpoint]`: exactly one schedule, each in range, and `keep >= 1`.
+fn validate_checkpoint(s: &Scene) -> Result<(), Invalid> {
     if let Some(c) = &s.checkpoint {
         let given: Vec<&str> = [
             ("every", c.every.is_some()),

@@ -1,9 +1,9 @@
-//! `mpmcg sweep`: speed against error (DESIGN.md §6). Runs one benchmark scene for
-//! every requested gradient scheme and resolution, each into `OUT/<gradient>_<n>/`,
-//! and collects what the runs report into `OUT/results.csv`, `OUT/report.md` (tables
-//! with observed convergence orders) and two log–log plots, `error_vs_cells.svg` and
-//! `error_vs_wall_time.svg`. The tables and plots are rewritten after every run, so a
-//! long sweep that is stopped keeps what it finished.
+//! `mpmcg sweep`: speed against error (README, "Accuracy against cost"). Runs one
+//! benchmark scene for every requested gradient scheme and resolution, each into
+//! `OUT/<gradient>_<n>/`, and collects what the runs report into `OUT/results.csv`,
+//! `OUT/report.md` (tables with observed convergence orders) and two log–log plots,
+//! `error_vs_cells.svg` and `error_vs_wall_time.svg`. The tables and plots are
+//! rewritten after every run, so a long sweep that is stopped keeps what it finished.
 //!
 //! With one rank the runs happen in this process ([`run::run`] on a [`SerialComm`]);
 //! with more, each run is `mpirun -n N <exe> run OUT/<gradient>_<n>/scene.toml`, and its

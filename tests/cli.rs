@@ -2,6 +2,8 @@
 //! the help on restarts, the last line naming the output folder (with `--quiet` too),
 //! snapshots of the initial and final states by default, and `snapshots = false`.
 
+#![forbid(unsafe_code)]
+
 mod common;
 
 use common::{files, temp_dir};

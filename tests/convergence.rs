@@ -5,6 +5,8 @@
 //! over the run). At this amplitude particles cross cells: MPM stalls, MPMCG converges
 //! at second order. Run with `--nocapture` to see the tables.
 
+#![forbid(unsafe_code)]
+
 use decomposition::SerialComm;
 use mpmcg::run::{run, RunOptions};
 use mpmcg::scene::{self, Gradient};

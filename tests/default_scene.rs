@@ -2,6 +2,8 @@
 //! disks, MPMCG) through the real binary and writes its summary, history and the
 //! snapshots of its initial and final states.
 
+#![forbid(unsafe_code)]
+
 mod common;
 use common::{files, history, temp_dir};
 use std::process::Command;

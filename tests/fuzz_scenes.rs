@@ -5,6 +5,8 @@
 //! exit 101 instead of a clear exit 2. The number of cases is printed
 //! (`cargo test --test fuzz_scenes -- --nocapture`).
 
+#![forbid(unsafe_code)]
+
 use mpmcg::run::check_bodies;
 use mpmcg::scene::parse;
 use std::panic::{catch_unwind, AssertUnwindSafe};

@@ -1,6 +1,8 @@
-//! The hard cases of DESIGN.md §5, each a scene in `inputs/`, run for MPMCG and the
-//! schemes it is compared with; every test asserts the stability property and prints
-//! what it measured (`cargo test --test hard_cases -- --nocapture`).
+//! The hard cases of the README ("Hard cases"), each a scene in `inputs/`, run for
+//! MPMCG and the schemes it is compared with; every test asserts the stability property
+//! and prints what it measured (`cargo test --test hard_cases -- --nocapture`).
+
+#![forbid(unsafe_code)]
 
 mod common;
 use common::{history, run_scene, snapshots, Snapshot};

@@ -2,6 +2,8 @@
 //! index, the units, and the symmetry planes of a scene that models part of a body,
 //! as HDF5 attributes of every snapshot and as XDMF `Information` elements.
 
+#![forbid(unsafe_code)]
+
 mod common;
 
 use hdf5::types::VarLenUnicode;

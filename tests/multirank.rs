@@ -2,6 +2,8 @@
 //! `--oversubscribe`): particles cross rank boundaries in both directions, diagonally
 //! and through periodic faces, and the final state must not depend on the rank count.
 
+#![forbid(unsafe_code)]
+
 mod common;
 use common::temp_dir;
 use std::path::{Path, PathBuf};

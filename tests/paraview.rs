@@ -4,6 +4,8 @@
 //! ParaView's three XDMF readers loads N points, N cells and every field at every time
 //! step (`scripts/check_paraview.sh`).
 
+#![forbid(unsafe_code)]
+
 mod common;
 
 use common::{files, mpirun, temp_dir};

@@ -7,6 +7,8 @@
 //! linear elastic and brittle `σ_zz = λ tr G dt`; neo-Hookean `σ_zz = λ ln J / J`;
 //! J2 (elastic here) `τ_zz = λ ln J + 2μ ε_zz` with `ε_zz = 0`, the same `λ ln J / J`.
 
+#![forbid(unsafe_code)]
+
 mod common;
 
 const DT: f64 = 1e-3;

@@ -2,6 +2,8 @@
 //! lines with the ETA fields when the output goes to a pipe (a batch log), rewritten
 //! in place when the launcher's output is a terminal.
 
+#![forbid(unsafe_code)]
+
 mod common;
 
 use common::temp_dir;

@@ -5,6 +5,8 @@
 //!
 //! Each scene is a valid one from `inputs/` with one defect.
 
+#![forbid(unsafe_code)]
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 

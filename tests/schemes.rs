@@ -5,6 +5,8 @@
 //! the two-step schemes' node→node forces sum to zero over Ω; the total mass is
 //! exactly constant.
 
+#![forbid(unsafe_code)]
+
 use decomposition::{Layout, SerialComm};
 use mpmcg::scene::{self, Gradient};
 use mpmcg::shape::Alpha;

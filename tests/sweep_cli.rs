@@ -1,6 +1,8 @@
 //! `mpmcg sweep` as users call it: exit status and message for bad input, and runs on
 //! two ranks under mpirun (skipped when there is no `mpirun`).
 
+#![forbid(unsafe_code)]
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 

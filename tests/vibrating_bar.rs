@@ -2,6 +2,8 @@
 //! 2 particles per cell, t = 40 (four periods), fixed at x = 0, free at x = L.
 //! Exact centre-of-mass velocity `v0/(βL) cos(ωt)`, β = π/2L, ω = β sqrt(E/ρ).
 
+#![forbid(unsafe_code)]
+
 mod common;
 use common::{history, run_text};
 use std::f64::consts::PI;

@@ -16,6 +16,8 @@
 //! MPMCG converges at order 1.37 then 2.01; MPM stalls (order −0.64 from 64 to 128
 //! cells) as particles cross cells.
 
+#![forbid(unsafe_code)]
+
 mod common;
 use common::temp_dir;
 use mpmcg::run::{run, RunOptions};

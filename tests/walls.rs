@@ -9,6 +9,8 @@
 //! A block resting on the lower face of its last axis is thrown at it (normal speed 1,
 //! tangential 0.5 and 0.25), in 2D and 3D.
 
+#![forbid(unsafe_code)]
+
 use decomposition::{Layout, SerialComm};
 use mpmcg::scene::{self, Face};
 use mpmcg::solver::Solver;

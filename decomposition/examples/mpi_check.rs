@@ -9,6 +9,8 @@
 //!
 //! Exits non-zero (via a panic, which makes mpirun abort the job) on any mismatch.
 
+#![forbid(unsafe_code)]
+
 use std::collections::HashMap;
 
 use decomposition::{Block, Communicator, Layout, Migrator, MpiComm, GHOST};

@@ -9,17 +9,21 @@ use crate::layout::{Layout, GHOST};
 /// One rank's view of the grid.
 #[derive(Clone, Debug)]
 pub struct Block<const D: usize> {
+    /// The rank that owns this block.
     pub rank: usize,
-    /// Owned cells `[cell_lo, cell_hi)`, global indices.
+    /// First owned cell (global index): the block owns `[cell_lo, cell_hi)`.
     pub cell_lo: [usize; D],
+    /// One past the last owned cell (global index).
     pub cell_hi: [usize; D],
     /// Global (unwrapped) index of local node 0 along each axis; negative on a periodic
     /// axis whose ghost layer wraps below 0.
     pub node_lo: [i64; D],
     /// Local node box size along each axis.
     pub node_dims: [usize; D],
-    /// Owned nodes in local indices, `[own_lo, own_hi)` along each axis.
+    /// First owned node in local indices: the block owns `[own_lo, own_hi)` along
+    /// each axis.
     pub own_lo: [usize; D],
+    /// One past the last owned node in local indices.
     pub own_hi: [usize; D],
     halo: Halo,
 }
@@ -40,6 +44,7 @@ struct Halo {
 }
 
 impl<const D: usize> Block<D> {
+    /// The block of `rank` in `layout`, with its halo exchange lists.
     pub fn new(layout: &Layout<D>, rank: usize) -> Self {
         let (cell_lo, cell_hi) = layout.block_cells(rank);
         let (node_lo, node_dims, own_lo, own_hi) = node_box(layout, rank);
@@ -57,6 +62,7 @@ impl<const D: usize> Block<D> {
         b
     }
 
+    /// Nodes in the local box, ghosts included.
     pub fn num_nodes(&self) -> usize {
         self.node_dims.iter().product()
     }
@@ -92,6 +98,7 @@ impl<const D: usize> Block<D> {
         g
     }
 
+    /// Whether a local node is owned (not a ghost).
     pub fn is_owned(&self, local: [usize; D]) -> bool {
         (0..D).all(|a| local[a] >= self.own_lo[a] && local[a] < self.own_hi[a])
     }
@@ -332,12 +339,34 @@ fn linear<const D: usize>(dims: [usize; D], c: [usize; D]) -> usize {
 fn build_halo<const D: usize>(layout: &Layout<D>, rank: usize) -> Halo {
     let me = layout.block_coords(rank);
     let mine: [AxisBox; D] = std::array::from_fn(|a| AxisBox::new(layout, a, me[a]));
-    let my_dims: [usize; D] = std::array::from_fn(|a| mine[a].dims);
-    let is_mine_owned = |l: [usize; D]| (0..D).all(|a| mine[a].owns(l[a]));
     // Per peer: (my ghosts it owns, my owned nodes that are its ghosts).
     let mut lists: BTreeMap<usize, (Vec<usize>, Vec<usize>)> = BTreeMap::new();
+    for (p, ghosts) in ghosts_by_owner(layout, &mine) {
+        lists.entry(p).or_default().0 = ghosts;
+    }
+    for (p, owned) in owned_by_peer(layout, me, &mine) {
+        lists.entry(p).or_default().1 = owned;
+    }
+    let mut h = Halo::default();
+    for (p, (ghosts, owned)) in lists {
+        h.peers.push(p);
+        h.ghosts.push(ghosts);
+        h.owned.push(owned);
+    }
+    h.send = vec![Vec::new(); h.peers.len()];
+    h.recv = vec![Vec::new(); h.peers.len()];
+    h
+}
 
-    // My ghosts, grouped by owner.
+/// My ghost nodes (local linear indices in my box `mine`), grouped by the rank that
+/// owns them.
+fn ghosts_by_owner<const D: usize>(
+    layout: &Layout<D>,
+    mine: &[AxisBox; D],
+) -> Vec<(usize, Vec<usize>)> {
+    let my_dims: [usize; D] = std::array::from_fn(|a| mine[a].dims);
+    let is_mine_owned = |l: [usize; D]| (0..D).all(|a| mine[a].owns(l[a]));
+    let mut lists = Vec::new();
     let owner_along: [Vec<usize>; D] = std::array::from_fn(|a| {
         (0..mine[a].dims)
             .map(|l| axis_owner(layout, a, mine[a].node_lo + l as i64))
@@ -367,36 +396,23 @@ fn build_halo<const D: usize>(layout: &Layout<D>, rank: usize) -> Halo {
             },
         );
         if !ghosts.is_empty() {
-            lists.entry(layout.rank_of_block(q)).or_default().0 = ghosts;
+            lists.push((layout.rank_of_block(q), ghosts));
         }
     });
+    lists
+}
 
-    // My owned nodes in other boxes: per axis, the nearby blocks whose box has
-    // positions I own, with those positions.
-    let near: [Vec<(AxisBox, Vec<usize>, usize)>; D] = std::array::from_fn(|a| {
-        let p = layout.procs[a] as i64;
-        let mut ks: Vec<usize> = (-2..=2)
-            .map(|d| me[a] as i64 + d)
-            .filter_map(|k| {
-                if layout.periodic[a] {
-                    Some(k.rem_euclid(p) as usize)
-                } else {
-                    (0..p).contains(&k).then_some(k as usize)
-                }
-            })
-            .collect();
-        ks.sort_unstable();
-        ks.dedup();
-        ks.into_iter()
-            .filter_map(|k| {
-                let b = AxisBox::new(layout, a, k);
-                let pos: Vec<usize> = (0..b.dims)
-                    .filter(|&l| axis_owner(layout, a, b.node_lo + l as i64) == me[a])
-                    .collect();
-                (!pos.is_empty()).then_some((b, pos, k))
-            })
-            .collect()
-    });
+/// My owned nodes (local linear indices in my box `mine`, at block coordinates `me`)
+/// that are ghosts in other boxes, grouped by the rank whose box it is.
+fn owned_by_peer<const D: usize>(
+    layout: &Layout<D>,
+    me: [usize; D],
+    mine: &[AxisBox; D],
+) -> Vec<(usize, Vec<usize>)> {
+    let my_dims: [usize; D] = std::array::from_fn(|a| mine[a].dims);
+    let near: [Vec<(AxisBox, Vec<usize>, usize)>; D] =
+        std::array::from_fn(|a| near_blocks(layout, a, me[a]));
+    let mut lists = Vec::new();
     odometer::<D>(std::array::from_fn(|a| near[a].len()), |j| {
         let other: [&(AxisBox, Vec<usize>, usize); D] = std::array::from_fn(|a| &near[a][j[a]]);
         let mut owned = Vec::new();
@@ -424,19 +440,41 @@ fn build_halo<const D: usize>(layout: &Layout<D>, rank: usize) -> Halo {
         );
         if !owned.is_empty() {
             let q: [usize; D] = std::array::from_fn(|a| other[a].2);
-            lists.entry(layout.rank_of_block(q)).or_default().1 = owned;
+            lists.push((layout.rank_of_block(q), owned));
         }
     });
+    lists
+}
 
-    let mut h = Halo::default();
-    for (p, (ghosts, owned)) in lists {
-        h.peers.push(p);
-        h.ghosts.push(ghosts);
-        h.owned.push(owned);
-    }
-    h.send = vec![Vec::new(); h.peers.len()];
-    h.recv = vec![Vec::new(); h.peers.len()];
-    h
+/// Along axis `a`, the blocks near mine (coordinate `me`) whose box has positions I
+/// own: each box, those positions and the block's coordinate.
+fn near_blocks<const D: usize>(
+    layout: &Layout<D>,
+    a: usize,
+    me: usize,
+) -> Vec<(AxisBox, Vec<usize>, usize)> {
+    let p = layout.procs[a] as i64;
+    let mut ks: Vec<usize> = (-2..=2)
+        .map(|d| me as i64 + d)
+        .filter_map(|k| {
+            if layout.periodic[a] {
+                Some(k.rem_euclid(p) as usize)
+            } else {
+                (0..p).contains(&k).then_some(k as usize)
+            }
+        })
+        .collect();
+    ks.sort_unstable();
+    ks.dedup();
+    ks.into_iter()
+        .filter_map(|k| {
+            let b = AxisBox::new(layout, a, k);
+            let pos: Vec<usize> = (0..b.dims)
+                .filter(|&l| axis_owner(layout, a, b.node_lo + l as i64) == me)
+                .collect();
+            (!pos.is_empty()).then_some((b, pos, k))
+        })
+        .collect()
 }
 
 /// The straightforward plan, scanning every rank's ghost nodes: the reference that

@@ -15,7 +15,9 @@ use mpi::traits::{
 /// point-to-point operation: each rank sends one buffer to each of its peers and receives
 /// one buffer from each; a rank may be its own peer (periodic faces on one rank).
 pub trait Communicator {
+    /// This rank, in `0..size()`.
     fn rank(&self) -> usize;
+    /// The number of ranks.
     fn size(&self) -> usize;
     /// Element-wise sum over ranks, in place.
     fn sum_f64(&self, x: &mut [f64]);
@@ -86,6 +88,7 @@ pub struct MpiComm {
 }
 
 impl MpiComm {
+    /// Wrap a world communicator.
     pub fn new(world: mpi::topology::SimpleCommunicator) -> Self {
         Self { world }
     }

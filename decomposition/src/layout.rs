@@ -16,7 +16,9 @@ pub const GHOST: usize = 2;
 /// The global grid and how its cells are split over ranks.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Layout<const D: usize> {
+    /// Cells of the global grid along each axis.
     pub cells: [usize; D],
+    /// Whether each axis is periodic (its last cell neighbours its first).
     pub periodic: [bool; D],
     /// Number of blocks along each axis; their product is the rank count.
     pub procs: [usize; D],
@@ -111,6 +113,7 @@ impl<const D: usize> Layout<D> {
         }
     }
 
+    /// The number of ranks (blocks).
     pub fn ranks(&self) -> usize {
         self.procs.iter().product()
     }
@@ -126,6 +129,8 @@ impl<const D: usize> Layout<D> {
         c
     }
 
+    /// The rank of the block at block coordinates `coords` (inverse of
+    /// [`Layout::block_coords`]).
     pub fn rank_of_block(&self, coords: [usize; D]) -> usize {
         let mut r = 0;
         for a in (0..D).rev() {

@@ -222,6 +222,7 @@ impl<'a> Records<'a> {
     pub fn len(&self) -> usize {
         self.data.len() / self.width
     }
+    /// Whether there are no records.
     pub fn is_empty(&self) -> bool {
         self.data.is_empty()
     }
@@ -229,6 +230,7 @@ impl<'a> Records<'a> {
     pub fn as_slice(&self) -> &'a [f64] {
         self.data
     }
+    /// The records, one slice of `width` values each.
     pub fn iter(&self) -> std::slice::ChunksExact<'a, f64> {
         self.data.chunks_exact(self.width)
     }

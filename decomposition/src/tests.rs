@@ -9,33 +9,8 @@ use crate::comm::{Communicator, SerialComm};
 use crate::layout::{Layout, GHOST};
 use crate::local::LocalComm;
 use crate::migrate::Migrator;
+use crate::splitmix::Rng;
 use crate::Error;
-
-/// splitmix64: enough randomness for tests, without a dependency.
-struct Rng(u64);
-
-impl Rng {
-    fn new(seed: u64) -> Self {
-        Self(seed)
-    }
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n as u64) as usize
-    }
-    /// Uniform in `[lo, hi]`.
-    fn int(&mut self, lo: i64, hi: i64) -> i64 {
-        lo + self.below((hi - lo + 1) as usize) as i64
-    }
-    fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
 
 fn layouts1() -> Vec<Layout<1>> {
     [
@@ -286,8 +261,8 @@ fn particles<const D: usize>(cells: [usize; D], n: usize, seed: u64) -> Vec<([f6
     let mut rng = Rng::new(seed);
     (0..n)
         .map(|_| {
-            let x = std::array::from_fn(|a| rng.unit() * cells[a] as f64);
-            (x, 0.5 + rng.unit())
+            let x = std::array::from_fn(|a| rng.f64() * cells[a] as f64);
+            (x, 0.5 + rng.f64())
         })
         .collect()
 }
