@@ -50,9 +50,42 @@ impl Entry {
     }
 }
 
+/// The XDMF index of a run's snapshots.
+pub const XDMF_NAME: &str = "particles.xmf";
+
 /// `particles_NNNNNN.h5`.
 pub fn snapshot_name(step: u64) -> String {
     format!("particles_{step:06}.h5")
+}
+
+/// Whether `name` is a snapshot's file name (`particles_` digits `.h5`).
+pub fn is_snapshot_name(name: &str) -> bool {
+    name.strip_prefix("particles_")
+        .and_then(|r| r.strip_suffix(".h5"))
+        .is_some_and(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()))
+}
+
+/// Rank 0 of a fresh run: delete the snapshots and the `particles.xmf` an earlier run
+/// left in `out`. This run rewrites the series from step 0, so the old files would be
+/// orphans that the new `particles.xmf` does not list, mixed in with the new ones
+/// under the same name pattern (a script globbing `particles_*.h5` read both runs).
+/// Checkpoints are not touched (see `checkpoint::Lineage`). Returns how many
+/// snapshots went.
+pub fn remove_old_snapshots(out: &Path) -> Result<usize, String> {
+    let mut gone = 0;
+    let entries = std::fs::read_dir(out).map_err(|e| format!("{}: {e}", out.display()))?;
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let snapshot = is_snapshot_name(&name);
+        if snapshot || name == XDMF_NAME {
+            match std::fs::remove_file(e.path()) {
+                Ok(()) => gone += usize::from(snapshot),
+                Err(err) if err.kind() == std::io::ErrorKind::NotFound => {}
+                Err(err) => return Err(format!("{}: {err}", e.path().display())),
+            }
+        }
+    }
+    Ok(gone)
 }
 
 /// What a run's snapshot numbers mean (the same for every snapshot of the run).
@@ -394,7 +427,7 @@ impl Snapshots {
             x += "   </Grid>\n";
         }
         x += "  </Grid>\n </Domain>\n</Xdmf>\n";
-        let path = self.out.join("particles.xmf");
+        let path = self.out.join(XDMF_NAME);
         let tmp = self.out.join(".particles.xmf.tmp");
         std::fs::write(&tmp, x)
             .and_then(|_| std::fs::rename(&tmp, &path))

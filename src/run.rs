@@ -440,6 +440,9 @@ fn run_dim<const D: usize>(
     // One run at a time in a folder; the lock goes when `_lock` is dropped, on every
     // path out of this function.
     let _lock = claim_output(comm, &opts.out)?;
+    if opts.restart.is_none() {
+        clear_old_snapshots(comm, &opts.out)?;
+    }
     let scene_text = match &opts.scene_text {
         Some(t) => t.clone(),
         None => toml::to_string(scene).unwrap_or_default(),
@@ -484,6 +487,33 @@ fn claim_output(
         });
     }
     Ok(lock)
+}
+
+/// Collective: rank 0 of a fresh run removes an earlier run's snapshots from the
+/// locked output folder ([`crate::io::remove_old_snapshots`]) and says so (even under
+/// `--quiet`: files were deleted); every rank
+/// learns of a failure.
+fn clear_old_snapshots(comm: &dyn Communicator, out: &Path) -> Result<(), RunError> {
+    let failed = if comm.rank() == 0 {
+        match crate::io::remove_old_snapshots(out) {
+            Ok(0) => None,
+            Ok(n) => {
+                // Even with --quiet: files were deleted.
+                eprintln!(
+                    "note: removed {n} snapshot(s) of an earlier run from {}",
+                    out.display()
+                );
+                None
+            }
+            Err(m) => Some(format!("removing an earlier run's snapshots: {m}")),
+        }
+    } else {
+        None
+    };
+    match agree(comm, failed) {
+        Some(m) => Err(RunError::Io(m)),
+        None => Ok(()),
+    }
 }
 
 /// Collective: the checkpoint lineage of this run, `stored` (a restart's) or a fresh

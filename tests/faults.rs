@@ -446,6 +446,70 @@ fn pruning_deletes_only_this_runs_checkpoints() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A fresh run into a folder that holds an earlier run's snapshots: the old ones go
+/// (they used to stay beside the new ones, unlisted in `particles.xmf`, and a script
+/// globbing `particles_*.h5` read both runs), with one note, on 1 rank and on 2; the
+/// other run's checkpoints stay. A restart keeps the snapshots it continues.
+#[test]
+fn fresh_run_replaces_an_earlier_runs_snapshots() {
+    for ranks in [1, 2] {
+        let dir = temp_dir(&format!("stale-snapshots-{ranks}"));
+        let out = dir.join("out");
+        let scene =
+            |end: f64, extra: &str| short_scene(end, &format!("[output]\nevery = 0.01\n{extra}"));
+        let (a, b) = (dir.join("a.toml"), dir.join("b.toml"));
+        std::fs::write(&a, scene(0.05, "[checkpoint]\nevery_steps = 10")).unwrap();
+        std::fs::write(&b, scene(0.02, "")).unwrap();
+        let o = out.to_str().unwrap();
+        let run = |ranks: usize, scene: &Path| {
+            let r = mpmcg(
+                ranks,
+                &["run", scene.to_str().unwrap(), "--out", o, "--quiet"],
+            );
+            let err = String::from_utf8_lossy(&r.stderr).into_owned();
+            assert_eq!(r.status.code(), Some(0), "{err}");
+            err
+        };
+        let snaps = || -> Vec<String> {
+            names(&out)
+                .into_iter()
+                .filter(|n| n.starts_with("particles_") && n.ends_with(".h5"))
+                .collect()
+        };
+        run(1, &a);
+        let first = snaps();
+        assert_eq!(first.len(), 6, "{first:?}");
+        let ckpts: Vec<String> = names(&out)
+            .into_iter()
+            .filter(|n| n.starts_with("checkpoint_"))
+            .collect();
+        assert!(!ckpts.is_empty());
+        let err = run(ranks, &b);
+        let second = snaps();
+        assert_eq!(second.len(), 3, "{ranks} rank(s): {second:?}");
+        assert_eq!(
+            err.matches("note: removed 6 snapshot(s) of an earlier run from")
+                .count(),
+            1,
+            "{ranks} rank(s): {err}"
+        );
+        // Every snapshot left is one the new index lists, and the reverse.
+        let xmf = std::fs::read_to_string(out.join("particles.xmf")).unwrap();
+        let mut listed: Vec<String> = xmf
+            .match_indices("particles_")
+            .map(|(i, _)| xmf[i..i + "particles_000000.h5".len()].to_string())
+            .collect();
+        listed.dedup();
+        assert_eq!(listed, second, "{ranks} rank(s)");
+        let kept: Vec<String> = names(&out)
+            .into_iter()
+            .filter(|n| n.starts_with("checkpoint_"))
+            .collect();
+        assert_eq!(kept, ckpts, "the earlier run's checkpoints stay");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
+
 /// Run `mpmcg ARGS` on `ranks` ranks (its own process group), killed if it has not
 /// ended after `secs` seconds (then the status has no code).
 fn mpmcg_within(ranks: usize, args: &[&str], secs: u64) -> Output {
