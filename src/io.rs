@@ -458,11 +458,24 @@ fn pad3<'a>(buf: &mut Vec<f64>, rows: impl Iterator<Item = &'a [f64]>, d: usize)
 
 /// Create a file: with the MPI-IO driver on an MPI communicator, plainly on one process.
 pub(crate) fn create(comm: &dyn Communicator, path: &Path) -> Result<hdf5::File, IoError> {
+    create_with_userblock(comm, path, 0)
+}
+
+/// [`create`] with `userblock` bytes at the start of the file that HDF5 leaves alone
+/// (a power of two >= 512, or 0 for none).
+pub(crate) fn create_with_userblock(
+    comm: &dyn Communicator,
+    path: &Path,
+    userblock: u64,
+) -> Result<hdf5::File, IoError> {
     let r = match comm.raw_mpi() {
         Some(raw) => hdf5::File::with_options()
             .with_fapl(|p| p.mpio(raw, None))
+            .with_fcpl(|p| p.userblock(userblock))
             .create(path),
-        None if comm.size() == 1 => hdf5::File::create(path),
+        None if comm.size() == 1 => hdf5::File::with_options()
+            .with_fcpl(|p| p.userblock(userblock))
+            .create(path),
         None => {
             return Err(IoError(format!(
                 "{}: parallel output needs an MPI communicator",
