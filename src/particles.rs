@@ -2,7 +2,8 @@
 //! array with its element type, how its checkpoint columns are named, which
 //! [`Carries`] flag it needs and (for a material's state) its initial value. Sorting,
 //! removal, copying, the migration and checkpoint record and seeding all iterate that
-//! declaration, so adding a material state is one line there (plus a flag in
+//! declaration, and so do the step's particle slices, so adding a material state is
+//! one line there (plus a flag in
 //! [`carries!`] if no existing one fits) and its model.
 //!
 //! Optional state is an empty `Vec` unless the scene needs it: the deformation
@@ -120,6 +121,32 @@ macro_rules! particle_fields {
             $($(#[$doc])* pub $name: Vec<$ty>,)*
         }
 
+        /// Every particle array over a contiguous range of particles, splittable for
+        /// threads (the step's particle loops, [`crate::kernel::Slices`]); arrays the
+        /// particles do not carry are empty.
+        pub struct ParticleSlices<'a, const D: usize> {
+            $($(#[$doc])* pub $name: &'a mut [$ty],)*
+        }
+
+        impl<'a, const D: usize> ParticleSlices<'a, D> {
+            pub fn len(&self) -> usize {
+                self.x.len()
+            }
+
+            pub fn is_empty(&self) -> bool {
+                self.x.is_empty()
+            }
+
+            /// The particles before `mid` and from `mid` on.
+            pub fn split_at(self, mid: usize) -> (Self, Self) {
+                $(let $name = split_mut(self.$name, mid);)*
+                (
+                    ParticleSlices { $($name: $name.0,)* },
+                    ParticleSlices { $($name: $name.1,)* },
+                )
+            }
+        }
+
         impl<const D: usize> Particles<D> {
             /// The arrays `c` carries, in record order.
             pub fn fields(c: Carries) -> Vec<FieldInfo> {
@@ -132,6 +159,11 @@ macro_rules! particle_fields {
                     });
                 })*
                 f
+            }
+
+            /// Every array as a [`ParticleSlices`] over all particles.
+            pub fn slices(&mut self) -> ParticleSlices<'_, D> {
+                ParticleSlices { $($name: &mut self.$name,)* }
             }
 
             /// Values per particle in a migration record for what these particles carry.
@@ -222,6 +254,15 @@ particle_fields! {
     /// Plane-strain σ_zz (`brittle` in 2D, where failure makes it history-dependent;
     /// the other models derive it, see [`Material::stress_zz`]).
     stress_zz: f64, Scalar, stress_zz = 0.0;
+}
+
+/// Split a (possibly absent, i.e. empty) array at `mid`.
+pub fn split_mut<T>(s: &mut [T], mid: usize) -> (&mut [T], &mut [T]) {
+    if s.is_empty() {
+        (&mut [], &mut [])
+    } else {
+        s.split_at_mut(mid)
+    }
 }
 
 /// Reorder a (possibly absent, i.e. empty) array through `scratch`.
