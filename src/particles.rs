@@ -1,10 +1,10 @@
-//! Particles as a structure of arrays, declared once in [`particle_fields!`]: every
-//! array with its element type, how its checkpoint columns are named, which
+//! Particles as a structure of arrays, declared once in `particle_fields!` below:
+//! every array with its element type, how its checkpoint columns are named, which
 //! [`Carries`] flag it needs and (for a material's state) its initial value. Sorting,
-//! removal, copying, the migration and checkpoint record and seeding all iterate that
-//! declaration, and so do the step's particle slices, so adding a material state is
-//! one line there (plus a flag in
-//! [`carries!`] if no existing one fits) and its model.
+//! removal, copying, the migration and checkpoint record, seeding and the step's
+//! particle slices ([`ParticleSlices`]) all follow from that declaration, so adding a
+//! material state is one line there (plus a flag in `carries!` if no existing one
+//! fits) and its model (its slot in `material::Internal`, filled in `kernel::deform`).
 //!
 //! Optional state is an empty `Vec` unless the scene needs it: the deformation
 //! gradient only for materials that use it, the reference position only for
