@@ -44,7 +44,7 @@
 //! few nodes but not for thousands of ranks.
 
 use crate::io::{self, agree, h5err, lockstep, Entry, IoError, Writer};
-use crate::particles::{Carries, Particles};
+use crate::particles::{Carries, Columns, Particles};
 use crate::shape::Geom;
 use crate::solver::{Solver, Totals};
 use decomposition::splitmix::mix;
@@ -161,45 +161,22 @@ fn row_hash(k: u64, row: &[f64]) -> u64 {
 }
 
 /// Column names of a particle record, in [`Particles::pack`] order.
-fn columns(d: usize, c: Carries) -> String {
+fn columns<const D: usize>(c: Carries) -> String {
     let mut cols: Vec<String> = Vec::new();
-    let vec = |cols: &mut Vec<String>, n: &str| (0..d).for_each(|a| cols.push(format!("{n}[{a}]")));
-    let mat = |cols: &mut Vec<String>, n: &str| {
-        // nalgebra stores matrices column-major.
-        for j in 0..d {
-            for i in 0..d {
-                cols.push(format!("{n}[{i}][{j}]"));
+    for f in Particles::<D>::fields(c) {
+        match f.columns {
+            Columns::Scalar => cols.push(f.column.into()),
+            Columns::Vector => (0..f.width).for_each(|a| cols.push(format!("{}[{a}]", f.column))),
+            Columns::Matrix => {
+                // Square, column-major like nalgebra's storage.
+                let n = f.width.isqrt();
+                for j in 0..n {
+                    for i in 0..n {
+                        cols.push(format!("{}[{i}][{j}]", f.column));
+                    }
+                }
             }
         }
-    };
-    vec(&mut cols, "x");
-    vec(&mut cols, "v");
-    cols.extend(["mass", "vol", "vol0"].map(String::from));
-    mat(&mut cols, "stress");
-    cols.extend(["material", "id"].map(String::from));
-    if c.def_grad {
-        mat(&mut cols, "def_grad");
-    }
-    if c.x0 {
-        vec(&mut cols, "x0");
-    }
-    if c.half {
-        vec(&mut cols, "half");
-    }
-    if c.plastic {
-        // b_e is 3 × 3 whatever the dimension, column-major like the others.
-        for j in 0..3 {
-            for i in 0..3 {
-                cols.push(format!("be[{i}][{j}]"));
-            }
-        }
-        cols.push("eps_p".into());
-    }
-    if c.damage {
-        cols.push("damage".into());
-    }
-    if c.stress_zz {
-        cols.push("stress_zz".into());
     }
     cols.join(" ")
 }
@@ -342,12 +319,10 @@ fn write_header<const D: usize>(
     o.u64s("cells", &solver.layout.cells.map(|c| c as u64))?;
     o.u64("particles", total)?;
     o.u64("record_width", Particles::<D>::record_width(carries) as u64)?;
-    o.u64("carries_def_grad", u64::from(carries.def_grad))?;
-    o.u64("carries_x0", u64::from(carries.x0))?;
-    o.u64("carries_half", u64::from(carries.half))?;
-    o.u64("carries_plastic", u64::from(carries.plastic))?;
-    o.u64("carries_damage", u64::from(carries.damage))?;
-    o.u64("carries_stress_zz", u64::from(carries.stress_zz))
+    for (name, on) in Carries::NAMES.iter().zip(carries.flags()) {
+        o.u64(&format!("carries_{name}"), u64::from(on))?;
+    }
+    Ok(())
 }
 
 /// The run loop's diagnostics and schedule as root attributes.
@@ -392,7 +367,7 @@ fn write_particles<const D: usize>(
     drop(buf);
     crash_for_tests(solver.step);
     o.agree(o.file.dataset("particles").and_then(|ds| {
-        let cols: VarLenUnicode = columns(D, carries).parse().expect("ASCII");
+        let cols: VarLenUnicode = columns::<D>(carries).parse().expect("ASCII");
         ds.new_attr::<VarLenUnicode>()
             .create("columns")
             .and_then(|a| a.write_scalar(&cols))
@@ -871,14 +846,11 @@ impl<'a> Rows<'a> {
                 layout.cells
             ));
         }
-        let stored = Carries {
-            def_grad: attr_u64(f, path, "carries_def_grad")? != 0,
-            x0: attr_u64(f, path, "carries_x0")? != 0,
-            half: attr_u64(f, path, "carries_half")? != 0,
-            plastic: attr_u64(f, path, "carries_plastic")? != 0,
-            damage: attr_u64(f, path, "carries_damage")? != 0,
-            stress_zz: attr_u64(f, path, "carries_stress_zz")? != 0,
-        };
+        let flags = Carries::NAMES
+            .iter()
+            .map(|name| Ok(attr_u64(f, path, &format!("carries_{name}"))? != 0))
+            .collect::<Result<Vec<bool>, String>>()?;
+        let stored = Carries::from_flags(&flags);
         let width = Particles::<D>::record_width(carries);
         if stored != carries || attr_u64(f, path, "record_width")? != width as u64 {
             return Err(format!(
@@ -1077,4 +1049,51 @@ fn read_run_state<const D: usize>(
             Vec::new()
         },
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn all(flags: u32) -> Carries {
+        let f: Vec<bool> = (0..Carries::NAMES.len())
+            .map(|k| flags >> k & 1 == 1)
+            .collect();
+        Carries::from_flags(&f)
+    }
+
+    /// The record layout of format 3, as written before the fields were declared in one
+    /// place: a reordered declaration would make old checkpoints unreadable.
+    #[test]
+    fn columns_keep_the_format_3_layout() {
+        assert_eq!(
+            columns::<2>(all(!0)),
+            "x[0] x[1] v[0] v[1] mass vol vol0 stress[0][0] stress[1][0] stress[0][1] \
+             stress[1][1] material id def_grad[0][0] def_grad[1][0] def_grad[0][1] \
+             def_grad[1][1] x0[0] x0[1] half[0] half[1] be[0][0] be[1][0] be[2][0] be[0][1] \
+             be[1][1] be[2][1] be[0][2] be[1][2] be[2][2] eps_p damage stress_zz"
+        );
+        assert_eq!(
+            columns::<1>(all(0b10)),
+            "x[0] v[0] mass vol vol0 stress[0][0] material id x0[0]"
+        );
+        assert_eq!(
+            Carries::NAMES,
+            ["def_grad", "x0", "half", "plastic", "damage", "stress_zz"]
+        );
+    }
+
+    #[test]
+    fn one_column_per_record_value() {
+        fn check<const D: usize>() {
+            for flags in 0..1 << Carries::NAMES.len() {
+                let c = all(flags);
+                let n = columns::<D>(c).split(' ').count();
+                assert_eq!(n, Particles::<D>::record_width(c), "D = {D}, {c:?}");
+            }
+        }
+        check::<1>();
+        check::<2>();
+        check::<3>();
+    }
 }

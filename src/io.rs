@@ -281,10 +281,11 @@ impl Snapshots {
         pad3(&mut self.buf, parts.x.iter().map(|x| x.as_slice()), D);
         w.floats("position", &self.buf, 3)?;
         for f in self.fields.clone() {
+            let (name, _, cols) = field_layout(f);
             match f {
                 Field::Velocity => {
                     pad3(&mut self.buf, parts.v.iter().map(|x| x.as_slice()), D);
-                    w.floats("velocity", &self.buf, 3)?;
+                    w.floats(name, &self.buf, cols)?;
                 }
                 Field::Displacement => {
                     self.buf.clear();
@@ -298,7 +299,7 @@ impl Snapshots {
                             self.buf.push(if a < D { u[a] } else { 0.0 });
                         }
                     }
-                    w.floats("displacement", &self.buf, 3)?;
+                    w.floats(name, &self.buf, cols)?;
                 }
                 Field::Stress => {
                     self.buf.clear();
@@ -311,12 +312,12 @@ impl Snapshots {
                             }
                         }
                     }
-                    w.floats("stress", &self.buf, 9)?;
+                    w.floats(name, &self.buf, cols)?;
                 }
                 // Scalars, one value per particle (the scene only lists them when a
                 // material carries them).
-                Field::PlasticStrain => w.floats("plastic_strain", &parts.eps_p, 0)?,
-                Field::Damage => w.floats("damage", &parts.damage, 0)?,
+                Field::PlasticStrain => w.floats(name, &parts.eps_p, cols)?,
+                Field::Damage => w.floats(name, &parts.damage, cols)?,
             }
         }
         Ok(())
@@ -412,13 +413,7 @@ impl Snapshots {
                 );
             }
             for f in &self.fields {
-                let (name, ty, cols) = match f {
-                    Field::Velocity => ("velocity", "Vector", 3),
-                    Field::Displacement => ("displacement", "Vector", 3),
-                    Field::Stress => ("stress", "Tensor", 9),
-                    Field::PlasticStrain => ("plastic_strain", "Scalar", 0),
-                    Field::Damage => ("damage", "Scalar", 0),
-                };
+                let (name, ty, cols) = field_layout(*f);
                 x += &format!(
                     "    <Attribute Name=\"{name}\" AttributeType=\"{ty}\" Center=\"Node\">{}</Attribute>\n",
                     item(name, cols)
@@ -821,5 +816,17 @@ pub fn agree(comm: &dyn Communicator, mine: Option<String>) -> Option<String> {
         Some(if r == 0 { m } else { format!("rank {r}: {m}") })
     } else {
         Some(mine.unwrap_or_else(|| "failed on another rank".into()))
+    }
+}
+
+/// How a snapshot field is stored, for the writer and the XDMF index alike: its
+/// dataset name, XDMF attribute type and values per particle (0: one, a plain vector).
+fn field_layout(f: Field) -> (&'static str, &'static str, usize) {
+    match f {
+        Field::Velocity => ("velocity", "Vector", 3),
+        Field::Displacement => ("displacement", "Vector", 3),
+        Field::Stress => ("stress", "Tensor", 9),
+        Field::PlasticStrain => ("plastic_strain", "Scalar", 0),
+        Field::Damage => ("damage", "Scalar", 0),
     }
 }

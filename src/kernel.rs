@@ -10,11 +10,11 @@
 
 use crate::benchmark::Benchmark;
 use crate::material::{Internal, Material};
+use crate::particles::{split_mut, ParticleSlices};
 use crate::scene::Face;
 use crate::shape::{self, Alpha, Geom};
 use crate::tensor::{det, Mat, Vector};
 use decomposition::tiles::{Tiles, NEIGHBOURS, TILE, TILE_LOG};
-use nalgebra::Matrix3;
 
 /// Slab thickness in cells for the coloured scatter: a GIMP particle writes one node row
 /// beyond its cell on each side, so same-coloured slabs 2·SLAB apart stay disjoint
@@ -203,34 +203,15 @@ impl<const D: usize> Ctx<'_, D> {
     }
 }
 
-/// Mutable and shared particle arrays over a contiguous range, splittable for threads.
-/// Optional arrays are empty when the particles do not carry them.
+/// The particle arrays over a contiguous range, splittable for threads, with the
+/// solver's per-particle arrays the loops need besides.
 pub struct Slices<'a, const D: usize> {
-    pub x: &'a mut [Vector<D>],
-    pub v: &'a mut [Vector<D>],
-    pub stress: &'a mut [Mat<D>],
-    pub vol: &'a mut [f64],
-    pub def_grad: &'a mut [Mat<D>],
+    pub parts: ParticleSlices<'a, D>,
+    /// Position increment of the step (two-step schemes move particles after the
+    /// stress pass).
     pub dx: &'a mut [Vector<D>],
-    pub mass: &'a [f64],
-    pub vol0: &'a [f64],
-    pub mat: &'a [u16],
-    pub x0: &'a [Vector<D>],
-    pub half: &'a [[f64; D]],
-    pub be: &'a mut [Matrix3<f64>],
-    pub eps_p: &'a mut [f64],
-    pub damage: &'a mut [f64],
-    pub stress_zz: &'a mut [f64],
     /// Storage index of each particle's cell's lower corner node.
     pub tile: &'a [u32],
-}
-
-fn split_mut<T>(s: &mut [T], mid: usize) -> (&mut [T], &mut [T]) {
-    if s.is_empty() {
-        (&mut [], &mut [])
-    } else {
-        s.split_at_mut(mid)
-    }
 }
 
 fn split<T>(s: &[T], mid: usize) -> (&[T], &[T]) {
@@ -243,65 +224,26 @@ fn split<T>(s: &[T], mid: usize) -> (&[T], &[T]) {
 
 impl<'a, const D: usize> Slices<'a, D> {
     pub fn len(&self) -> usize {
-        self.x.len()
+        self.parts.len()
     }
 
     pub fn is_empty(&self) -> bool {
-        self.x.is_empty()
+        self.parts.is_empty()
     }
 
     fn split_at(self, mid: usize) -> (Self, Self) {
-        let (x0, x1) = split_mut(self.x, mid);
-        let (v0, v1) = split_mut(self.v, mid);
-        let (s0, s1) = split_mut(self.stress, mid);
-        let (vo0, vo1) = split_mut(self.vol, mid);
-        let (f0, f1) = split_mut(self.def_grad, mid);
+        let (p0, p1) = self.parts.split_at(mid);
         let (d0, d1) = split_mut(self.dx, mid);
-        let (m0, m1) = split(self.mass, mid);
-        let (r0, r1) = split(self.vol0, mid);
-        let (t0, t1) = split(self.mat, mid);
-        let (p0, p1) = split(self.x0, mid);
-        let (h0, h1) = split(self.half, mid);
-        let (b0, b1) = split_mut(self.be, mid);
-        let (e0, e1) = split_mut(self.eps_p, mid);
-        let (g0, g1) = split_mut(self.damage, mid);
-        let (z0, z1) = split_mut(self.stress_zz, mid);
         let (k0, k1) = split(self.tile, mid);
         (
             Slices {
-                x: x0,
-                v: v0,
-                stress: s0,
-                vol: vo0,
-                def_grad: f0,
+                parts: p0,
                 dx: d0,
-                mass: m0,
-                vol0: r0,
-                mat: t0,
-                x0: p0,
-                half: h0,
-                be: b0,
-                eps_p: e0,
-                damage: g0,
-                stress_zz: z0,
                 tile: k0,
             },
             Slices {
-                x: x1,
-                v: v1,
-                stress: s1,
-                vol: vo1,
-                def_grad: f1,
+                parts: p1,
                 dx: d1,
-                mass: m1,
-                vol0: r1,
-                mat: t1,
-                x0: p1,
-                half: h1,
-                be: b1,
-                eps_p: e1,
-                damage: g1,
-                stress_zz: z1,
                 tile: k1,
             },
         )
@@ -542,29 +484,29 @@ fn deform<const D: usize>(
 ) -> bool {
     let inc = Mat::<D>::identity() + l * dt;
     let j = det(&inc);
-    s.vol[p] *= j;
-    let mat = &ctx.materials[s.mat[p] as usize];
-    let f = if s.def_grad.is_empty() {
+    s.parts.vol[p] *= j;
+    let mat = &ctx.materials[s.parts.mat[p] as usize];
+    let f = if s.parts.def_grad.is_empty() {
         Mat::<D>::identity()
     } else {
-        let f = inc * s.def_grad[p];
-        s.def_grad[p] = f;
+        let f = inc * s.parts.def_grad[p];
+        s.parts.def_grad[p] = f;
         f
     };
     let internal = Internal {
-        plastic: s.be.get_mut(p).zip(s.eps_p.get_mut(p)),
-        damage: s.damage.get_mut(p),
-        stress_zz: s.stress_zz.get_mut(p),
+        plastic: s.parts.be.get_mut(p).zip(s.parts.eps_p.get_mut(p)),
+        damage: s.parts.damage.get_mut(p),
+        stress_zz: s.parts.stress_zz.get_mut(p),
     };
-    mat.update_stress(&mut s.stress[p], l, &f, dt, internal);
-    j > 0.0 && s.vol[p].is_finite() && s.stress[p].iter().all(|x| x.is_finite())
+    mat.update_stress(&mut s.parts.stress[p], l, &f, dt, internal);
+    j > 0.0 && s.parts.vol[p].is_finite() && s.parts.stress[p].iter().all(|x| x.is_finite())
 }
 
 /// Wave speed plus particle speed: the signal speed the time step must resolve.
 #[inline(always)]
 fn speed<const D: usize>(ctx: &Ctx<'_, D>, s: &Slices<'_, D>, p: usize) -> f64 {
-    let j = s.vol[p] / s.vol0[p];
-    ctx.materials[s.mat[p] as usize].wave_speed(j) + s.v[p].norm()
+    let j = s.parts.vol[p] / s.parts.vol0[p];
+    ctx.materials[s.parts.mat[p] as usize].wave_speed(j) + s.parts.v[p].norm()
 }
 
 /// Grid → particle over all particles.
@@ -580,8 +522,12 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
         let mut t = Tally::ZERO;
         let d2 = 2 * D;
         for p in 0..s.len() {
-            let half = if ctx.gimp { Some(&s.half[p]) } else { None };
-            let k = ctx.kern::<NA, N>(&s.x[p], half, s.tile[p]);
+            let half = if ctx.gimp {
+                Some(&s.parts.half[p])
+            } else {
+                None
+            };
+            let k = ctx.kern::<NA, N>(&s.parts.x[p], half, s.tile[p]);
             let mut vn = Vector::<D>::zeros();
             let mut dv = Vector::<D>::zeros();
             for n in 0..N {
@@ -591,7 +537,7 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
                     dv[a] += k.s[n] * (v[D + a] - v[a]);
                 }
             }
-            let old = s.v[p];
+            let old = s.parts.v[p];
             let mut new = match xpic {
                 // XPIC(m): V = S v⁺ + S ((m − 1) v − m v*), the field precomputed.
                 Some(x) => {
@@ -624,16 +570,16 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
             // clamped, and clipping pressed the cantilever's compressed root onto the
             // clamp until particles left the grid through it (5 and 6 m beams at 3 × 3
             // per cell).
-            t.work += clip_at_slip_walls(ctx, &k, &mut new, &vm, s.mass[p]);
-            t.work += m.dt * s.mass[p] * ctx.accel(s.x0, p).dot(&(old + new)) * 0.5;
-            s.v[p] = new;
+            t.work += clip_at_slip_walls(ctx, &k, &mut new, &vm, s.parts.mass[p]);
+            t.work += m.dt * s.parts.mass[p] * ctx.accel(s.parts.x0, p).dot(&(old + new)) * 0.5;
+            s.parts.v[p] = new;
             t.ok &= new.iter().all(|x| x.is_finite());
             if m.stress {
                 let l = velocity_gradient(&k, vel, avg, 1, m.two_step);
                 t.ok &= deform(ctx, &mut s, p, &l, m.dt);
             }
             if m.move_now {
-                s.x[p] += vm * m.dt;
+                s.parts.x[p] += vm * m.dt;
             } else if !m.two_step {
                 // (A two-step scheme's stress pass sets the increment: MUSL moves it
                 // with the reconstruction of the remapped velocity.)
@@ -658,8 +604,12 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
     par(parts, &|mut s: Slices<'_, D>| {
         let mut t = Tally::ZERO;
         for p in 0..s.len() {
-            let half = if ctx.gimp { Some(&s.half[p]) } else { None };
-            let k = ctx.kern::<NA, N>(&s.x[p], half, s.tile[p]);
+            let half = if ctx.gimp {
+                Some(&s.parts.half[p])
+            } else {
+                None
+            };
+            let k = ctx.kern::<NA, N>(&s.parts.x[p], half, s.tile[p]);
             let l = velocity_gradient(&k, vel, avg, m.slot, m.two_step);
             t.ok &= deform(ctx, &mut s, p, &l, m.dt);
             if m.moves {
@@ -670,9 +620,9 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
                 // Only particles touching a wall's nodes can be clipped: the others'
                 // velocities are neither read nor written here.
                 if k.ends.iter().flatten().any(|&e| e) {
-                    let mut v = s.v[p];
-                    t.work += clip_at_slip_walls(ctx, &k, &mut v, &vm, s.mass[p]);
-                    s.v[p] = v;
+                    let mut v = s.parts.v[p];
+                    t.work += clip_at_slip_walls(ctx, &k, &mut v, &vm, s.parts.mass[p]);
+                    s.parts.v[p] = v;
                 }
                 s.dx[p] = vm * m.dt;
             }

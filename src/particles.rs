@@ -1,7 +1,15 @@
-//! Particles as a structure of arrays. Optional state is an empty `Vec` unless the
-//! scene needs it: the deformation gradient only for materials that use it, the
-//! reference position only for benchmarks, the GIMP half-width only for `gimp`, the
-//! out-of-plane stress only for `brittle` in 2D.
+//! Particles as a structure of arrays, declared once in `particle_fields!` below:
+//! every array with its element type, how its checkpoint columns are named, which
+//! [`Carries`] flag it needs and (for a material's state) its initial value. Sorting,
+//! removal, copying, the migration and checkpoint record, seeding and the step's
+//! particle slices ([`ParticleSlices`]) all follow from that declaration, so adding a
+//! material state is one line there (plus a flag in `carries!` if no existing one
+//! fits) and its model (its slot in `material::Internal`, filled in `kernel::deform`).
+//!
+//! Optional state is an empty `Vec` unless the scene needs it: the deformation
+//! gradient only for materials that use it, the reference position only for
+//! benchmarks, the GIMP half-width only for `gimp`, the out-of-plane stress only for
+//! `brittle` in 2D.
 
 use crate::benchmark::Benchmark;
 use crate::material::Material;
@@ -10,47 +18,280 @@ use crate::shape::Geom;
 use crate::tensor::{det, vector, Mat, Vector};
 use nalgebra::Matrix3;
 
-#[derive(Clone, Debug, Default)]
-pub struct Particles<const D: usize> {
-    pub x: Vec<Vector<D>>,
-    pub v: Vec<Vector<D>>,
-    pub mass: Vec<f64>,
-    /// Current volume.
-    pub vol: Vec<f64>,
-    /// Reference volume.
-    pub vol0: Vec<f64>,
-    pub stress: Vec<Mat<D>>,
-    /// Deformation gradient (materials that need it).
-    pub def_grad: Vec<Mat<D>>,
-    /// Material index.
-    pub mat: Vec<u16>,
-    /// Global id, independent of the rank count.
-    pub id: Vec<u64>,
-    /// Reference position (benchmarks).
-    pub x0: Vec<Vector<D>>,
-    /// GIMP particle half-width per axis.
-    pub half: Vec<[f64; D]>,
-    /// Elastic left Cauchy–Green tensor, always 3 × 3 (plasticity in plane strain
-    /// needs the out-of-plane stretch), and equivalent plastic strain (`j2_plastic`).
-    pub be: Vec<Matrix3<f64>>,
-    pub eps_p: Vec<f64>,
-    /// Damage, 0 intact or 1 failed (`brittle`).
-    pub damage: Vec<f64>,
-    /// Plane-strain σ_zz (`brittle` in 2D, where failure makes it history-dependent;
-    /// the other models derive it, see [`Material::stress_zz`]).
-    pub stress_zz: Vec<f64>,
+/// Declares [`Carries`]: one flag per group of optional particle arrays. The flags'
+/// order is that of the checkpoint attributes `carries_<flag>`.
+macro_rules! carries {
+    ($($(#[$doc:meta])* $flag:ident),* $(,)?) => {
+        /// Which optional arrays the particles carry.
+        #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+        pub struct Carries {
+            $($(#[$doc])* pub $flag: bool,)*
+        }
+
+        impl Carries {
+            /// The flags' names, in declaration order.
+            pub const NAMES: &'static [&'static str] = &[$(stringify!($flag)),*];
+
+            /// The flags, in the order of [`Carries::NAMES`].
+            pub fn flags(self) -> Vec<bool> {
+                vec![$(self.$flag),*]
+            }
+
+            /// From flags in the order of [`Carries::NAMES`] (as many).
+            pub fn from_flags(flags: &[bool]) -> Self {
+                let mut it = flags.iter().copied();
+                let c = Carries {
+                    $($flag: it.next().expect("one flag per name"),)*
+                };
+                debug_assert!(it.next().is_none());
+                c
+            }
+        }
+    };
 }
 
-/// Which optional arrays the particles carry.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Carries {
-    pub def_grad: bool,
-    pub x0: bool,
-    pub half: bool,
+carries! {
+    def_grad,
+    x0,
+    half,
     /// `be` and `eps_p`.
-    pub plastic: bool,
-    pub damage: bool,
-    pub stress_zz: bool,
+    plastic,
+    damage,
+    stress_zz,
+}
+
+/// How a field's values are named in a checkpoint's `columns`: `name`, `name[a]`, or
+/// `name[i][j]` column-major (as nalgebra stores matrices). Declared, not derived from
+/// the type: in 1D a vector and a matrix are the same type.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Columns {
+    Scalar,
+    Vector,
+    Matrix,
+}
+
+/// One particle array as laid out in a record: its column name, naming and width.
+#[derive(Clone, Copy, Debug)]
+pub struct FieldInfo {
+    pub column: &'static str,
+    pub columns: Columns,
+    pub width: usize,
+}
+
+/// `true` for arrays every particle set carries, else the scene's flag.
+macro_rules! carried {
+    ($c:expr, always) => {
+        true
+    };
+    ($c:expr, $flag:ident) => {
+        $c.$flag
+    };
+}
+
+/// A field's column name: the declared one, else the field's name.
+macro_rules! column_name {
+    ($col:literal; $name:ident) => {
+        $col
+    };
+    (; $name:ident) => {
+        stringify!($name)
+    };
+}
+
+/// Push a material state's initial value if the scene carries it; kinematic fields
+/// (no initial value declared) are pushed by [`Particles::push_seeded`].
+macro_rules! push_initial {
+    ($s:ident, $c:ident, $name:ident, $carry:ident) => {};
+    ($s:ident, $c:ident, $name:ident, $carry:ident, $init:expr) => {
+        if carried!($c, $carry) {
+            $s.$name.push($init);
+        }
+    };
+}
+
+/// Declares [`Particles`] and the operations that visit every array. Each line:
+/// `name: element type, column naming ("column name" if not the field's), flag or
+/// always [= initial value of a material state]`. The order is the record's (the
+/// migration and checkpoint layout, checkpoint format 3): do not reorder.
+macro_rules! particle_fields {
+    ($($(#[$doc:meta])* $name:ident : $ty:ty, $cols:ident $(($col:literal))?, $carry:ident
+        $(= $init:expr)?;)*) => {
+        #[derive(Clone, Debug, Default)]
+        pub struct Particles<const D: usize> {
+            $($(#[$doc])* pub $name: Vec<$ty>,)*
+        }
+
+        /// Every particle array over a contiguous range of particles, splittable for
+        /// threads (the step's particle loops, [`crate::kernel::Slices`]); arrays the
+        /// particles do not carry are empty.
+        pub struct ParticleSlices<'a, const D: usize> {
+            $($(#[$doc])* pub $name: &'a mut [$ty],)*
+        }
+
+        impl<'a, const D: usize> ParticleSlices<'a, D> {
+            pub fn len(&self) -> usize {
+                self.x.len()
+            }
+
+            pub fn is_empty(&self) -> bool {
+                self.x.is_empty()
+            }
+
+            /// The particles before `mid` and from `mid` on.
+            pub fn split_at(self, mid: usize) -> (Self, Self) {
+                $(let $name = split_mut(self.$name, mid);)*
+                (
+                    ParticleSlices { $($name: $name.0,)* },
+                    ParticleSlices { $($name: $name.1,)* },
+                )
+            }
+        }
+
+        impl<const D: usize> Particles<D> {
+            /// The arrays `c` carries, in record order.
+            pub fn fields(c: Carries) -> Vec<FieldInfo> {
+                let mut f = Vec::new();
+                $(if carried!(c, $carry) {
+                    f.push(FieldInfo {
+                        column: column_name!($($col)?; $name),
+                        columns: Columns::$cols,
+                        width: <$ty as Record>::WIDTH,
+                    });
+                })*
+                f
+            }
+
+            /// Every array as a [`ParticleSlices`] over all particles.
+            pub fn slices(&mut self) -> ParticleSlices<'_, D> {
+                ParticleSlices { $($name: &mut self.$name,)* }
+            }
+
+            /// Values per particle in a migration record for what these particles carry.
+            pub fn record_width(c: Carries) -> usize {
+                let mut w = 0;
+                $(if carried!(c, $carry) {
+                    w += <$ty as Record>::WIDTH;
+                })*
+                w
+            }
+
+            /// Make `self` a copy of `other`, reusing `self`'s allocations (a derived
+            /// `clone_from` would allocate fresh arrays every time).
+            pub fn copy_from(&mut self, other: &Self) {
+                $(self.$name.clone_from(&other.$name);)*
+            }
+
+            /// Apply the permutation `perm` (new position k holds old particle `perm[k]`)
+            /// to every array, using `scratch` so no allocation happens once it has grown.
+            pub fn permute(&mut self, perm: &[usize], scratch: &mut Vec<f64>) {
+                $(permute(&mut self.$name, perm, scratch);)*
+            }
+
+            /// Keep the particles whose `keep` flag is set, in order.
+            pub fn retain(&mut self, keep: &[bool]) {
+                $(retain(&mut self.$name, keep);)*
+            }
+
+            /// Particle `p` as a flat record in `out` (ids and material indices are
+            /// exact in f64).
+            pub fn pack(&self, p: usize, c: Carries, out: &mut Vec<f64>) {
+                out.clear();
+                $(if carried!(c, $carry) {
+                    self.$name[p].put(out);
+                })*
+            }
+
+            /// Append a particle from a record made by [`Particles::pack`].
+            pub fn unpack(&mut self, r: &[f64], c: Carries) {
+                let mut at = 0;
+                $(if carried!(c, $carry) {
+                    let w = <$ty as Record>::WIDTH;
+                    self.$name.push(<$ty as Record>::get(&r[at..at + w]));
+                    at += w;
+                })*
+                debug_assert_eq!(at, r.len());
+            }
+
+            /// Append the initial value of every material state `c` carries.
+            fn push_initial_state(&mut self, c: Carries) {
+                $(push_initial!(self, c, $name, $carry $(, $init)?);)*
+            }
+
+            /// Every array `c` carries has one value per particle, the others none.
+            fn consistent(&self, c: Carries) -> bool {
+                let n = self.x.len();
+                true $(&& self.$name.len() == if carried!(c, $carry) { n } else { 0 })*
+            }
+        }
+    };
+}
+
+particle_fields! {
+    x: Vector<D>, Vector, always;
+    v: Vector<D>, Vector, always;
+    mass: f64, Scalar, always;
+    /// Current volume.
+    vol: f64, Scalar, always;
+    /// Reference volume.
+    vol0: f64, Scalar, always;
+    stress: Mat<D>, Matrix, always;
+    /// Material index.
+    mat: u16, Scalar("material"), always;
+    /// Global id, independent of the rank count.
+    id: u64, Scalar, always;
+    /// Deformation gradient (materials that need it).
+    def_grad: Mat<D>, Matrix, def_grad;
+    /// Reference position (benchmarks).
+    x0: Vector<D>, Vector, x0;
+    /// GIMP particle half-width per axis.
+    half: [f64; D], Vector, half;
+    /// Elastic left Cauchy–Green tensor, always 3 × 3 (plasticity in plane strain
+    /// needs the out-of-plane stretch), and equivalent plastic strain (`j2_plastic`).
+    be: Matrix3<f64>, Matrix, plastic = Matrix3::identity();
+    eps_p: f64, Scalar, plastic = 0.0;
+    /// Damage, 0 intact or 1 failed (`brittle`).
+    damage: f64, Scalar, damage = 0.0;
+    /// Plane-strain σ_zz (`brittle` in 2D, where failure makes it history-dependent;
+    /// the other models derive it, see [`Material::stress_zz`]).
+    stress_zz: f64, Scalar, stress_zz = 0.0;
+}
+
+/// Split a (possibly absent, i.e. empty) array at `mid`.
+pub fn split_mut<T>(s: &mut [T], mid: usize) -> (&mut [T], &mut [T]) {
+    if s.is_empty() {
+        (&mut [], &mut [])
+    } else {
+        s.split_at_mut(mid)
+    }
+}
+
+/// Reorder a (possibly absent, i.e. empty) array through `scratch`.
+fn permute<T: Record>(v: &mut [T], perm: &[usize], scratch: &mut Vec<f64>) {
+    if v.is_empty() {
+        return;
+    }
+    let w = T::WIDTH;
+    scratch.clear();
+    for &p in perm {
+        v[p].put(scratch);
+    }
+    for (k, item) in v.iter_mut().enumerate() {
+        *item = T::get(&scratch[k * w..(k + 1) * w]);
+    }
+}
+
+fn retain<T: Copy>(v: &mut Vec<T>, keep: &[bool]) {
+    if v.is_empty() {
+        return;
+    }
+    let mut w = 0;
+    for r in 0..v.len() {
+        if keep[r] {
+            v[w] = v[r];
+            w += 1;
+        }
+    }
+    v.truncate(w);
 }
 
 impl Carries {
@@ -83,154 +324,6 @@ impl<const D: usize> Particles<D> {
         self.x.is_empty()
     }
 
-    /// Make `self` a copy of `other`, reusing `self`'s allocations (a derived
-    /// `clone_from` would allocate fresh arrays every time).
-    pub fn copy_from(&mut self, other: &Self) {
-        self.x.clone_from(&other.x);
-        self.v.clone_from(&other.v);
-        self.mass.clone_from(&other.mass);
-        self.vol.clone_from(&other.vol);
-        self.vol0.clone_from(&other.vol0);
-        self.stress.clone_from(&other.stress);
-        self.def_grad.clone_from(&other.def_grad);
-        self.mat.clone_from(&other.mat);
-        self.id.clone_from(&other.id);
-        self.x0.clone_from(&other.x0);
-        self.half.clone_from(&other.half);
-        self.be.clone_from(&other.be);
-        self.eps_p.clone_from(&other.eps_p);
-        self.damage.clone_from(&other.damage);
-        self.stress_zz.clone_from(&other.stress_zz);
-    }
-
-    /// Apply the permutation `perm` (new position k holds old particle `perm[k]`) to
-    /// every array, using `scratch` so no allocation happens once it has grown.
-    pub fn permute(&mut self, perm: &[usize], scratch: &mut Vec<f64>) {
-        fn apply<T: AsF64Slice>(v: &mut [T], perm: &[usize], scratch: &mut Vec<f64>) {
-            if v.is_empty() {
-                return;
-            }
-            let w = T::WIDTH;
-            scratch.clear();
-            for &p in perm {
-                scratch.extend_from_slice(v[p].as_slice());
-            }
-            for (k, item) in v.iter_mut().enumerate() {
-                item.set_from(&scratch[k * w..(k + 1) * w]);
-            }
-        }
-        apply(&mut self.x, perm, scratch);
-        apply(&mut self.v, perm, scratch);
-        apply(&mut self.mass, perm, scratch);
-        apply(&mut self.vol, perm, scratch);
-        apply(&mut self.vol0, perm, scratch);
-        apply(&mut self.stress, perm, scratch);
-        apply(&mut self.def_grad, perm, scratch);
-        apply(&mut self.x0, perm, scratch);
-        apply(&mut self.half, perm, scratch);
-        apply(&mut self.be, perm, scratch);
-        apply(&mut self.eps_p, perm, scratch);
-        apply(&mut self.damage, perm, scratch);
-        apply(&mut self.stress_zz, perm, scratch);
-        // Integer arrays: ids and materials fit exactly in f64 (ids < 2^53).
-        scratch.clear();
-        scratch.extend(perm.iter().map(|&p| self.id[p] as f64));
-        for (k, id) in self.id.iter_mut().enumerate() {
-            *id = scratch[k] as u64;
-        }
-        scratch.clear();
-        scratch.extend(perm.iter().map(|&p| f64::from(self.mat[p])));
-        for (k, m) in self.mat.iter_mut().enumerate() {
-            *m = scratch[k] as u16;
-        }
-    }
-
-    /// Values per particle in a migration record for what these particles carry.
-    pub fn record_width(c: Carries) -> usize {
-        let d = D;
-        2 * d
-            + 3
-            + d * d
-            + 2
-            + if c.def_grad { d * d } else { 0 }
-            + if c.x0 { d } else { 0 }
-            + if c.half { d } else { 0 }
-            + if c.plastic { 10 } else { 0 }
-            + usize::from(c.damage)
-            + usize::from(c.stress_zz)
-    }
-
-    /// Append particle `p` as a flat record (ids and material indices are exact in f64).
-    pub fn pack(&self, p: usize, c: Carries, out: &mut Vec<f64>) {
-        out.clear();
-        out.extend_from_slice(self.x[p].as_slice());
-        out.extend_from_slice(self.v[p].as_slice());
-        out.extend_from_slice(&[self.mass[p], self.vol[p], self.vol0[p]]);
-        out.extend_from_slice(self.stress[p].as_slice());
-        out.push(f64::from(self.mat[p]));
-        out.push(self.id[p] as f64);
-        if c.def_grad {
-            out.extend_from_slice(self.def_grad[p].as_slice());
-        }
-        if c.x0 {
-            out.extend_from_slice(self.x0[p].as_slice());
-        }
-        if c.half {
-            out.extend_from_slice(&self.half[p]);
-        }
-        if c.plastic {
-            out.extend_from_slice(self.be[p].as_slice());
-            out.push(self.eps_p[p]);
-        }
-        if c.damage {
-            out.push(self.damage[p]);
-        }
-        if c.stress_zz {
-            out.push(self.stress_zz[p]);
-        }
-    }
-
-    /// Append a particle from a record made by [`Particles::pack`].
-    pub fn unpack(&mut self, r: &[f64], c: Carries) {
-        let d = D;
-        let mut at = 0;
-        let mut take = |n: usize| {
-            let s = &r[at..at + n];
-            at += n;
-            s
-        };
-        self.x.push(Vector::<D>::from_column_slice(take(d)));
-        self.v.push(Vector::<D>::from_column_slice(take(d)));
-        let m = take(3);
-        self.mass.push(m[0]);
-        self.vol.push(m[1]);
-        self.vol0.push(m[2]);
-        self.stress.push(Mat::<D>::from_column_slice(take(d * d)));
-        let ids = take(2);
-        self.mat.push(ids[0] as u16);
-        self.id.push(ids[1] as u64);
-        if c.def_grad {
-            self.def_grad.push(Mat::<D>::from_column_slice(take(d * d)));
-        }
-        if c.x0 {
-            self.x0.push(Vector::<D>::from_column_slice(take(d)));
-        }
-        if c.half {
-            let h = take(d);
-            self.half.push(std::array::from_fn(|a| h[a]));
-        }
-        if c.plastic {
-            self.be.push(Matrix3::from_column_slice(take(9)));
-            self.eps_p.push(take(1)[0]);
-        }
-        if c.damage {
-            self.damage.push(take(1)[0]);
-        }
-        if c.stress_zz {
-            self.stress_zz.push(take(1)[0]);
-        }
-    }
-
     /// The full 3 × 3 Cauchy stress of particle `p` (for output): in 2D with the
     /// plane-strain σ_zz, in 1D only σ_xx (the lateral stresses are not formed).
     pub fn stress3(&self, p: usize, materials: &[Material]) -> Matrix3<f64> {
@@ -250,38 +343,6 @@ impl<const D: usize> Particles<D> {
             );
         }
         m
-    }
-
-    /// Keep the particles whose `keep` flag is set, in order.
-    pub fn retain(&mut self, keep: &[bool]) {
-        fn ret<T: Copy>(v: &mut Vec<T>, keep: &[bool]) {
-            if v.is_empty() {
-                return;
-            }
-            let mut w = 0;
-            for r in 0..v.len() {
-                if keep[r] {
-                    v[w] = v[r];
-                    w += 1;
-                }
-            }
-            v.truncate(w);
-        }
-        ret(&mut self.x, keep);
-        ret(&mut self.v, keep);
-        ret(&mut self.mass, keep);
-        ret(&mut self.vol, keep);
-        ret(&mut self.vol0, keep);
-        ret(&mut self.stress, keep);
-        ret(&mut self.def_grad, keep);
-        ret(&mut self.mat, keep);
-        ret(&mut self.id, keep);
-        ret(&mut self.x0, keep);
-        ret(&mut self.half, keep);
-        ret(&mut self.be, keep);
-        ret(&mut self.eps_p, keep);
-        ret(&mut self.damage, keep);
-        ret(&mut self.stress_zz, keep);
     }
 
     /// Seed the particles of every body whose current position falls in the owned
@@ -345,7 +406,7 @@ impl<const D: usize> Particles<D> {
 
     /// Append a new particle of `seed`'s body: reference position `xr`, position,
     /// velocity and deformation gradient `(x, v, f)`, the stress of `f`, and every
-    /// other array the scene carries at its initial value.
+    /// material state the scene carries at its declared initial value.
     fn push_seeded(
         &mut self,
         seed: &BodySeed<D>,
@@ -378,19 +439,11 @@ impl<const D: usize> Particles<D> {
         if carries.x0 {
             self.x0.push(xr);
         }
-        if carries.plastic {
-            self.be.push(Matrix3::identity());
-            self.eps_p.push(0.0);
-        }
-        if carries.damage {
-            self.damage.push(0.0);
-        }
-        if carries.stress_zz {
-            self.stress_zz.push(0.0);
-        }
         if carries.half {
             self.half.push(seed.half);
         }
+        self.push_initial_state(carries);
+        debug_assert!(self.consistent(carries));
     }
 }
 
@@ -570,39 +623,110 @@ pub fn inside<const D: usize>(s: &Shape, x: &[f64; D]) -> bool {
     }
 }
 
-/// Fixed-width `f64` view of particle array elements, for permutation and migration.
-pub trait AsF64Slice: Copy {
+/// An array element as a fixed number of `f64` values, for permutation and the
+/// migration and checkpoint record. Integers round-trip exactly (material indices are
+/// u16, ids < 2^53).
+pub trait Record: Copy {
     const WIDTH: usize;
-    fn as_slice(&self) -> &[f64];
-    fn set_from(&mut self, s: &[f64]);
+    fn put(&self, out: &mut Vec<f64>);
+    fn get(s: &[f64]) -> Self;
 }
 
-impl AsF64Slice for f64 {
+impl Record for f64 {
     const WIDTH: usize = 1;
-    fn as_slice(&self) -> &[f64] {
-        std::slice::from_ref(self)
+    fn put(&self, out: &mut Vec<f64>) {
+        out.push(*self);
     }
-    fn set_from(&mut self, s: &[f64]) {
-        *self = s[0];
+    fn get(s: &[f64]) -> Self {
+        s[0]
     }
 }
 
-impl<const D: usize> AsF64Slice for [f64; D] {
+impl Record for u16 {
+    const WIDTH: usize = 1;
+    fn put(&self, out: &mut Vec<f64>) {
+        out.push(f64::from(*self));
+    }
+    fn get(s: &[f64]) -> Self {
+        s[0] as u16
+    }
+}
+
+impl Record for u64 {
+    const WIDTH: usize = 1;
+    fn put(&self, out: &mut Vec<f64>) {
+        out.push(*self as f64);
+    }
+    fn get(s: &[f64]) -> Self {
+        s[0] as u64
+    }
+}
+
+impl<const D: usize> Record for [f64; D] {
     const WIDTH: usize = D;
-    fn as_slice(&self) -> &[f64] {
-        self
+    fn put(&self, out: &mut Vec<f64>) {
+        out.extend_from_slice(self);
     }
-    fn set_from(&mut self, s: &[f64]) {
-        self.copy_from_slice(s);
+    fn get(s: &[f64]) -> Self {
+        std::array::from_fn(|a| s[a])
     }
 }
 
-impl<const R: usize, const C: usize> AsF64Slice for nalgebra::SMatrix<f64, R, C> {
+impl<const R: usize, const C: usize> Record for nalgebra::SMatrix<f64, R, C> {
     const WIDTH: usize = R * C;
-    fn as_slice(&self) -> &[f64] {
-        nalgebra::SMatrix::as_slice(self)
+    fn put(&self, out: &mut Vec<f64>) {
+        out.extend_from_slice(self.as_slice());
     }
-    fn set_from(&mut self, s: &[f64]) {
-        self.copy_from_slice(s);
+    fn get(s: &[f64]) -> Self {
+        Self::from_column_slice(&s[..R * C])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Three particles carrying every array, each value distinct.
+    fn sample() -> (Particles<2>, Carries) {
+        let c = Carries::from_flags(&vec![true; Carries::NAMES.len()]);
+        let w = Particles::<2>::record_width(c);
+        let mut p = Particles::<2>::default();
+        for k in 0..3 {
+            let mut r: Vec<f64> = (0..w).map(|i| (100 * k + i) as f64 + 0.25).collect();
+            // Material index and id are integers.
+            r[2 * 2 + 3 + 4] = k as f64;
+            r[2 * 2 + 3 + 4 + 1] = (1000 + k) as f64;
+            p.unpack(&r, c);
+        }
+        (p, c)
+    }
+
+    #[test]
+    fn pack_unpack_round_trip() {
+        let (p, c) = sample();
+        assert!(p.consistent(c));
+        let mut q = Particles::<2>::default();
+        let mut rec = Vec::new();
+        for k in 0..p.len() {
+            p.pack(k, c, &mut rec);
+            assert_eq!(rec.len(), Particles::<2>::record_width(c));
+            q.unpack(&rec, c);
+        }
+        assert_eq!(format!("{p:?}"), format!("{q:?}"));
+    }
+
+    #[test]
+    fn permute_and_retain_move_every_array() {
+        let (mut p, c) = sample();
+        let orig = p.clone();
+        p.permute(&[2, 0, 1], &mut Vec::new());
+        p.retain(&[true, false, true]);
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        for (k, o) in [(0, 2), (1, 1)] {
+            p.pack(k, c, &mut a);
+            orig.pack(o, c, &mut b);
+            assert_eq!(a, b);
+        }
+        assert!(p.consistent(c));
     }
 }

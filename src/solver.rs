@@ -36,21 +36,8 @@ macro_rules! ctx {
 macro_rules! slices {
     ($s:ident) => {
         kernel::Slices {
-            x: &mut $s.parts.x,
-            v: &mut $s.parts.v,
-            stress: &mut $s.parts.stress,
-            vol: &mut $s.parts.vol,
-            def_grad: &mut $s.parts.def_grad,
+            parts: $s.parts.slices(),
             dx: &mut $s.dx,
-            mass: &$s.parts.mass,
-            vol0: &$s.parts.vol0,
-            mat: &$s.parts.mat,
-            x0: &$s.parts.x0,
-            half: &$s.parts.half,
-            be: &mut $s.parts.be,
-            eps_p: &mut $s.parts.eps_p,
-            damage: &mut $s.parts.damage,
-            stress_zz: &mut $s.parts.stress_zz,
             tile: &$s.ptile,
         }
     };
