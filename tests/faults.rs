@@ -566,7 +566,9 @@ fn absurd_intervals_are_refused() {
                     out.to_str().unwrap(),
                     "--quiet",
                 ],
-                30,
+                // A guard against the endless loop this used to be, not a timing: a
+                // loaded machine (mpirun's start-up under a parallel build) took > 30 s.
+                120,
             );
             let err = String::from_utf8_lossy(&o.stderr);
             assert_eq!(o.status.code(), Some(2), "{key}, {ranks} rank(s): {err}");
