@@ -135,23 +135,11 @@ impl<const D: usize> Ctx<'_, D> {
                 Alpha::Constant(c) => c,
             },
             frac: [0.0; D],
-            ends: [[false; 2]; D],
+            ends: self.wall_ends::<NA>(&w),
         };
         if !self.gimp {
             for a in 0..D {
                 k.frac[a] = w.w[a][1];
-            }
-        }
-        // Only the gather's slip-wall clip reads which grid faces the particle touches:
-        // the other passes skip this per-particle work.
-        if self.walls {
-            for a in 0..D {
-                for o in 0..NA {
-                    let side = self.geom.end(a, w.base[a] + o as i64);
-                    if side != 0 && w.w[a][o] > 0.0 {
-                        k.ends[a][usize::from(side > 0)] = true;
-                    }
-                }
             }
         }
         for n in 0..N {
@@ -191,6 +179,25 @@ impl<const D: usize> Ctx<'_, D> {
             k.s[n] = s;
         }
         k
+    }
+
+    /// Per axis, whether the particle gives weight to a node on the lower / upper grid
+    /// face ([`Kern::ends`]). Only the passes that move particles or clip their
+    /// velocities at walls read it: the others skip this per-particle work.
+    #[inline(always)]
+    fn wall_ends<const NA: usize>(&self, w: &shape::Weights1<D>) -> [[bool; 2]; D] {
+        let mut ends = [[false; 2]; D];
+        if self.walls {
+            for a in 0..D {
+                for o in 0..NA {
+                    let side = self.geom.end(a, w.base[a] + o as i64);
+                    if side != 0 && w.w[a][o] > 0.0 {
+                        ends[a][usize::from(side > 0)] = true;
+                    }
+                }
+            }
+        }
+        ends
     }
 
     /// External force per unit mass on a particle with reference position `x0`.

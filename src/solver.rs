@@ -355,23 +355,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         let faces: [[Face; 2]; D] =
             std::array::from_fn(|a| [g.boundary.face(a, false), g.boundary.face(a, true)]);
         let geom = Self::geometry(scene);
-        let mut block = Block::new(&layout, comm.rank());
-        // The halo's nodes stay stored whatever the particles do, so its lists are
-        // mapped to storage once.
-        let mut tiles = Tiles::new(block.node_dims, block.own_lo);
-        tiles.set_permanent(block.halo_nodes());
-        let dims = block.node_dims;
-        block.map_halo(|i| {
-            let mut r = i;
-            let l: [usize; D] = std::array::from_fn(|a| {
-                let c = r % dims[a];
-                r /= dims[a];
-                c
-            });
-            tiles
-                .index(l)
-                .expect("the halo's tiles are permanent, hence stored")
-        });
+        let (block, tiles) = Self::block_and_tiles(&layout, comm.rank());
         let materials: Vec<Material> = scene.materials.iter().map(Material::from_spec).collect();
         let benchmark = Benchmark::<D>::new(scene);
         let carries = Carries::for_scene(scene);
@@ -450,6 +434,27 @@ impl<'c, const D: usize> Solver<'c, D> {
         };
         s.max_speed = s.compute_max_speed();
         s
+    }
+
+    /// This rank's block and the tile storage of its grid. The halo's nodes stay stored
+    /// whatever the particles do, so its lists are mapped to storage once.
+    fn block_and_tiles(layout: &Layout<D>, rank: usize) -> (Block<D>, Tiles<D>) {
+        let mut block = Block::new(layout, rank);
+        let mut tiles = Tiles::new(block.node_dims, block.own_lo);
+        tiles.set_permanent(block.halo_nodes());
+        let dims = block.node_dims;
+        block.map_halo(|i| {
+            let mut r = i;
+            let l: [usize; D] = std::array::from_fn(|a| {
+                let c = r % dims[a];
+                r /= dims[a];
+                c
+            });
+            tiles
+                .index(l)
+                .expect("the halo's tiles are permanent, hence stored")
+        });
+        (block, tiles)
     }
 
     /// Replace the scheme's α (tests: α ≡ 0 is `averaged`, α ≡ 1 is `mpm`).
