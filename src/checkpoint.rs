@@ -126,10 +126,40 @@ pub struct Header {
     pub time: f64,
     pub ranks: usize,
     pub blocks: Vec<usize>,
+    /// The writer's block boundaries, per axis `blocks[a] + 1` cells from 0 to the
+    /// axis' cells, back to back; `None` in checkpoints from before they moved.
+    pub cuts: Option<Vec<usize>>,
+    /// Rebalances of the blocks up to the checkpoint (0 before the count existed).
+    pub rebalances: u64,
     pub particles: u64,
     /// The run (and its restarts) that wrote it; `None` in checkpoints from before
     /// the attribute existed.
     pub lineage: Option<String>,
+}
+
+impl Header {
+    /// The writer's layout if it is one of `base`'s grid and process grid (uniform
+    /// blocks for a checkpoint without cuts); `None` for another rank count or
+    /// process grid, or cuts that do not fit the grid.
+    pub fn layout<const D: usize>(&self, base: &Layout<D>) -> Option<Layout<D>> {
+        if self.ranks != base.ranks() || self.blocks[..] != base.procs[..] {
+            return None;
+        }
+        let Some(flat) = &self.cuts else {
+            let uniform = Layout::new(base.cells, base.periodic, base.procs).ok()?;
+            return Some(uniform);
+        };
+        let mut at = 0;
+        let cuts: [Vec<usize>; D] = std::array::from_fn(|a| {
+            let n = base.procs[a] + 1;
+            let c = flat
+                .get(at..at + n)
+                .map_or_else(Vec::new, <[usize]>::to_vec);
+            at += n;
+            c
+        });
+        base.with_cuts(cuts).ok()
+    }
 }
 
 fn totals_vec(t: &Totals) -> Vec<f64> {
@@ -316,6 +346,11 @@ fn write_header<const D: usize>(
     o.f64("max_speed", max_speed)?;
     o.u64("ranks", o.comm.size() as u64)?;
     o.u64s("blocks", &solver.layout.procs.map(|p| p as u64))?;
+    let cuts: Vec<u64> = (0..D)
+        .flat_map(|a| solver.layout.cuts(a).iter().map(|&c| c as u64))
+        .collect();
+    o.u64s("cuts", &cuts)?;
+    o.u64("rebalances", solver.rebalances)?;
     o.u64s("cells", &solver.layout.cells.map(|c| c as u64))?;
     o.u64("particles", total)?;
     o.u64("record_width", Particles::<D>::record_width(carries) as u64)?;
@@ -611,6 +646,11 @@ impl Lineage {
 }
 
 /// A checkpoint's `lineage` attribute.
+/// Whether the root has attribute `name` (one added in a later version).
+fn has_attr(f: &hdf5::File, name: &str) -> bool {
+    f.attr_names().is_ok_and(|n| n.iter().any(|x| x == name))
+}
+
 fn lineage_of(f: &hdf5::File) -> Option<String> {
     f.attr("lineage")
         .and_then(|a| a.read_scalar::<VarLenUnicode>())
@@ -753,6 +793,13 @@ pub fn read_header(path: &Path) -> Result<Header, String> {
             "{p}: damaged checkpoint: blocks {blocks:?} do not match {ranks} ranks"
         ));
     }
+    let cuts = if has_attr(&f, "cuts") {
+        let len = blocks.iter().map(|&b| b as usize + 1).sum();
+        let c: Vec<u64> = attr_vec(&f, path, "cuts", len)?;
+        Some(c.into_iter().map(|c| c as usize).collect())
+    } else {
+        None
+    };
     let scene: Vec<u8> = dataset_any(&f, path, "scene")?;
     let scene_text = String::from_utf8(scene)
         .map_err(|_| format!("{p}: damaged checkpoint: the stored scene is not UTF-8 text"))?;
@@ -764,6 +811,12 @@ pub fn read_header(path: &Path) -> Result<Header, String> {
         time: attr_f64(&f, path, "time")?,
         ranks,
         blocks: blocks.iter().map(|&b| b as usize).collect(),
+        cuts,
+        rebalances: if has_attr(&f, "rebalances") {
+            attr_u64(&f, path, "rebalances")?
+        } else {
+            0
+        },
         particles: attr_u64(&f, path, "particles")?,
         lineage: lineage_of(&f),
     })
@@ -790,8 +843,7 @@ pub fn read<const D: usize>(
     let f = open(path)?;
     let rows = Rows::open::<D>(&f, header, layout, carries)?;
     let writers = Writers::read(&f, path, header)?;
-    let same = header.ranks == layout.ranks()
-        && header.blocks.iter().zip(&layout.procs).all(|(a, b)| a == b);
+    let same = header.layout(layout).as_ref() == Some(layout);
     let (parts, external_work) = if same {
         rows.own(&writers, rank, carries)?
     } else {

@@ -6,7 +6,7 @@ use crate::checkpoint::{self, RunState, SolverState};
 use crate::io::{agree, Labels, Snapshots};
 use crate::particles::Particles;
 use crate::progress::Progress;
-use crate::scene::{CheckpointEvery, Face, Scene};
+use crate::scene::{Balance, CheckpointEvery, Face, Scene};
 use crate::signals;
 use crate::solver::{Failure, Solver, Totals};
 use decomposition::{Communicator, Layout};
@@ -121,6 +121,74 @@ pub struct GridSummary {
     pub box_tiles: f64,
 }
 
+/// How the blocks followed the load: the `[parallel]` settings, the rebalances
+/// (the one at the start of a balanced run included), the block boundaries at the end
+/// and the particle imbalance there (largest rank over the mean).
+#[derive(Serialize, Debug, Clone)]
+pub struct BalanceSummary {
+    pub mode: String,
+    pub threshold: f64,
+    pub rebalances: u64,
+    pub cuts: Vec<Vec<usize>>,
+    pub imbalance: f64,
+    /// Imbalance samples of this run (every `check_every` steps, after any move).
+    pub checks: u64,
+    pub imbalance_mean: f64,
+    pub imbalance_max: f64,
+    /// The share of the samples at most 1.10.
+    pub within_10_percent: f64,
+}
+
+/// Every `check_every` steps: the particle imbalance is measured (one reduction), and
+/// under `auto` the blocks move if it passes the threshold. The samples (after any
+/// move) are the summary's record of how balanced the run was.
+struct BalanceSchedule {
+    every: u64,
+    auto: Option<f64>,
+    checks: u64,
+    sum: f64,
+    max: f64,
+    within: u64,
+}
+
+/// The imbalance the summary counts as balanced: the 10 %.
+const BALANCED: f64 = 1.10;
+
+impl BalanceSchedule {
+    fn of(scene: &Scene) -> Self {
+        let p = &scene.parallel;
+        Self {
+            every: p.check_every,
+            auto: (p.balance == Balance::Auto).then_some(p.imbalance),
+            checks: 0,
+            sum: 0.0,
+            max: 0.0,
+            within: 0,
+        }
+    }
+
+    /// Collective at a check step: measure, rebalance under `auto`. Returns whether
+    /// the blocks moved.
+    fn check<const D: usize>(&mut self, solver: &mut Solver<D>) -> bool {
+        if !solver.step.is_multiple_of(self.every) {
+            return false;
+        }
+        let moved = match self.auto {
+            Some(threshold) => solver.rebalance(threshold),
+            None => {
+                solver.last_imbalance = solver.imbalance();
+                false
+            }
+        };
+        let i = solver.last_imbalance;
+        self.checks += 1;
+        self.sum += i;
+        self.max = self.max.max(i);
+        self.within += u64::from(i <= BALANCED);
+        moved
+    }
+}
+
 /// Where a restarted run began.
 #[derive(Serialize, Debug, Clone)]
 pub struct RestartSummary {
@@ -148,6 +216,7 @@ pub struct Summary {
     pub threads: usize,
     pub blocks: Vec<usize>,
     pub particles_per_rank: RankLoad,
+    pub balance: BalanceSummary,
     pub grid: GridSummary,
     pub particles: u64,
     pub cells: Vec<usize>,
@@ -370,18 +439,30 @@ fn set_up<'c, const D: usize>(
     layout: &Layout<D>,
     opts: &RunOptions,
 ) -> Result<SetUp<'c, D>, RunError> {
+    let balance = scene.parallel.balance;
     let Some(path) = &opts.restart else {
-        return Ok((Solver::new(scene, comm, layout.clone()), None, None, None));
+        let mut solver = Solver::new(scene, comm, layout.clone());
+        // Seeded in equal blocks, then cut for an equal share of the particles.
+        if balance != Balance::Off {
+            solver.rebalance(1.0);
+        }
+        return Ok((solver, None, None, None));
     };
     let geom = Solver::<D>::geometry(scene);
     let carries = crate::particles::Carries::for_scene(scene);
+    // The writer's blocks when it ran on this process grid (so each rank reads its own
+    // rows and the run continues bit for bit), unless balancing is off.
     let r = checkpoint::read_header(path).and_then(|h| {
-        checkpoint::read::<D>(&h, comm.rank(), layout, &geom, carries).map(|x| (h, x))
+        let layout = match h.layout(layout) {
+            Some(l) if balance != Balance::Off => l,
+            _ => layout.clone(),
+        };
+        checkpoint::read::<D>(&h, comm.rank(), &layout, &geom, carries).map(|x| (h, x, layout))
     });
     if let Some(m) = agree(comm, r.as_ref().err().cloned()) {
         return Err(RunError::Input(m));
     }
-    let (header, restored) = r.expect("agreed: no rank failed");
+    let (header, restored, layout) = r.expect("agreed: no rank failed");
     // Every rank read the same header, so every rank decides alike.
     if header.time >= scene.time.end {
         return Err(RunError::Input(format!(
@@ -402,9 +483,15 @@ fn set_up<'c, const D: usize>(
             header.particles
         )));
     }
-    let mut solver = Solver::with_particles(scene, comm, layout.clone(), restored.parts);
+    let rebalanced = Some(&layout) != header.layout(&layout).as_ref();
+    let mut solver = Solver::with_particles(scene, comm, layout, restored.parts);
     let s = restored.solver;
     solver.restore(s.t, s.step, s.dt, s.external_work, s.max_speed);
+    solver.rebalances = header.rebalances;
+    // Another rank count or process grid: read in equal blocks, now cut to the load.
+    if rebalanced && balance != Balance::Off {
+        solver.rebalance(1.0);
+    }
     let info = RestartSummary {
         checkpoint: path.display().to_string(),
         step: s.step,
@@ -744,6 +831,7 @@ struct Run<'a, const D: usize> {
     st: RunState,
     history: History,
     sampling: HistorySchedule,
+    balance: BalanceSchedule,
     snaps: Option<SnapshotSchedule>,
     checkpoints: CheckpointSchedule,
     lineage: checkpoint::Lineage,
@@ -809,6 +897,7 @@ impl<'a, const D: usize> Run<'a, D> {
             st,
             history,
             sampling,
+            balance: BalanceSchedule::of(scene),
             snaps,
             checkpoints,
             lineage,
@@ -835,6 +924,9 @@ impl<'a, const D: usize> Run<'a, D> {
             if let Err(f) = self.solver.advance_with(&mut req.0) {
                 return Ok(Ending::Unstable(f));
             }
+            // Before anything is written, so that a checkpoint holds the layout the
+            // run continues with.
+            let rebalanced = self.balance.check(&mut self.solver);
             if req.history_failed() {
                 return Err(RunError::Io(self.history.error.take().unwrap_or_else(
                     || format!("{}: writing failed on rank 0", self.history.path.display()),
@@ -858,7 +950,8 @@ impl<'a, const D: usize> Run<'a, D> {
             if due && !self.solver.done() {
                 self.checkpoint()?;
             }
-            if self.solver.step.is_multiple_of(RESCUE_EVERY) {
+            // The rescue copy is of this layout's particles, whatever rank holds them.
+            if rebalanced || self.solver.step.is_multiple_of(RESCUE_EVERY) {
                 self.rescue
                     .keep(&self.solver, &self.st, self.history.text.len());
             }
@@ -1015,6 +1108,7 @@ impl<'a, const D: usize> Run<'a, D> {
         wall: f64,
     ) -> Summary {
         let (particles_per_rank, grid) = self.loads(last.particles);
+        let imbalance = self.solver.imbalance();
         self.history.flush();
         let (scene, solver, tot0) = (self.scene, &self.solver, &self.st.initial);
         Summary {
@@ -1031,6 +1125,17 @@ impl<'a, const D: usize> Run<'a, D> {
             threads: self.threads,
             blocks: solver.layout.procs.to_vec(),
             particles_per_rank,
+            balance: BalanceSummary {
+                mode: scene.parallel.balance.name().into(),
+                threshold: scene.parallel.imbalance,
+                rebalances: solver.rebalances,
+                cuts: (0..D).map(|a| solver.layout.cuts(a).to_vec()).collect(),
+                imbalance,
+                checks: self.balance.checks,
+                imbalance_mean: self.balance.sum / self.balance.checks.max(1) as f64,
+                imbalance_max: self.balance.max,
+                within_10_percent: self.balance.within as f64 / self.balance.checks.max(1) as f64,
+            },
             grid,
             particles: tot0.particles,
             cells: scene.grid.cells.clone(),

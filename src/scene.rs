@@ -26,6 +26,65 @@ pub struct Scene {
     pub gravity: Option<Gravity>,
     pub output: Option<Output>,
     pub checkpoint: Option<CheckpointSpec>,
+    #[serde(default)]
+    pub parallel: Parallel,
+}
+
+/// `[parallel]`: how the grid's blocks follow the material over ranks.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Parallel {
+    /// `off`: equal blocks; `static`: blocks cut once at the start for an equal share
+    /// of the particles; `auto`: that, and again whenever the imbalance passes
+    /// `imbalance`.
+    #[serde(default = "default_balance")]
+    pub balance: Balance,
+    /// The largest rank's particles over the mean above which `auto` rebalances.
+    #[serde(default = "default_imbalance")]
+    pub imbalance: f64,
+    /// Steps between two checks of the imbalance under `auto` (one reduction each).
+    #[serde(default = "default_check_every")]
+    pub check_every: u64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Balance {
+    Off,
+    Static,
+    Auto,
+}
+
+impl Balance {
+    pub fn name(self) -> &'static str {
+        match self {
+            Balance::Off => "off",
+            Balance::Static => "static",
+            Balance::Auto => "auto",
+        }
+    }
+}
+
+fn default_balance() -> Balance {
+    Balance::Auto
+}
+/// Rebalance at 5 % above the mean: the target is 10 % for most of a run, and
+/// the imbalance grows between checks.
+fn default_imbalance() -> f64 {
+    1.05
+}
+fn default_check_every() -> u64 {
+    20
+}
+
+impl Default for Parallel {
+    fn default() -> Self {
+        Self {
+            balance: default_balance(),
+            imbalance: default_imbalance(),
+            check_every: default_check_every(),
+        }
+    }
 }
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
@@ -1084,6 +1143,29 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
     }
     validate_output(s)?;
     validate_checkpoint(s)?;
+    validate_parallel(s)?;
+    Ok(())
+}
+
+/// `[parallel]`: an imbalance threshold of at least 1 and a positive check interval.
+fn validate_parallel(s: &Scene) -> Result<(), Invalid> {
+    let p = &s.parallel;
+    finite("parallel.imbalance", p.imbalance)?;
+    if p.imbalance < 1.0 {
+        return Err((
+            "parallel.imbalance".into(),
+            format!(
+                "is the largest rank's particles over the mean, so it must be >= 1, got {}",
+                p.imbalance
+            ),
+        ));
+    }
+    if p.check_every == 0 {
+        return Err((
+            "parallel.check_every".into(),
+            "must be >= 1 (steps between imbalance checks), got 0".into(),
+        ));
+    }
     Ok(())
 }
 

@@ -128,6 +128,11 @@ pub struct Solver<'c, const D: usize> {
     pub t: f64,
     pub step: u64,
     pub dt: f64,
+    /// Times the block boundaries moved ([`Solver::relayout`]), restarts included.
+    pub rebalances: u64,
+    /// The particle imbalance [`Solver::rebalance`] found, or left if it moved the
+    /// blocks.
+    pub last_imbalance: f64,
     /// Accumulated work of gravity, body forces and walls (this rank's particles).
     external_work: f64,
     /// Maximum of wave speed + particle speed after the last update (this rank).
@@ -394,6 +399,8 @@ impl<'c, const D: usize> Solver<'c, D> {
             t: 0.0,
             step: 0,
             dt: 0.0,
+            rebalances: 0,
+            last_imbalance: 1.0,
             external_work: 0.0,
             max_speed: 0.0,
             tiles,
@@ -1236,6 +1243,126 @@ impl<'c, const D: usize> Solver<'c, D> {
                 (None, e) => Failure::Elsewhere(e.to_string()),
             }),
         }
+    }
+
+    /// This rank's wrapped cell of particle `p` (positions are wrapped by `relocate`;
+    /// the remainder guards a coordinate that rounded onto the period).
+    fn cell_of(&self, p: usize) -> [usize; D] {
+        let (c, _) = self
+            .geom
+            .locate(&std::array::from_fn(|a| self.parts.x[p][a]));
+        std::array::from_fn(|a| c[a].rem_euclid(self.geom.cells[a] as i64) as usize)
+    }
+
+    /// Collective: the particle imbalance over ranks, the largest rank's particles over
+    /// the mean (1 when there are none).
+    pub fn imbalance(&self) -> f64 {
+        let n = self.parts.len() as f64;
+        let (mut most, mut sum) = ([n], [n]);
+        self.comm.max_f64(&mut most);
+        self.comm.sum_f64(&mut sum);
+        let mean = sum[0] / self.comm.size() as f64;
+        if mean > 0.0 {
+            most[0] / mean
+        } else {
+            1.0
+        }
+    }
+
+    /// Collective: if the particle imbalance is above `threshold`, move the block
+    /// boundaries so that every slab of blocks holds an equal share of the particles
+    /// ([`Layout::balanced`]), provided that removes at least a fifth of the excess
+    /// over a perfect balance (the cuts of a process grid cannot balance every
+    /// distribution, and a rebalance that gains little is not worth its particle
+    /// exchange). Returns whether the layout changed. Deterministic: every rank takes
+    /// the same decision from the same sums.
+    ///
+    /// The cost is the particle count: the grid nodes a rank stores are those of the
+    /// tiles its particles touch, so their share of a step follows the particles.
+    pub fn rebalance(&mut self, threshold: f64) -> bool {
+        let ranks = self.comm.size();
+        if ranks == 1 {
+            return false;
+        }
+        let now = self.imbalance();
+        self.last_imbalance = now;
+        if now <= threshold {
+            return false;
+        }
+        // Particles per cell slab along every axis, summed over ranks.
+        let cells = self.geom.cells;
+        let total: usize = cells.iter().sum();
+        let mut slab = std::mem::take(&mut self.scratch);
+        slab.clear();
+        slab.resize(total + ranks, 0.0);
+        for p in 0..self.parts.len() {
+            let c = self.cell_of(p);
+            let mut at = 0;
+            for a in 0..D {
+                slab[at + c[a]] += 1.0;
+                at += cells[a];
+            }
+        }
+        self.comm.sum_f64(&mut slab[..total]);
+        let mut at = 0;
+        let cost: [Vec<f64>; D] = std::array::from_fn(|a| {
+            let v = slab[at..at + cells[a]].to_vec();
+            at += cells[a];
+            v
+        });
+        let next = self.layout.balanced(&cost);
+        // Particles per rank under the new cuts.
+        let per_rank = &mut slab[total..];
+        for p in 0..self.parts.len() {
+            per_rank[next.cell_owner(self.cell_of(p))] += 1.0;
+        }
+        self.comm.sum_f64(per_rank);
+        let mean = per_rank.iter().sum::<f64>() / ranks as f64;
+        let then = per_rank.iter().cloned().fold(0.0, f64::max) / mean;
+        self.scratch = slab;
+        if next == self.layout || then - 1.0 > 0.8 * (now - 1.0) {
+            return false;
+        }
+        self.relayout(next);
+        self.last_imbalance = then;
+        true
+    }
+
+    /// Collective: hand every particle to its owner under `layout` (another layout of
+    /// the same grid and rank count) and rebuild this rank's block, halo, tiles and
+    /// migration for it. The grid fields are rebuilt by the next step's scatter.
+    pub fn relayout(&mut self, layout: Layout<D>) {
+        let me = self.comm.rank();
+        let n = self.parts.len();
+        let mut mig = Migrator::everywhere(&layout, &self.block, self.migrator.width());
+        self.keep.clear();
+        self.keep.resize(n, true);
+        for p in 0..n {
+            let to = layout.cell_owner(self.cell_of(p));
+            if to != me {
+                self.parts.pack(p, self.carries, &mut self.record);
+                mig.push(to, &self.record);
+                self.keep[p] = false;
+            }
+        }
+        self.parts.retain(&self.keep);
+        let recs = mig
+            .exchange(self.comm)
+            .expect("no rank records a routing error in a relayout");
+        for r in recs.iter() {
+            self.parts.unpack(r, self.carries);
+        }
+        let (block, tiles) = Self::block_and_tiles(&layout, me);
+        self.migrator = Migrator::new(&layout, &block, self.migrator.width());
+        self.layout = layout;
+        self.block = block;
+        self.tiles = tiles;
+        self.ptile.clear();
+        self.size_fields();
+        self.rebalances += 1;
+        // Arrival order depends on the old owners: sort for the same order as a run
+        // that never had them.
+        self.sort();
     }
 
     /// Reorder particles by cell (then id, for determinism) for cache locality.
@@ -2100,5 +2227,96 @@ particles_per_cell = 2
                 assert!(after < 1e-12 * size, "XPIC(2) left {after:e} of {size:e}");
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod balance_tests {
+    //! Cost-based block boundaries: an off-centre body seeded on one rank of an equal
+    //! split is shared out by one rebalance.
+    use super::*;
+    use crate::scene;
+    use decomposition::{Layout, LocalComm};
+
+    /// A box body in one corner of the unit box (`cells` per axis), away from the
+    /// middle where equal blocks meet.
+    fn corner_body(dim: usize, cells: usize) -> String {
+        let v = |x: &[f64]| {
+            let s: Vec<String> = x[..dim].iter().map(|c| format!("{c:?}")).collect();
+            format!("[{}]", s.join(", "))
+        };
+        format!(
+            r#"
+name = "corner"
+dim = {dim}
+[time]
+end = 1.0
+[grid]
+lower = {lo}
+upper = {hi}
+cells = [{cells}]
+[[materials]]
+name = "m"
+model = "neo_hookean"
+density = 1.0
+youngs_modulus = 1.0e3
+poisson_ratio = 0.3
+[[bodies]]
+material = "m"
+shape = {{ box = {{ lower = {blo}, upper = {bhi} }} }}
+particles_per_cell = 2
+"#,
+            lo = v(&[0.0; 3]),
+            hi = v(&[1.0; 3]),
+            cells = vec![cells.to_string(); dim].join(", "),
+            blo = v(&[0.05, 0.1, 0.2]),
+            bhi = v(&[0.3, 0.45, 0.4]),
+        )
+    }
+
+    /// (imbalance before, imbalance after, rebalanced, whether every particle sits in
+    /// its rank's cells, particles in all, a second call's verdict).
+    fn balance<const D: usize>(
+        ranks: usize,
+        cells: usize,
+    ) -> Vec<(f64, f64, bool, bool, u64, bool)> {
+        let sc = scene::parse(&corner_body(D, cells), "corner").unwrap();
+        LocalComm::run(ranks, |comm| {
+            let layout = Layout::choose([cells; D], [false; D], ranks).unwrap();
+            let mut s = Solver::<D>::new(&sc, comm, layout);
+            let before = s.imbalance();
+            let moved = s.rebalance(1.0);
+            let after = s.imbalance();
+            let home = (0..s.parts.len()).all(|p| s.layout.cell_owner(s.cell_of(p)) == comm.rank());
+            let total = s.totals().particles;
+            // Balanced now: a threshold above the imbalance leaves the blocks alone.
+            let again = s.rebalance(after + 1e-9);
+            (before, after, moved, home, total, again)
+        })
+    }
+
+    /// An equal split leaves three of four ranks (seven of eight in 3D) empty; one
+    /// rebalance brings the largest rank within 10 % of the mean, every particle to
+    /// the owner of its cell, and keeps them all. A second call below its threshold
+    /// changes nothing.
+    #[test]
+    fn a_corner_body_is_shared_out() {
+        let check = |what: &str, r: Vec<(f64, f64, bool, bool, u64, bool)>, ranks: f64| {
+            let (before, after, moved, _, total, again) = r[0];
+            assert_eq!(before, ranks, "{what}: one rank held every particle");
+            assert!(moved, "{what}: no rebalance");
+            assert!(
+                after <= 1.10,
+                "{what}: imbalance {after} after the rebalance"
+            );
+            assert!(
+                r.iter().all(|x| x.3),
+                "{what}: a particle outside its rank's cells"
+            );
+            assert!(r.iter().all(|x| x.4 == total && x.1 == after && !x.5));
+            assert!(!again);
+        };
+        check("2D", balance::<2>(4, 64), 4.0);
+        check("3D", balance::<3>(8, 40), 8.0);
     }
 }

@@ -882,6 +882,27 @@ fn other_validation() {
     .key("method.xpic")
     .at("2.5")
     .says("expected a non-negative integer, got the float 2.5");
+    check(
+        "balance_mode",
+        format!("{BAR}\n[parallel]\nbalance = \"dynamic\"\n"),
+    )
+    .key("parallel.balance")
+    .at("\"dynamic\"")
+    .says("off");
+    check(
+        "balance_threshold",
+        format!("{BAR}\n[parallel]\nimbalance = 0.9\n"),
+    )
+    .key("parallel.imbalance")
+    .at("0.9")
+    .says("must be >= 1");
+    check(
+        "balance_every",
+        format!("{BAR}\n[parallel]\ncheck_every = 0\n"),
+    )
+    .key("parallel.check_every")
+    .at_in("check_every = 0", "0")
+    .says("must be >= 1");
     check("duplicate_material", edit(DISKS, "[[bodies]]", "[[materials]]\nname = \"elastic\"\nmodel = \"neo_hookean\"\ndensity = 1.0\nyoungs_modulus = 1.0\npoisson_ratio = 0.3\n\n[[bodies]]"))
         .key("materials[1].name")
         .says("duplicate material name");

@@ -22,6 +22,10 @@ pub struct Layout<const D: usize> {
     pub periodic: [bool; D],
     /// Number of blocks along each axis; their product is the rank count.
     pub procs: [usize; D],
+    /// Per axis, where the blocks start: `procs[a] + 1` ascending cell indices from 0
+    /// to `cells[a]`, block `k` owning cells `cuts[a][k]..cuts[a][k + 1]`. Equal
+    /// shares unless [`Layout::with_cuts`] or [`Layout::balanced`] moved them.
+    cuts: [Vec<usize>; D],
 }
 
 impl<const D: usize> Layout<D> {
@@ -41,11 +45,73 @@ impl<const D: usize> Layout<D> {
                 });
             }
         }
+        let cuts =
+            std::array::from_fn(|a| (0..=procs[a]).map(|k| k * cells[a] / procs[a]).collect());
         Ok(Self {
             cells,
             periodic,
             procs,
+            cuts,
         })
+    }
+
+    /// The same process grid with the blocks starting at `cuts` (per axis,
+    /// `procs[a] + 1` ascending cell indices from 0 to `cells[a]`). Each block must be
+    /// at least [`GHOST`] cells wide where it has a ghost layer along the axis, as in
+    /// [`Layout::new`].
+    pub fn with_cuts(&self, cuts: [Vec<usize>; D]) -> Result<Self, Error> {
+        for a in 0..D {
+            let c = &cuts[a];
+            let min = self.min_width(a);
+            let ok = c.len() == self.procs[a] + 1
+                && c[0] == 0
+                && c[self.procs[a]] == self.cells[a]
+                && c.windows(2).all(|w| w[1] >= w[0] + min);
+            if !ok {
+                return Err(Error::BadCuts {
+                    axis: a,
+                    cuts: c.clone(),
+                    cells: self.cells[a],
+                    min,
+                });
+            }
+        }
+        Ok(Self {
+            cuts,
+            ..self.clone()
+        })
+    }
+
+    /// The fewest cells a block may have along axis `a`: [`GHOST`] where blocks have
+    /// a ghost layer along it (more than one block, or periodic), else one.
+    fn min_width(&self, a: usize) -> usize {
+        if self.procs[a] > 1 || self.periodic[a] {
+            GHOST
+        } else {
+            1
+        }
+    }
+
+    /// Where the blocks start along axis `a` (see [`Layout::with_cuts`]).
+    pub fn cuts(&self, a: usize) -> &[usize] {
+        &self.cuts[a]
+    }
+
+    /// The same process grid with cuts that give every block along each axis an equal
+    /// share of `cost`, where `cost[a][i]` is the cost of the slab of cells with index
+    /// `i` along axis `a` (summed over the other axes). Blocks keep the minimum width
+    /// of [`Layout::with_cuts`]. The shares are equal per axis: for a cost that is a
+    /// product of per-axis profiles (a box-shaped body) every block gets an equal
+    /// share; for others the cuts balance the slabs, not necessarily the blocks. A
+    /// zero profile gives equal widths. Deterministic: every rank given the same
+    /// costs computes the same cuts.
+    pub fn balanced(&self, cost: &[Vec<f64>; D]) -> Self {
+        let cuts = std::array::from_fn(|a| {
+            assert_eq!(cost[a].len(), self.cells[a], "one cost per cell slab");
+            balanced_cuts(&cost[a], self.procs[a], self.min_width(a))
+        });
+        self.with_cuts(cuts)
+            .expect("balanced cuts respect the minimum block width")
     }
 
     /// The process grid for `ranks` ranks that exchanges the fewest ghost cells per
@@ -141,7 +207,7 @@ impl<const D: usize> Layout<D> {
 
     /// First cell of block `k` along axis `a` (`k = procs[a]` gives `cells[a]`).
     pub fn split(&self, a: usize, k: usize) -> usize {
-        k * self.cells[a] / self.procs[a]
+        self.cuts[a][k]
     }
 
     /// Owned cell range `[lo, hi)` of a rank.
@@ -159,15 +225,8 @@ impl<const D: usize> Layout<D> {
     /// Block index along axis `a` that owns cell `i` (0 <= i < cells[a]).
     pub(crate) fn block_along(&self, a: usize, i: usize) -> usize {
         // Inverse of `split`: the largest k with split(a, k) <= i.
-        let mut k = ((i + 1) * self.procs[a]) / self.cells[a];
-        k = k.min(self.procs[a] - 1);
-        while self.split(a, k) > i {
-            k -= 1;
-        }
-        while k + 1 < self.procs[a] && self.split(a, k + 1) <= i {
-            k += 1;
-        }
-        k
+        let c = &self.cuts[a];
+        (c.partition_point(|&s| s <= i) - 1).min(self.procs[a] - 1)
     }
 
     /// Rank owning a (valid, in-range) cell.
@@ -213,4 +272,40 @@ impl<const D: usize> Layout<D> {
         }
         self.cell_owner(cell)
     }
+}
+
+/// Cuts of `n = cost.len()` cells into `blocks` ranges of about equal cost, each at
+/// least `min` cells wide (`blocks * min <= n`).
+fn balanced_cuts(cost: &[f64], blocks: usize, min: usize) -> Vec<usize> {
+    let n = cost.len();
+    debug_assert!(blocks * min <= n);
+    // prefix[i]: cost of cells below i.
+    let mut prefix = Vec::with_capacity(n + 1);
+    prefix.push(0.0);
+    for &c in cost {
+        prefix.push(prefix.last().copied().unwrap_or(0.0) + c.max(0.0));
+    }
+    let total = prefix[n];
+    let mut cuts: Vec<usize> = (0..=blocks).map(|k| k * n / blocks).collect();
+    if total > 0.0 && total.is_finite() {
+        for k in 1..blocks {
+            let target = total * k as f64 / blocks as f64;
+            // The cell boundary whose prefix is nearest the target.
+            let hi = prefix.partition_point(|&p| p < target).min(n);
+            let lo = hi.saturating_sub(1);
+            cuts[k] = if target - prefix[lo] <= prefix[hi] - target {
+                lo
+            } else {
+                hi
+            };
+        }
+    }
+    // The minimum width: push cuts up from the bottom, then down from the top.
+    for k in 1..blocks {
+        cuts[k] = cuts[k].max(cuts[k - 1] + min);
+    }
+    for k in (1..blocks).rev() {
+        cuts[k] = cuts[k].min(cuts[k + 1] - min);
+    }
+    cuts
 }

@@ -44,6 +44,21 @@ pub enum Error {
         /// The fewest cells a block may have.
         min: usize,
     },
+    /// Block boundaries that do not cut an axis into ascending blocks of the minimum
+    /// width.
+    #[error(
+        "axis {axis}: cuts {cuts:?} do not split {cells} cells into blocks of at least {min} cells"
+    )]
+    BadCuts {
+        /// The axis.
+        axis: usize,
+        /// The cuts given.
+        cuts: Vec<usize>,
+        /// The axis' cells.
+        cells: usize,
+        /// The fewest cells a block may have.
+        min: usize,
+    },
     /// No process grid gives every rank a block of at least two cells per axis.
     #[error(
         "{ranks} ranks cannot each get a block of at least two cells per axis of a {cells:?} grid"

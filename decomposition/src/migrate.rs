@@ -83,6 +83,21 @@ impl<const D: usize> Migrator<D> {
         }
     }
 
+    /// Migration from `block` to the owners of `layout`, another layout of the same
+    /// grid and rank count (a rebalance): a particle's new owner need not be a halo
+    /// peer, so every rank is a peer and an exchange sends `ranks − 1` messages per
+    /// rank, most of them empty. Route with [`Layout::cell_owner`] of the new layout
+    /// and [`Migrator::push`]; [`Migrator::destination`] still checks the reach from
+    /// `block`.
+    pub fn everywhere(layout: &Layout<D>, block: &Block<D>, width: usize) -> Self {
+        let mut m = Self::new(layout, block, width);
+        let n = layout.ranks();
+        m.peers = (0..n).collect();
+        m.send = vec![Vec::new(); n];
+        m.recv = vec![Vec::new(); n];
+        m
+    }
+
     /// Values per record.
     pub fn width(&self) -> usize {
         self.width

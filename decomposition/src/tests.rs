@@ -25,7 +25,34 @@ fn layouts1() -> Vec<Layout<1>> {
     ]
     .into_iter()
     .map(|(c, p, n)| Layout::new([c], [p], [n]).unwrap())
+    .chain(uneven([13], [true], [3], 1))
+    .chain(uneven([13], [false], [4], 2))
     .collect()
+}
+
+/// A layout with the process grid `procs` and random cuts (seeded), blocks of the
+/// minimum width included: every property test runs on uneven blocks too, as a
+/// rebalance leaves them.
+fn uneven<const D: usize>(
+    cells: [usize; D],
+    periodic: [bool; D],
+    procs: [usize; D],
+    seed: u64,
+) -> Option<Layout<D>> {
+    let base = Layout::new(cells, periodic, procs).ok()?;
+    let mut rng = Rng::new(seed);
+    let cost: [Vec<f64>; D] = std::array::from_fn(|a| {
+        (0..cells[a])
+            .map(|_| {
+                if rng.below(3) == 0 {
+                    0.0
+                } else {
+                    rng.below(100) as f64
+                }
+            })
+            .collect()
+    });
+    Some(base.balanced(&cost))
 }
 
 fn layouts2() -> Vec<Layout<2>> {
@@ -41,6 +68,8 @@ fn layouts2() -> Vec<Layout<2>> {
         ] {
             v.push(Layout::new(cells, per, procs).unwrap());
         }
+        v.extend(uneven([11, 9], per, [3, 2], 3));
+        v.extend(uneven([9, 13], per, [2, 4], 4));
     }
     v
 }
@@ -60,6 +89,7 @@ fn layouts3() -> Vec<Layout<3>> {
         ] {
             v.push(Layout::new(cells, per, procs).unwrap());
         }
+        v.extend(uneven([7, 5, 9], per, [3, 1, 2], 5));
     }
     v
 }
@@ -712,4 +742,132 @@ fn a_panicking_rank_releases_the_others_in_an_exchange() {
         let mut recv = vec![Vec::new()];
         c.exchange(&[1], &[vec![1.0]], &mut recv);
     });
+}
+
+// ---------------------------------------------------------------- cuts
+
+/// Balanced cuts give each block of an axis the same share of the cost, to within
+/// the cost of one cell slab (the cuts fall on slab boundaries), keep blocks at least
+/// the minimum width, and the owner of every cell is the block whose range holds it.
+#[test]
+fn balanced_cuts_share_the_cost() {
+    let mut rng = Rng::new(11);
+    for case in 0..200 {
+        let cells = 8 + rng.below(60);
+        let procs = 1 + rng.below(cells / GHOST).min(7);
+        let periodic = rng.below(2) == 0;
+        let base = Layout::new([cells], [periodic], [procs]).unwrap();
+        // A body somewhere: zero cost outside [lo, hi).
+        let lo = rng.below(cells);
+        let hi = lo + 1 + rng.below(cells - lo);
+        let cost: Vec<f64> = (0..cells)
+            .map(|i| {
+                if (lo..hi).contains(&i) {
+                    1.0 + rng.below(4) as f64
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let l = base.balanced(&[cost.clone()]);
+        let c = l.cuts(0);
+        let min = if procs > 1 || periodic { GHOST } else { 1 };
+        assert!(
+            c.windows(2).all(|w| w[1] >= w[0] + min),
+            "case {case}: {c:?}"
+        );
+        let total: f64 = cost.iter().sum();
+        let biggest = cost.iter().cloned().fold(0.0, f64::max);
+        // Where the minimum width does not bind, each share is within one slab's cost
+        // of the mean (a cut rounds to the nearest slab boundary on either side).
+        if (hi - lo) >= procs * (min + 1) && lo >= min * procs && cells - hi >= min * procs {
+            for k in 0..procs {
+                let share: f64 = cost[c[k]..c[k + 1]].iter().sum();
+                assert!(
+                    (share - total / procs as f64).abs() <= biggest + 1e-9,
+                    "case {case}: block {k} has {share} of {total} (cuts {c:?})"
+                );
+            }
+        }
+        for i in 0..cells {
+            let k = l.cell_owner([i]);
+            assert!(
+                c[k] <= i && i < c[k + 1],
+                "case {case}: cell {i} -> block {k}"
+            );
+        }
+    }
+}
+
+/// Cuts that are not ascending, do not span the axis, or leave a block narrower than
+/// its ghost layer are refused with the error that names them.
+#[test]
+fn bad_cuts_are_refused() {
+    let l = Layout::new([10, 6], [false, true], [2, 2]).unwrap();
+    assert!(l.with_cuts([vec![0, 3, 10], vec![0, 2, 6]]).is_ok());
+    for (cuts, axis) in [
+        ([vec![0, 1, 10], vec![0, 3, 6]], 0),
+        ([vec![0, 5, 9], vec![0, 3, 6]], 0),
+        ([vec![0, 5], vec![0, 3, 6]], 0),
+        ([vec![0, 5, 10], vec![0, 5, 6]], 1),
+        ([vec![1, 5, 10], vec![0, 3, 6]], 0),
+    ] {
+        match l.with_cuts(cuts.clone()) {
+            Err(Error::BadCuts { axis: a, min, .. }) => {
+                assert_eq!((a, min), (axis, GHOST), "{cuts:?}")
+            }
+            other => panic!("{cuts:?}: {other:?}"),
+        }
+    }
+}
+
+/// A rebalance's migration: every particle goes from its owner under one layout to
+/// its owner under another, whether or not the two ranks are halo peers; none is lost
+/// or duplicated, and records arrive ordered by source rank.
+#[test]
+fn migration_to_any_rank_follows_the_new_cuts() {
+    let old = Layout::new([24, 8], [false, true], [4, 1]).unwrap();
+    // Everything moves: the new blocks are far from the old ones' halos.
+    let new = old.with_cuts([vec![0, 2, 4, 6, 24], vec![0, 8]]).unwrap();
+    let mut rng = Rng::new(5);
+    let parts: Vec<(u64, [usize; 2])> = (0..300)
+        .map(|id| (id, [rng.below(24), rng.below(8)]))
+        .collect();
+    let got = LocalComm::run(4, |comm| {
+        let me = comm.rank();
+        let block = Block::new(&old, me);
+        let mut mig = Migrator::everywhere(&new, &block, 3);
+        let mut kept = Vec::new();
+        for &(id, c) in parts.iter().filter(|(_, c)| old.cell_owner(*c) == me) {
+            let to = new.cell_owner(c);
+            if to == me {
+                kept.push(id);
+            } else {
+                mig.push(to, &[id as f64, c[0] as f64, c[1] as f64]);
+            }
+        }
+        let recs = mig.exchange(comm).unwrap();
+        let mut last_src = 0;
+        for r in recs.iter() {
+            let c = [r[1] as usize, r[2] as usize];
+            assert_eq!(new.cell_owner(c), me, "record sent to the wrong rank");
+            let src = old.cell_owner(c);
+            assert!(src >= last_src, "records not ordered by source rank");
+            last_src = src;
+            kept.push(r[0] as u64);
+        }
+        kept
+    });
+    let mut all: Vec<u64> = got.iter().flatten().copied().collect();
+    all.sort_unstable();
+    assert_eq!(
+        all,
+        (0..300).collect::<Vec<_>>(),
+        "lost or duplicated particles"
+    );
+    for (r, ids) in got.iter().enumerate() {
+        for id in ids {
+            assert_eq!(new.cell_owner(parts[*id as usize].1), r);
+        }
+    }
 }
