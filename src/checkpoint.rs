@@ -145,20 +145,27 @@ impl Header {
         if self.ranks != base.ranks() || self.blocks[..] != base.procs[..] {
             return None;
         }
+        self.writer_layout(base)
+    }
+
+    /// The writer's layout of `base`'s grid, whatever its process grid; `None` if the
+    /// stored blocks or cuts do not fit the grid.
+    pub fn writer_layout<const D: usize>(&self, base: &Layout<D>) -> Option<Layout<D>> {
+        let procs: [usize; D] = self.blocks.as_slice().try_into().ok()?;
+        let uniform = Layout::new(base.cells, base.periodic, procs).ok()?;
         let Some(flat) = &self.cuts else {
-            let uniform = Layout::new(base.cells, base.periodic, base.procs).ok()?;
             return Some(uniform);
         };
         let mut at = 0;
         let cuts: [Vec<usize>; D] = std::array::from_fn(|a| {
-            let n = base.procs[a] + 1;
+            let n = procs[a] + 1;
             let c = flat
                 .get(at..at + n)
                 .map_or_else(Vec::new, <[usize]>::to_vec);
             at += n;
             c
         });
-        base.with_cuts(cuts).ok()
+        uniform.with_cuts(cuts).ok()
     }
 }
 
@@ -827,11 +834,15 @@ pub struct Restored<const D: usize> {
     pub parts: Particles<D>,
     pub solver: SolverState,
     pub run: RunState,
+    /// Particle rows this rank read from the file.
+    pub rows_read: u64,
 }
 
 /// Read this rank's particles and the run state (no collectives: the caller agrees on
 /// the outcome). With the writer's rank count and process grid each rank reads its own
-/// rows in their order; otherwise it scans all rows and keeps those in its cells.
+/// rows in their order; otherwise it scans the rows of the writers whose blocks overlap
+/// its own and keeps those in its cells (a rank of a finer process grid reads a few
+/// writers' rows, not the whole file).
 pub fn read<const D: usize>(
     header: &Header,
     rank: usize,
@@ -844,10 +855,22 @@ pub fn read<const D: usize>(
     let rows = Rows::open::<D>(&f, header, layout, carries)?;
     let writers = Writers::read(&f, path, header)?;
     let same = header.layout(layout).as_ref() == Some(layout);
-    let (parts, external_work) = if same {
-        rows.own(&writers, rank, carries)?
+    let (parts, external_work, rows_read) = if same {
+        let (p, w) = rows.own(&writers, rank, carries)?;
+        let n = p.len() as u64;
+        (p, w, n)
     } else {
-        rows.all(&writers, rank, layout, geom, carries)?
+        // Only the writers whose blocks overlap this rank's hold its particles.
+        let (lo, hi) = layout.block_cells(rank);
+        let writer = header.writer_layout(layout);
+        let overlaps = |w: usize| match &writer {
+            Some(wl) => {
+                let (wlo, whi) = wl.block_cells(w);
+                (0..D).all(|a| wlo[a] < hi[a] && lo[a] < whi[a])
+            }
+            None => true,
+        };
+        rows.all(&writers, rank, layout, geom, carries, overlaps)?
     };
     let run = read_run_state::<D>(&f, path, rank)?;
     let solver = SolverState {
@@ -857,7 +880,12 @@ pub fn read<const D: usize>(
         external_work,
         max_speed: attr_f64(&f, path, "max_speed")?,
     };
-    Ok(Restored { parts, solver, run })
+    Ok(Restored {
+        parts,
+        solver,
+        run,
+        rows_read,
+    })
 }
 
 /// The `particles` dataset of a checkpoint whose records are those `carries` needs.
@@ -866,8 +894,6 @@ struct Rows<'a> {
     path: &'a Path,
     /// Values per row.
     width: usize,
-    /// Rows in all.
-    n: usize,
 }
 
 impl<'a> Rows<'a> {
@@ -919,7 +945,7 @@ impl<'a> Rows<'a> {
                 ds.shape()
             ));
         }
-        Ok(Self { ds, path, width, n })
+        Ok(Self { ds, path, width })
     }
 
     /// Rows `r0..r1`, back to back.
@@ -976,8 +1002,10 @@ impl<'a> Rows<'a> {
         Ok((parts, writers.work[rank]))
     }
 
-    /// Another rank count or process grid: every row, keeping those in this rank's
-    /// cells; rank 0 carries the external work of all writers.
+    /// Another rank count, process grid or cuts: the rows of the writers for which
+    /// `overlaps` holds (those whose blocks overlap this rank's), keeping those in
+    /// this rank's cells, each writer's checksum checked; rank 0 carries the external
+    /// work of all writers. Returns the particles, the work and the rows read.
     fn all<const D: usize>(
         &self,
         writers: &Writers,
@@ -985,40 +1013,41 @@ impl<'a> Rows<'a> {
         layout: &Layout<D>,
         geom: &Geom<D>,
         carries: Carries,
-    ) -> Result<(Particles<D>, f64), String> {
+        overlaps: impl Fn(usize) -> bool,
+    ) -> Result<(Particles<D>, f64, u64), String> {
         let mut parts = Particles::<D>::default();
         let (rows, starts) = (&writers.rows, &writers.starts);
-        let mut hash = vec![0u64; rows.len()];
-        let mut w = 0usize;
-        let mut at = 0usize;
-        while at < self.n {
-            let end = (at + CHUNK_ROWS).min(self.n);
-            let buf = self.read(at, end)?;
-            for (i, rec) in buf.chunks_exact(self.width).enumerate() {
-                let row = at + i;
-                while row >= starts[w] + rows[w] as usize {
-                    w += 1;
+        let mut read = 0u64;
+        for w in (0..rows.len()).filter(|&w| overlaps(w)) {
+            let (r0, r1) = (starts[w], starts[w] + rows[w] as usize);
+            let mut hash = 0u64;
+            let mut at = r0;
+            while at < r1 {
+                let end = (at + CHUNK_ROWS).min(r1);
+                let buf = self.read(at, end)?;
+                for (i, rec) in buf.chunks_exact(self.width).enumerate() {
+                    hash = hash.wrapping_add(row_hash((at + i - r0) as u64, rec));
+                    let x: [f64; D] = std::array::from_fn(|a| rec[a]);
+                    let (c, _) = geom.locate(&x);
+                    let cell: [usize; D] =
+                        std::array::from_fn(|a| c[a].rem_euclid(layout.cells[a] as i64) as usize);
+                    if layout.cell_owner(cell) == rank {
+                        parts.unpack(rec, carries);
+                    }
                 }
-                hash[w] = hash[w].wrapping_add(row_hash((row - starts[w]) as u64, rec));
-                let x: [f64; D] = std::array::from_fn(|a| rec[a]);
-                let (c, _) = geom.locate(&x);
-                let cell: [usize; D] =
-                    std::array::from_fn(|a| c[a].rem_euclid(layout.cells[a] as i64) as usize);
-                if layout.cell_owner(cell) == rank {
-                    parts.unpack(rec, carries);
-                }
+                at = end;
             }
-            at = end;
-        }
-        if let Some(w) = (0..rows.len()).find(|&w| hash[w] != writers.sums[w]) {
-            return Err(self.corrupt(w));
+            if hash != writers.sums[w] {
+                return Err(self.corrupt(w));
+            }
+            read += rows[w];
         }
         let external_work = if rank == 0 {
             writers.work.iter().sum()
         } else {
             0.0
         };
-        Ok((parts, external_work))
+        Ok((parts, external_work, read))
     }
 }
 

@@ -110,6 +110,19 @@ pub struct RankLoad {
     pub max: u64,
 }
 
+/// Collective: `min`, `mean` and `max` of a count over ranks.
+fn rank_load(comm: &dyn Communicator, x: f64) -> RankLoad {
+    let (mut lo, mut hi, mut sum) = ([x], [x], [x]);
+    comm.min_f64(&mut lo);
+    comm.max_f64(&mut hi);
+    comm.sum_f64(&mut sum);
+    RankLoad {
+        min: lo[0] as u64,
+        mean: sum[0] / comm.size() as f64,
+        max: hi[0] as u64,
+    }
+}
+
 /// The sparse grid at the end of the run: active tiles of `tile_nodes` nodes each,
 /// summed over ranks and per rank, and what a dense grid would have needed.
 #[derive(Serialize, Debug, Clone)]
@@ -195,6 +208,9 @@ pub struct RestartSummary {
     pub checkpoint: String,
     pub step: u64,
     pub time: f64,
+    /// Particle rows of the checkpoint each rank read (all of its own writer's on
+    /// the writer's process grid, else those of the writers whose blocks overlap).
+    pub particle_rows_read: RankLoad,
 }
 
 #[derive(Serialize, Debug, Clone)]
@@ -496,6 +512,7 @@ fn set_up<'c, const D: usize>(
         checkpoint: path.display().to_string(),
         step: s.step,
         time: s.t,
+        particle_rows_read: rank_load(comm, restored.rows_read as f64),
     };
     let mut run = restored.run;
     // A restart with an edited scene (longer, other step size, other output or
