@@ -127,7 +127,7 @@ def main():
     src = None
     for ch in chains.values():
         for fn, f, ln in ch:
-            if f and f.endswith("src/kernel.rs"):
+            if f and f.endswith("kernel.rs"):
                 src = f
     if src:
         try:
@@ -145,7 +145,7 @@ def main():
 
     def classify(chain):
         for fn, f, ln in chain:
-            if fn.startswith("{closure") and f and f.endswith("src/kernel.rs"):
+            if fn.startswith("{closure") and f and f.endswith("kernel.rs"):
                 for lo, hi, name in spans:
                     if lo <= ln < hi:
                         return name

@@ -6,20 +6,10 @@
 // would hide that symmetry.
 #![allow(clippy::needless_range_loop)]
 
-pub mod benchmark;
-pub mod checkpoint;
-pub mod cli;
-pub mod gradient;
-pub mod io;
-pub mod kernel;
-pub mod lock;
-pub mod material;
-pub mod particles;
-pub mod progress;
-pub mod run;
-pub mod scene;
-pub mod shape;
-pub mod signals;
-pub mod solver;
-pub mod sweep;
-pub mod tensor;
+// Layers, each importing only from the ones above it in this list: input, physics,
+// the MPM core, output, driver (tests/imports.rs checks it).
+pub mod driver;
+pub mod input;
+pub mod mpm;
+pub mod output;
+pub mod physics;

@@ -1,7 +1,7 @@
-//! The `mpmcg` command; everything is in the library (`mpmcg::cli`).
+//! The `mpmcg` command; everything is in the library (`mpmcg::driver::cli`).
 
 #![forbid(unsafe_code)]
 
 fn main() -> std::process::ExitCode {
-    mpmcg::cli::main()
+    mpmcg::driver::cli::main()
 }

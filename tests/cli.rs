@@ -151,7 +151,7 @@ fn every_input_scene_writes_snapshots() {
     for e in std::fs::read_dir(dir).unwrap() {
         let p = e.unwrap().path();
         if p.extension().is_some_and(|x| x == "toml") {
-            let (s, _) = mpmcg::scene::load(&p).unwrap_or_else(|e| panic!("{e}"));
+            let (s, _) = mpmcg::input::scene::load(&p).unwrap_or_else(|e| panic!("{e}"));
             assert!(
                 s.snapshot_plan().is_some(),
                 "{} writes no snapshots",
@@ -167,7 +167,7 @@ fn every_input_scene_writes_snapshots() {
 /// the initial and final states), but not other fields or `snapshots = false`.
 #[test]
 fn a_restart_may_add_an_interval_to_a_scene_without_output() {
-    use mpmcg::scene::{parse, restart_difference};
+    use mpmcg::input::scene::{parse, restart_difference};
     let base = parse(SCENE, "base").unwrap();
     let with = |extra: &str| parse(&format!("{SCENE}[output]\n{extra}\n"), "edited").unwrap();
     assert_eq!(restart_difference(&base, &with("every = 0.01")), None);

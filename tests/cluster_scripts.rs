@@ -90,7 +90,7 @@ fn slurm_script_adds_wall_clock_checkpoints_and_chains_from_the_newest() {
         chain_text.ends_with("[checkpoint]\nevery_seconds = 1800\n"),
         "{chain_text}"
     );
-    let (s, _) = mpmcg::scene::load(&chain).unwrap();
+    let (s, _) = mpmcg::input::scene::load(&chain).unwrap();
     assert!(s.checkpoint.is_some());
     let srun = format!(
         "dry run: srun {BIN} run {} --out {} --threads 1\n",

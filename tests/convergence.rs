@@ -8,8 +8,8 @@
 #![forbid(unsafe_code)]
 
 use decomposition::SerialComm;
-use mpmcg::run::{run, RunOptions};
-use mpmcg::scene::{self, Gradient};
+use mpmcg::driver::run::{run, RunOptions};
+use mpmcg::input::scene::{self, Gradient};
 use std::fmt::Write;
 use std::time::Instant;
 

@@ -348,7 +348,7 @@ fn stale_lock_is_taken_over() {
     let mut gone = std::process::Command::new("true").spawn().unwrap();
     let dead = gone.id();
     gone.wait().unwrap();
-    let host = mpmcg::lock::hostname();
+    let host = mpmcg::output::lock::hostname();
     std::fs::write(
         out.join(LOCK),
         format!("mpmcg run lock\nhost = {host}\npid = {dead}\nstarted = 0\n"),

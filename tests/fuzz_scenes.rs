@@ -7,8 +7,8 @@
 
 #![forbid(unsafe_code)]
 
-use mpmcg::run::check_bodies;
-use mpmcg::scene::parse;
+use mpmcg::driver::run::check_bodies;
+use mpmcg::input::scene::parse;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 
 /// xorshift64*: reproducible, no dependency.

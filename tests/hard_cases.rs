@@ -6,7 +6,7 @@
 
 mod common;
 use common::{history, run_scene, snapshots, Snapshot};
-use mpmcg::run::RunError;
+use mpmcg::driver::run::RunError;
 use std::collections::HashMap;
 
 fn with_gradient(text: &str, g: &str) -> String {
@@ -564,7 +564,7 @@ fn max_principal_2d(s: &[f64; 9]) -> f64 {
 #[test]
 fn brittle_bar_below_strength_stays_intact() {
     let text = include_str!("../inputs/brittle_bar.toml");
-    let (lambda, mu) = mpmcg::material::lame(1.0e6, 0.3);
+    let (lambda, mu) = mpmcg::physics::material::lame(1.0e6, 0.3);
     let bound = 1000.0 * ((lambda + 2.0 * mu) / 1000.0).sqrt() * 0.5;
     for g in ["mpmcg", "mpm"] {
         let (r, out) = run_scene(&with_gradient(text, g), &format!("brittle-{g}"));

@@ -1,30 +1,55 @@
-//! The library's modules import each other in one direction only: the graph of
-//! `crate::MODULE` references in non-test code (a folder's files count as its module)
-//! has no circle. Test modules, at the end of each file, may reach across.
+//! The library's layers import downward only, and its modules import each other in
+//! one direction only. `src/` holds one folder per layer, in this order from the
+//! bottom: input, physics, mpm (the core), output, driver. The graph of
+//! `crate::LAYER::MODULE` references in non-test code (a module's folder counts as
+//! the module) has no circle, and no module names a layer above its own. Test
+//! modules, at the end of each file, may reach across.
 
 #![forbid(unsafe_code)]
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-/// Module → the modules its non-test code names as `crate::NAME`.
+/// The layers, bottom first.
+const LAYERS: [&str; 5] = ["input", "physics", "mpm", "output", "driver"];
+
+/// Every `.rs` file under `dir`.
+fn rs_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    for e in std::fs::read_dir(dir).unwrap().flatten() {
+        let p = e.path();
+        if p.is_dir() {
+            rs_files(&p, out);
+        } else if p.extension().is_some_and(|x| x == "rs") {
+            out.push(p);
+        }
+    }
+}
+
+/// `layer::module` → the `layer::module`s its non-test code names.
 fn graph() -> BTreeMap<String, BTreeSet<String>> {
     let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
     let mut g: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
     let mut files = Vec::new();
-    for e in std::fs::read_dir(&src).unwrap().flatten() {
-        let p = e.path();
-        if p.is_dir() {
-            let dir = p.file_name().unwrap().to_string_lossy().into_owned();
-            for f in std::fs::read_dir(&p).unwrap().flatten() {
-                files.push((dir.clone(), f.path()));
-            }
-        } else if p.extension().is_some_and(|x| x == "rs") {
-            let stem = p.file_stem().unwrap().to_string_lossy().into_owned();
-            files.push((stem, p));
+    rs_files(&src, &mut files);
+    for path in files {
+        let rel: Vec<String> = path
+            .strip_prefix(&src)
+            .unwrap()
+            .with_extension("")
+            .iter()
+            .map(|c| c.to_string_lossy().into_owned())
+            .collect();
+        // src/LAYER/MODULE.rs or src/LAYER/MODULE/...; lib.rs, main.rs and the
+        // layers' mod.rs only declare modules.
+        if rel.len() < 2 || rel[1] == "mod" {
+            continue;
         }
-    }
-    for (module, path) in files {
+        assert!(
+            LAYERS.contains(&rel[0].as_str()),
+            "{}: not in a layer folder ({LAYERS:?})",
+            path.display()
+        );
+        let module = format!("{}::{}", rel[0], rel[1]);
         let text = std::fs::read_to_string(&path).unwrap();
         let deps = g.entry(module.clone()).or_default();
         for line in text.lines() {
@@ -34,11 +59,17 @@ fn graph() -> BTreeMap<String, BTreeSet<String>> {
             }
             let code = line.split("//").next().unwrap_or("");
             for (i, _) in code.match_indices("crate::") {
-                let name: String = code[i + "crate::".len()..]
-                    .chars()
-                    .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+                let name: Vec<String> = code[i + "crate::".len()..]
+                    .split("::")
+                    .take(2)
+                    .map(|s| {
+                        s.chars()
+                            .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+                            .collect()
+                    })
                     .collect();
-                if !name.is_empty() && name != module {
+                let name = name.join("::");
+                if name.contains("::") && name != module {
                     deps.insert(name);
                 }
             }
@@ -47,13 +78,34 @@ fn graph() -> BTreeMap<String, BTreeSet<String>> {
     g
 }
 
+fn layer(module: &str) -> usize {
+    let l = module.split("::").next().unwrap();
+    LAYERS
+        .iter()
+        .position(|x| *x == l)
+        .unwrap_or_else(|| panic!("{module}: no such layer"))
+}
+
+#[test]
+fn layers_import_downward_only() {
+    let g = graph();
+    assert!(
+        g.contains_key("driver::run") && g["driver::run"].contains("mpm::solver"),
+        "{g:?}"
+    );
+    for (m, deps) in &g {
+        for d in deps {
+            assert!(
+                layer(d) <= layer(m),
+                "{m} imports {d}, a module of a higher layer"
+            );
+        }
+    }
+}
+
 #[test]
 fn module_imports_have_no_circle() {
     let g = graph();
-    assert!(
-        g.contains_key("run") && g["run"].contains("solver"),
-        "{g:?}"
-    );
     // Depth-first search; a module met again while on the path closes a circle.
     fn visit(
         m: &str,

@@ -7,7 +7,7 @@
 mod common;
 
 use hdf5::types::VarLenUnicode;
-use mpmcg::io::Labels;
+use mpmcg::output::io::Labels;
 
 /// A quarter disk of "steel" cut by the slip faces x = 0 and y = 0, and a box of
 /// "rubber"; the materials are listed in the other order than the bodies.
@@ -98,7 +98,7 @@ fn input_scenes_are_labelled() {
         if p.extension().is_none_or(|x| x != "toml") {
             continue;
         }
-        let (s, _) = mpmcg::scene::load(&p).unwrap_or_else(|e| panic!("{e}"));
+        let (s, _) = mpmcg::input::scene::load(&p).unwrap_or_else(|e| panic!("{e}"));
         let l = match s.dim {
             1 => Labels::of::<1>(&s),
             2 => Labels::of::<2>(&s),

@@ -630,7 +630,7 @@ fn killed_run_restarts_from_its_last_checkpoint() {
     let ckpts = files(&out, "checkpoint_");
     assert!(!ckpts.is_empty());
     for c in &ckpts {
-        mpmcg::checkpoint::read_header(c).unwrap_or_else(|e| panic!("{e}"));
+        mpmcg::output::checkpoint::read_header(c).unwrap_or_else(|e| panic!("{e}"));
     }
     let newest = ckpts.last().unwrap();
     eprintln!(
@@ -672,7 +672,7 @@ fn crash_while_writing_a_checkpoint_keeps_the_previous_one() {
         [out.join("checkpoint_000025.h5")]
     );
     assert!(out.join(".checkpoint_000050.h5.tmp").exists());
-    let h = mpmcg::checkpoint::read_header(&out.join("checkpoint_000025.h5")).unwrap();
+    let h = mpmcg::output::checkpoint::read_header(&out.join("checkpoint_000025.h5")).unwrap();
     assert_eq!(h.step, 25);
     ok(
         2,
@@ -723,7 +723,7 @@ fn sigterm_writes_a_final_checkpoint_and_exits_4() {
     let ckpt = out.join(format!("checkpoint_{step:06}.h5"));
     assert_eq!(j["last_checkpoint"], s(&ckpt));
     assert!(j["message"].as_str().unwrap().contains(s(&ckpt)));
-    let h = mpmcg::checkpoint::read_header(&ckpt).unwrap();
+    let h = mpmcg::output::checkpoint::read_header(&ckpt).unwrap();
     assert_eq!((h.step, h.ranks), (step, 2));
     assert!((h.time - j["time"].as_f64().unwrap()).abs() <= 1e-15 * h.time);
     assert_eq!(h.scene_text, long_scene());
@@ -947,7 +947,7 @@ fn unusable_checkpoints_are_rejected() {
             .unwrap();
     }
     // Edited on purpose with HDF5: sealed again, as a user would.
-    mpmcg::checkpoint::seal(&future).unwrap();
+    mpmcg::output::checkpoint::seal(&future).unwrap();
     run(
         &future,
         "checkpoint format version 99, but this mpmcg reads version 3",

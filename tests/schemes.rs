@@ -8,9 +8,9 @@
 #![forbid(unsafe_code)]
 
 use decomposition::{Layout, SerialComm};
-use mpmcg::scene::{self, Gradient};
-use mpmcg::shape::Alpha;
-use mpmcg::solver::Solver;
+use mpmcg::input::scene::{self, Gradient};
+use mpmcg::mpm::solver::Solver;
+use mpmcg::physics::shape::Alpha;
 
 /// splitmix64: deterministic pseudo-random numbers without a dependency.
 struct Rng(u64);
@@ -239,7 +239,7 @@ fn momentum_and_mass_conserved_3d() {
 }
 
 /// One USL step of the solver against the same step written out with the reference
-/// gradients of `mpmcg::gradient`, Ω the continuous cell weights of the particles:
+/// gradients of `mpmcg::physics::gradient`, Ω the continuous cell weights of the particles:
 /// `f_i = −Σ_p v_p σ_p · G_i(x_p)`, `v_i' = v_i + dt f_i / m_i`,
 /// `L_p = Σ_i v_i' ⊗ G_i(x_p)`, FLIP velocity, linear elastic stress, and the position
 /// moved with the grid velocity (MPM, GIMP) or with the reconstruction
@@ -255,7 +255,7 @@ fn check_step<const D: usize>(
     alpha: Option<f64>,
     seed: u64,
 ) -> f64 {
-    use mpmcg::gradient::{self as gr, Domain, Scheme};
+    use mpmcg::physics::gradient::{self as gr, Domain, Scheme};
     use std::collections::BTreeMap;
     let mut s = solver_with_state::<D>(text, alpha.map(Alpha::Constant), seed);
     let geom = s.geom.clone();
@@ -263,7 +263,7 @@ fn check_step<const D: usize>(
     let x: Vec<[f64; D]> = (0..n)
         .map(|p| std::array::from_fn(|a| s.parts.x[p][a]))
         .collect();
-    let omega = Domain::from_particles(&geom, &x, &s.parts.vol, mpmcg::solver::FULL_FILL);
+    let omega = Domain::from_particles(&geom, &x, &s.parts.vol, mpmcg::mpm::solver::FULL_FILL);
     let half = s.parts.half.clone();
     let scheme = |p: usize| match (gradient, alpha) {
         (_, Some(c)) => Scheme::Mpmcg(Alpha::Constant(c)),
@@ -330,7 +330,7 @@ fn check_step<const D: usize>(
             std::array::from_fn(|a| p[a] / m + dt * f[a] / m),
         )
     };
-    let (lambda, mu) = mpmcg::material::lame(1000.0, 0.3);
+    let (lambda, mu) = mpmcg::physics::material::lame(1000.0, 0.3);
     let mut worst = 0.0f64;
     for p in 0..n {
         let mut dv = [0.0; D];
@@ -373,13 +373,13 @@ fn check_step<const D: usize>(
                     worst.max((got - ds).abs() / (dt * (2.0 * mu + D as f64 * lambda) * lscale));
             }
         }
-        let mut inc = mpmcg::tensor::Mat::<D>::identity();
+        let mut inc = mpmcg::physics::tensor::Mat::<D>::identity();
         for a in 0..D {
             for b in 0..D {
                 inc[(a, b)] += dt * l[a][b];
             }
         }
-        let j = mpmcg::tensor::det(&inc);
+        let j = mpmcg::physics::tensor::det(&inc);
         worst = worst.max((s.parts.vol[p] / vol0[p] - j).abs() / (dt * lscale));
     }
     worst

@@ -20,8 +20,8 @@
 
 mod common;
 use common::temp_dir;
-use mpmcg::run::{run, RunOptions};
-use mpmcg::scene::{parse, Gradient};
+use mpmcg::driver::run::{run, RunOptions};
+use mpmcg::input::scene::{parse, Gradient};
 
 const SCENE: &str = include_str!("../inputs/generalized_vortex.toml");
 

@@ -12,8 +12,8 @@
 #![forbid(unsafe_code)]
 
 use decomposition::{Layout, SerialComm};
-use mpmcg::scene::{self, Face};
-use mpmcg::solver::Solver;
+use mpmcg::input::scene::{self, Face};
+use mpmcg::mpm::solver::Solver;
 use std::collections::HashMap;
 
 const H: f64 = 0.125;

@@ -2,8 +2,8 @@
 //! read the files it writes.
 #![allow(dead_code)]
 
-use mpmcg::run::{run, RunError, RunOptions, Summary};
-use mpmcg::scene::parse;
+use mpmcg::driver::run::{run, RunError, RunOptions, Summary};
+use mpmcg::input::scene::parse;
 use std::collections::HashMap;
 use std::path::PathBuf;
 

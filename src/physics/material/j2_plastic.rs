@@ -18,7 +18,7 @@
 //! In the log strains the return is the small-strain radial return, so it is exact for
 //! proportional loading with fixed principal axes, whatever the number of steps.
 
-use crate::tensor::Mat;
+use crate::physics::tensor::Mat;
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 
 #[derive(Clone, Debug, PartialEq)]
@@ -119,7 +119,7 @@ impl J2Plastic {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::material::lame;
+    use crate::physics::material::lame;
     use nalgebra::{Rotation3, Unit};
 
     /// Steel-like ratios: yield strain σ_y/2μ ≈ 3e-3, mild hardening.

@@ -1,6 +1,6 @@
 //! Reference evaluation of the effective gradient `G_i(x)` of every scheme at a point:
 //! slow and written for clarity, independent of the production code paths (the per-
-//! particle [`crate::shape`] stencils and the solver's two-step assembly), so that tests
+//! particle [`crate::physics::shape`] stencils and the solver's two-step assembly), so that tests
 //! can check one against the other and both against the identities `Σ_i G_i = 0` and
 //! `Σ_i x_i ⊗ G_i = I`.
 //!
@@ -18,7 +18,7 @@
 //! `Σ_i x_i ⊗ G_i(x)` can be formed with [`Geom::node_position`]. Use [`wrap_node`] to
 //! compare nodes across a periodic seam.
 
-use crate::shape::{Alpha, Geom};
+use crate::physics::shape::{Alpha, Geom};
 use std::collections::{BTreeMap, BTreeSet};
 
 /// The grid domain Ω of the integrals: every cell, a set of cells, or a weight per cell
@@ -213,7 +213,7 @@ fn hat_primitive(t: f64) -> f64 {
 /// the average of `N_i` and `N_i'` over the particle domain.
 ///
 /// On a bounded axis the domain is kept inside the grid, `l = min(lp, x − lower,
-/// upper − x)`, as [`crate::shape::gimp`] does: outside the grid there are no nodes,
+/// upper − x)`, as [`crate::physics::shape::gimp`] does: outside the grid there are no nodes,
 /// and a domain reaching out would lose the outside node's share (see
 /// [`gimp_shape_truncated`]). Below `l = 10⁻³ h` (where the difference of primitives
 /// below loses digits) the averages are taken as the hat function and its slope at `x`:
@@ -528,7 +528,7 @@ pub fn gradient<const D: usize>(
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::solver::cell_integral;
+    use crate::mpm::solver::cell_integral;
 
     type Pairs<const D: usize> = Vec<([i64; D], [f64; D])>;
 
@@ -947,7 +947,7 @@ pub(crate) mod tests {
                 geom.h.iter().product::<f64>() * geom.inv_h.iter().cloned().fold(0.0, f64::max);
             for (i, dj) in node_pairs(&geom) {
                 let j: [i64; D] = std::array::from_fn(|a| i[a] + dj[a]);
-                let closed = crate::shape::grid_integral(&geom, i, dj);
+                let closed = crate::physics::shape::grid_integral(&geom, i, dj);
                 let cells = assembled(&geom, &Domain::All, i, j);
                 let quad = if (0..D).all(|a| exists(&geom, a, j[a])) {
                     integral(&geom, &Domain::All, j, i)
@@ -1064,7 +1064,7 @@ pub(crate) mod tests {
             let vol: Vec<f64> = (0..n)
                 .map(|_| geom.cell_volume() * (0.05 + 0.5 * rng.f64()))
                 .collect();
-            let om = Domain::from_particles(&geom, &x, &vol, crate::solver::FULL_FILL);
+            let om = Domain::from_particles(&geom, &x, &vol, crate::mpm::solver::FULL_FILL);
             for xp in &x {
                 for scheme in [Scheme::Averaged, Scheme::Mpmcg(Alpha::ProductOfShapes)] {
                     let g = gradient(&geom, &om, scheme, xp);
@@ -1111,7 +1111,7 @@ pub(crate) mod tests {
                     .collect();
                 let vol = vec![geom.cell_volume() / (ppc.pow(D as u32)) as f64; total];
                 let Domain::Weighted(w) =
-                    Domain::from_particles(&geom, &x, &vol, crate::solver::FULL_FILL)
+                    Domain::from_particles(&geom, &x, &vol, crate::mpm::solver::FULL_FILL)
                 else {
                     unreachable!()
                 };
@@ -1127,8 +1127,10 @@ pub(crate) mod tests {
         check::<3>(73);
     }
 
-    /// Pairs of a production [`crate::shape::Weights1`] stencil (S, ∇S).
-    fn stencil_pairs<const D: usize>(w: &crate::shape::Weights1<D>) -> (Pairs<D>, Pairs<D>) {
+    /// Pairs of a production [`crate::physics::shape::Weights1`] stencil (S, ∇S).
+    fn stencil_pairs<const D: usize>(
+        w: &crate::physics::shape::Weights1<D>,
+    ) -> (Pairs<D>, Pairs<D>) {
         let st = w.stencil();
         let mut s = Vec::new();
         let mut g = Vec::new();
@@ -1176,13 +1178,13 @@ pub(crate) mod tests {
                         geom.upper[a]
                     };
                 }
-                let (s0, g0) = stencil_pairs(&crate::shape::linear(&geom, &x));
+                let (s0, g0) = stencil_pairs(&crate::physics::shape::linear(&geom, &x));
                 let (s1, g1) = split(linear_shape(&geom, &x));
                 assert!(
                     diff(&s0, &s1) < 1e-14 && diff(&g0, &g1) < 1e-14 * scale,
                     "linear at {x:?}"
                 );
-                let (s0, g0) = stencil_pairs(&crate::shape::gimp(&geom, &x, &lp));
+                let (s0, g0) = stencil_pairs(&crate::physics::shape::gimp(&geom, &x, &lp));
                 let (s1, g1) = split(gimp_shape(&geom, &x, &lp));
                 assert!(
                     diff(&s0, &s1) < 1e-13 && diff(&g0, &g1) < 1e-13 * scale,

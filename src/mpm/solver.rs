@@ -3,13 +3,13 @@
 //! (ghost sum after particle→grid, ghost copy before grid→particle and before the
 //! node→node stencils, migration after the position update).
 
-use crate::benchmark::Benchmark;
-use crate::kernel::{self, AvgRecord, NodeRecord, SlabOrder};
-use crate::material::Material;
-use crate::particles::{Carries, Particles};
-use crate::scene::{Face, Gradient, Scene, Update};
-use crate::shape::{Alpha, Geom};
-use crate::tensor::{vector, Mat, Vector};
+use crate::input::scene::{Face, Gradient, Scene, Update};
+use crate::mpm::kernel::{self, AvgRecord, NodeRecord, SlabOrder};
+use crate::mpm::particles::{Carries, Particles};
+use crate::physics::benchmark::Benchmark;
+use crate::physics::material::Material;
+use crate::physics::shape::{Alpha, Geom};
+use crate::physics::tensor::{vector, Mat, Vector};
 use decomposition::tiles::NEIGHBOURS;
 use decomposition::{Block, Communicator, Layout, Migrator, Tiles};
 
@@ -1480,8 +1480,8 @@ mod adjoint_tests {
     //! velocity gradient use the same cell tables (transposed) and the same `V_j`
     //! (swapping the table's indices in one of them fails this test).
     use super::*;
-    use crate::gradient::tests::Rng;
-    use crate::scene;
+    use crate::input::scene;
+    use crate::physics::gradient::tests::Rng;
     use decomposition::{Layout, SerialComm};
 
     /// A 4 m × 1 m beam against the `x_lower` face, 3 × 3 particles per cell.
@@ -1717,7 +1717,7 @@ particles_per_cell = 3
 mod sparse_tests {
     //! The sparse grid: storage follows the body, not the box.
     use super::*;
-    use crate::scene;
+    use crate::input::scene;
     use decomposition::{Layout, SerialComm};
 
     /// A spinning, drifting neo-Hookean box body [0.25, 0.75]^D in a box [0, upper]^D
@@ -1907,7 +1907,7 @@ mod sparse_multirank_tests {
     //! boundary, whose nodes on one rank are often stored only because a neighbour's
     //! particles touch them through the halo.
     use super::*;
-    use crate::scene;
+    use crate::input::scene;
     use decomposition::{Layout, LocalComm};
 
     type State = Vec<(u64, [f64; 2], [f64; 2])>;
@@ -1984,8 +1984,8 @@ mod xpic_tests {
     //! interpolation weights, and the conservation of momentum it inherits from the
     //! mass-weighted projection.
     use super::*;
-    use crate::gradient::tests::Rng;
-    use crate::scene;
+    use crate::input::scene;
+    use crate::physics::gradient::tests::Rng;
     use decomposition::{Layout, SerialComm};
     use std::collections::HashMap;
 
@@ -2235,7 +2235,7 @@ mod balance_tests {
     //! Cost-based block boundaries: an off-centre body seeded on one rank of an equal
     //! split is shared out by one rebalance.
     use super::*;
-    use crate::scene;
+    use crate::input::scene;
     use decomposition::{Layout, LocalComm};
 
     /// A box body in one corner of the unit box (`cells` per axis), away from the

@@ -2,13 +2,13 @@
 //! diagnostics, snapshots, checkpoints and stop signals, and the files it leaves in
 //! the output folder (`summary.json`, `history.csv`).
 
-use crate::checkpoint::{self, RunState, SolverState};
-use crate::io::{agree, Labels, Snapshots};
-use crate::particles::Particles;
-use crate::progress::Progress;
-use crate::scene::{Balance, CheckpointEvery, Face, Scene};
-use crate::signals;
-use crate::solver::{Failure, Solver, Totals};
+use crate::driver::progress::Progress;
+use crate::driver::signals;
+use crate::input::scene::{Balance, CheckpointEvery, Face, Scene};
+use crate::mpm::particles::Particles;
+use crate::mpm::solver::{Failure, Solver, Totals};
+use crate::output::checkpoint::{self, RunState, SolverState};
+use crate::output::io::{agree, Labels, Snapshots};
 use decomposition::{Communicator, Layout};
 use serde::Serialize;
 use std::io::Write;
@@ -290,7 +290,7 @@ pub fn check_bodies(scene: &Scene) -> Result<(), String> {
 fn check_bodies_dim<const D: usize>(scene: &Scene) -> Result<(), String> {
     let geom = Solver::<D>::geometry(scene);
     for (i, b) in scene.bodies.iter().enumerate() {
-        if !crate::particles::seeds_any::<D>(b, &geom) {
+        if !crate::mpm::particles::seeds_any::<D>(b, &geom) {
             let spacing =
                 geom.h.iter().cloned().fold(f64::INFINITY, f64::min) / b.particles_per_cell as f64;
             return Err(format!(
@@ -302,7 +302,7 @@ fn check_bodies_dim<const D: usize>(scene: &Scene) -> Result<(), String> {
             ));
         }
         for (j, a) in scene.bodies[..i].iter().enumerate() {
-            if let Some(x) = crate::particles::overlap::<D>(a, b, &geom) {
+            if let Some(x) = crate::mpm::particles::overlap::<D>(a, b, &geom) {
                 return Err(format!(
                     "bodies[{j}] and bodies[{i}] overlap (both contain the particle position \
                      {x:?}): both would seed particles there, doubling the mass; make them \
@@ -465,7 +465,7 @@ fn set_up<'c, const D: usize>(
         return Ok((solver, None, None, None));
     };
     let geom = Solver::<D>::geometry(scene);
-    let carries = crate::particles::Carries::for_scene(scene);
+    let carries = crate::mpm::particles::Carries::for_scene(scene);
     // The writer's blocks when it ran on this process grid (so each rank reads its own
     // rows and the run continues bit for bit), unless balancing is off.
     let r = checkpoint::read_header(path).and_then(|h| {
@@ -562,7 +562,7 @@ fn run_dim<const D: usize>(
 fn claim_output(
     comm: &dyn Communicator,
     out: &Path,
-) -> Result<Option<crate::lock::Lock>, RunError> {
+) -> Result<Option<crate::output::lock::Lock>, RunError> {
     let root = comm.rank() == 0;
     let made = if root {
         std::fs::create_dir_all(out)
@@ -574,14 +574,14 @@ fn claim_output(
     if let Some(m) = agree(comm, made) {
         return Err(RunError::Io(m));
     }
-    let (lock, locked) = match root.then(|| crate::lock::acquire(out)) {
+    let (lock, locked) = match root.then(|| crate::output::lock::acquire(out)) {
         Some(Ok(l)) => (Some(l), None),
         Some(Err(e)) => (None, Some(e)),
         None => (None, None),
     };
-    let held = matches!(locked, Some(crate::lock::LockError::Held(_)));
+    let held = matches!(locked, Some(crate::output::lock::LockError::Held(_)));
     let message = locked.map(|e| match e {
-        crate::lock::LockError::Held(m) | crate::lock::LockError::Io(m) => m,
+        crate::output::lock::LockError::Held(m) | crate::output::lock::LockError::Io(m) => m,
     });
     if let Some(m) = agree(comm, message) {
         return Err(if comm.any(held) {
@@ -594,12 +594,12 @@ fn claim_output(
 }
 
 /// Collective: rank 0 of a fresh run removes an earlier run's snapshots from the
-/// locked output folder ([`crate::io::remove_old_snapshots`]) and says so (even under
+/// locked output folder ([`crate::output::io::remove_old_snapshots`]) and says so (even under
 /// `--quiet`: files were deleted); every rank
 /// learns of a failure.
 fn clear_old_snapshots(comm: &dyn Communicator, out: &Path) -> Result<(), RunError> {
     let failed = if comm.rank() == 0 {
-        match crate::io::remove_old_snapshots(out) {
+        match crate::output::io::remove_old_snapshots(out) {
             Ok(0) => None,
             Ok(n) => {
                 // Even with --quiet: files were deleted.
@@ -1019,7 +1019,7 @@ impl<'a, const D: usize> Run<'a, D> {
     }
 
     /// The snapshots written so far.
-    fn snapshot_entries(&self) -> Vec<crate::io::Entry> {
+    fn snapshot_entries(&self) -> Vec<crate::output::io::Entry> {
         self.snaps
             .as_ref()
             .map_or_else(Vec::new, |sn| sn.writer.entries().to_vec())

@@ -2,7 +2,7 @@
 //! Small-strain: no objective rotation, which is what the verification problems of
 //! this model (vibrating bar, colliding disks) use.
 
-use crate::tensor::Mat;
+use crate::physics::tensor::Mat;
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct LinearElastic {
@@ -39,7 +39,7 @@ impl LinearElastic {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::material::lame;
+    use crate::physics::material::lame;
 
     /// Uniaxial strain ε in x from zero stress: σ_xx = (λ+2μ) ε, σ_yy = σ_zz = λ ε, and
     /// the energy is ½ (λ+2μ) ε².

@@ -7,8 +7,8 @@ pub mod j2_plastic;
 pub mod linear_elastic;
 pub mod neo_hookean;
 
-use crate::scene::{MaterialSpec, Model};
-use crate::tensor::Mat;
+use crate::input::scene::{MaterialSpec, Model};
+use crate::physics::tensor::Mat;
 use nalgebra::Matrix3;
 
 #[derive(Clone, Debug, PartialEq)]

@@ -8,7 +8,7 @@ use std::io::Read;
 use std::path::Path;
 
 /// The built-in scene `mpmcg run` uses when no scene file is given.
-pub const DEFAULT_SCENE: &str = include_str!("../inputs/default.toml");
+pub const DEFAULT_SCENE: &str = include_str!("../../inputs/default.toml");
 pub const DEFAULT_SCENE_NAME: &str = "<built-in default scene>";
 
 #[derive(Debug, Clone, Deserialize, Serialize)]

@@ -1,5 +1,5 @@
 //! Restart checkpoints: one HDF5 file per checkpoint, written by all ranks together
-//! with the collective machinery of [`crate::io`], holding everything a run needs to
+//! with the collective machinery of [`crate::output::io`], holding everything a run needs to
 //! continue bit for bit: every particle array, time, step, step size, the solver's
 //! accumulated external work, the diagnostics of the run loop, the scene text and the
 //! layout.
@@ -43,10 +43,10 @@
 //! chunks and keeps those in its cells: O(N) reading per rank, fine for the sizes of a
 //! few nodes but not for thousands of ranks.
 
-use crate::io::{self, agree, h5err, lockstep, Entry, IoError, Writer};
-use crate::particles::{Carries, Columns, Particles};
-use crate::shape::Geom;
-use crate::solver::{Solver, Totals};
+use crate::mpm::particles::{Carries, Columns, Particles};
+use crate::mpm::solver::{Solver, Totals};
+use crate::output::io::{self, agree, h5err, lockstep, Entry, IoError, Writer};
+use crate::physics::shape::Geom;
 use decomposition::splitmix::mix;
 use decomposition::{Communicator, Layout};
 use hdf5::types::VarLenUnicode;
@@ -594,7 +594,11 @@ impl Lineage {
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_nanos());
         Self::continued(
-            format!("{}-{}-{nanos}", crate::lock::hostname(), std::process::id()),
+            format!(
+                "{}-{}-{nanos}",
+                crate::output::lock::hostname(),
+                std::process::id()
+            ),
             keep,
         )
     }

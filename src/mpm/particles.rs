@@ -11,11 +11,11 @@
 //! benchmarks, the GIMP half-width only for `gimp`, the out-of-plane stress only for
 //! `brittle` in 2D.
 
-use crate::benchmark::Benchmark;
-use crate::material::Material;
-use crate::scene::{BodySpec, Model, Scene, Shape};
-use crate::shape::Geom;
-use crate::tensor::{det, vector, Mat, Vector};
+use crate::input::scene::{BodySpec, Model, Scene, Shape};
+use crate::physics::benchmark::Benchmark;
+use crate::physics::material::Material;
+use crate::physics::shape::Geom;
+use crate::physics::tensor::{det, vector, Mat, Vector};
 use nalgebra::Matrix3;
 
 /// Declares [`Carries`]: one flag per group of optional particle arrays. The flags'
@@ -122,7 +122,7 @@ macro_rules! particle_fields {
         }
 
         /// Every particle array over a contiguous range of particles, splittable for
-        /// threads (the step's particle loops, [`crate::kernel::Slices`]); arrays the
+        /// threads (the step's particle loops, [`crate::mpm::kernel::Slices`]); arrays the
         /// particles do not carry are empty.
         pub struct ParticleSlices<'a, const D: usize> {
             $($(#[$doc])* pub $name: &'a mut [$ty],)*
@@ -306,8 +306,8 @@ impl Carries {
             x0: scene.benchmark.is_some()
                 || scene
                     .snapshot_plan()
-                    .is_some_and(|o| o.fields.contains(&crate::scene::Field::Displacement)),
-            half: scene.method.gradient == crate::scene::Gradient::Gimp,
+                    .is_some_and(|o| o.fields.contains(&crate::input::scene::Field::Displacement)),
+            half: scene.method.gradient == crate::input::scene::Gradient::Gimp,
             plastic: scene.materials.iter().any(|m| m.model == Model::J2Plastic),
             damage: scene.materials.iter().any(|m| m.model == Model::Brittle),
             stress_zz: scene.dim == 2 && scene.materials.iter().any(|m| m.model == Model::Brittle),
@@ -423,7 +423,7 @@ impl<const D: usize> Particles<D> {
         self.vol.push(vol0 * j);
         let mut st = Mat::<D>::zeros();
         if mat.needs_def_grad() {
-            let none = crate::material::Internal {
+            let none = crate::physics::material::Internal {
                 plastic: None,
                 damage: None,
                 stress_zz: None,

@@ -8,12 +8,12 @@
 //! same order whatever the thread count. Particle-local work splits the particle range
 //! by halving down to [`GRAIN`], independent of the thread count as well.
 
-use crate::benchmark::Benchmark;
-use crate::material::{Internal, Material};
-use crate::particles::{split_mut, ParticleSlices};
-use crate::scene::Face;
-use crate::shape::{self, Alpha, Geom};
-use crate::tensor::{det, Mat, Vector};
+use crate::input::scene::Face;
+use crate::mpm::particles::{split_mut, ParticleSlices};
+use crate::physics::benchmark::Benchmark;
+use crate::physics::material::{Internal, Material};
+use crate::physics::shape::{self, Alpha, Geom};
+use crate::physics::tensor::{det, Mat, Vector};
 use decomposition::tiles::{Tiles, NEIGHBOURS, TILE, TILE_LOG};
 
 /// Slab thickness in cells for the coloured scatter: a GIMP particle writes one node row

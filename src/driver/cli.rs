@@ -2,10 +2,10 @@
 //! included), 3 numerically unstable, 4 stopped by SIGTERM/SIGINT/SIGUSR1 after writing a
 //! checkpoint, 1 any other failure (I/O, MPI).
 
-use crate::checkpoint;
-use crate::run::{self, RunError, RunOptions};
-use crate::scene::{self, SceneError};
-use crate::signals;
+use crate::driver::run::{self, RunError, RunOptions};
+use crate::driver::signals;
+use crate::input::scene::{self, SceneError};
+use crate::output::checkpoint;
 use clap::{Parser, Subcommand};
 use decomposition::{Communicator, MpiComm};
 use std::path::{Path, PathBuf};
@@ -193,7 +193,7 @@ fn restart_scene(
     scene_file: &Option<PathBuf>,
 ) -> Result<(scene::Scene, String), String> {
     let header = checkpoint::read_header(ckpt);
-    if let Some(m) = crate::io::agree(comm, header.as_ref().err().cloned()) {
+    if let Some(m) = crate::output::io::agree(comm, header.as_ref().err().cloned()) {
         return Err(m);
     }
     let header = header.expect("agreed");
@@ -338,7 +338,7 @@ fn report(result: Result<run::Summary, RunError>, root: bool, out: &Path) -> Exi
                     _ => eprintln!("error: {e}"),
                 }
             }
-            if crate::io::unclosed_file() {
+            if crate::output::io::unclosed_file() {
                 // HDF5 holds a file it could not close: MPI_Finalize (via HDF5's
                 // clean-up callback) and HDF5's atexit handler would both crash on it.
                 // Every rank agreed on this and ends here, after the run has released
@@ -351,22 +351,22 @@ fn report(result: Result<run::Summary, RunError>, root: bool, out: &Path) -> Exi
     }
 }
 
-/// `mpmcg sweep`: the runs, tables and plots are in [`crate::sweep`].
+/// `mpmcg sweep`: the runs, tables and plots are in [`crate::driver::sweep`].
 fn sweep_main(a: SweepArgs) -> ExitCode {
-    let fail = |e: crate::sweep::SweepError| {
+    let fail = |e: crate::driver::sweep::SweepError| {
         eprintln!("error: {e}");
         ExitCode::from(e.exit_code())
     };
-    let input = |m: String| fail(crate::sweep::SweepError::Input(m));
+    let input = |m: String| fail(crate::driver::sweep::SweepError::Input(m));
     let (base, _) = match scene::load(&a.scene) {
         Ok(x) => x,
         Err(e) => return scene_error(&e),
     };
-    let cells = match crate::sweep::parse_cells(&a.cells) {
+    let cells = match crate::driver::sweep::parse_cells(&a.cells) {
         Ok(c) => c,
         Err(m) => return input(m),
     };
-    let gradients = match crate::sweep::parse_gradients(&a.gradient) {
+    let gradients = match crate::driver::sweep::parse_gradients(&a.gradient) {
         Ok(g) => g,
         Err(m) => return input(m),
     };
@@ -386,19 +386,21 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
             return ExitCode::from(1);
         }
     };
-    let opts = crate::sweep::Options {
+    let opts = crate::driver::sweep::Options {
         scene_file: a.scene.display().to_string(),
         cells,
         gradients,
         ppc: a.ppc,
         ranks: a.ranks,
         threads: a.threads,
-        out: a.out.unwrap_or_else(|| crate::sweep::default_out(&base)),
+        out: a
+            .out
+            .unwrap_or_else(|| crate::driver::sweep::default_out(&base)),
         exe,
-        command: crate::sweep::command_line(std::env::args()),
+        command: crate::driver::sweep::command_line(std::env::args()),
         quiet: a.quiet,
     };
-    match crate::sweep::sweep(&base, &opts) {
+    match crate::driver::sweep::sweep(&base, &opts) {
         Ok(rows) => {
             let count = |s: &str| rows.iter().filter(|r| r.status == s).count();
             let (unstable, failed) = (count("unstable"), count("failed"));

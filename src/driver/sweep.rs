@@ -14,8 +14,8 @@ pub mod report;
 
 pub use report::{Row, Stats};
 
-use crate::run::{self, RunError, RunOptions};
-use crate::scene::{self, Gradient, Scene};
+use crate::driver::run::{self, RunError, RunOptions};
+use crate::input::scene::{self, Gradient, Scene};
 use decomposition::SerialComm;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};

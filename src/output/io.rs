@@ -13,9 +13,9 @@
 //! material names behind the `material` index, the units, and the symmetry planes of
 //! a scene that models part of a body.
 
-use crate::material::Material;
-use crate::particles::{shape_bounds, Particles};
-use crate::scene::{Face, Field, Scene};
+use crate::input::scene::{Face, Field, Scene};
+use crate::mpm::particles::{shape_bounds, Particles};
+use crate::physics::material::Material;
 use decomposition::Communicator;
 use hdf5::types::VarLenUnicode;
 use hdf5_sys::{h5d, h5p, h5s, h5t};

@@ -6,9 +6,9 @@
 //! Sadeghirad & Guilkey and of Wang, Coombs, Augarde et al. (2019). The README
 //! ("Scenes in `inputs/`", "Verification") says what each is checked against.
 
-use crate::material::{lame, Material};
-use crate::scene::{BenchmarkKind, Scene, Shape};
-use crate::tensor::{Mat, Vector};
+use crate::input::scene::{BenchmarkKind, Scene, Shape};
+use crate::physics::material::{lame, Material};
+use crate::physics::tensor::{Mat, Vector};
 use std::f64::consts::PI;
 
 #[derive(Clone, Debug)]
@@ -273,7 +273,7 @@ mod tests {
         let piola = |x: &Vector<2>, t: f64| {
             let f = bm.deformation_gradient(x, t);
             let fit = f.try_inverse().unwrap().transpose();
-            let j = crate::tensor::det(&f);
+            let j = crate::physics::tensor::det(&f);
             (f - fit) * mu + fit * (lambda * j.ln())
         };
         let x = Vector::<2>::new(0.3, 0.7);
@@ -345,7 +345,9 @@ mod tests {
         let resid = acc * 1000.0 - div - b * 1000.0;
         assert!(resid.norm() < 1e-3 * (div.norm() + 1.0), "residual {resid}");
         // J = 1 for a rigid rotation of each circle.
-        assert!((crate::tensor::det(&bm.deformation_gradient(&x0, t)) - 1.0).abs() < 1e-12);
+        assert!(
+            (crate::physics::tensor::det(&bm.deformation_gradient(&x0, t)) - 1.0).abs() < 1e-12
+        );
     }
 
     /// The vortex against an independent symbolic derivation (sympy, Cartesian and

@@ -3,7 +3,7 @@
 //! D = 1 (uniaxial strain) this is the 3D model restricted, since the missing
 //! directions contribute `1 − 1 = 0` to `F:F − D`.
 
-use crate::tensor::{det, Mat};
+use crate::physics::tensor::{det, Mat};
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct NeoHookean {

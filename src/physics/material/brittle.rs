@@ -18,8 +18,8 @@
 //! and the projection keeps `min(σ_zz, 0)`. In 1D the untracked lateral stresses `λε`
 //! never exceed `(λ+2μ)ε` when tensile, so the check on σ_xx misses no failure.
 
-use crate::material::linear_elastic::LinearElastic;
-use crate::tensor::Mat;
+use crate::physics::material::linear_elastic::LinearElastic;
+use crate::physics::tensor::Mat;
 use nalgebra::{Matrix3, SymmetricEigen};
 
 #[derive(Clone, Debug, PartialEq)]
@@ -136,7 +136,7 @@ fn negative_part<const D: usize>(s: &Mat<D>) -> Mat<D> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::material::lame;
+    use crate::physics::material::lame;
     use nalgebra::{Rotation3, Unit, Vector3};
 
     fn model() -> Brittle {

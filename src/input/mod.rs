@@ -1,0 +1,3 @@
+//! Input: scene files, parsed and validated before anything runs.
+
+pub mod scene;
