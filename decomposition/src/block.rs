@@ -5,6 +5,7 @@ use std::collections::BTreeMap;
 
 use crate::comm::Communicator;
 use crate::layout::{Layout, GHOST};
+use crate::tiles::{Tiles, TILE};
 
 /// One rank's view of the grid.
 #[derive(Clone, Debug)]
@@ -26,11 +27,17 @@ pub struct Block<const D: usize> {
     /// One past the last owned node in local indices.
     pub own_hi: [usize; D],
     halo: Halo,
+    layout: Layout<D>,
 }
 
 /// For each peer rank: which of my ghost nodes it owns, and which of my owned nodes are
 /// ghosts in its box, both in the order of the peer's (resp. my) local node numbering so
 /// that the two sides agree without talking.
+///
+/// The halo operations exchange the nodes of `sum_send`/`sum_recv` and
+/// `copy_send`/`copy_recv`: the whole lists (dense local numbering) until
+/// [`Block::activate_halo`] and [`Block::map_active_halo`] restrict them to the chunks
+/// some rank uses this step, in the storage numbering of a [`Tiles`].
 #[derive(Clone, Debug, Default)]
 struct Halo {
     peers: Vec<usize>,
@@ -41,6 +48,167 @@ struct Halo {
     owned: Vec<Vec<usize>>,
     send: Vec<Vec<f64>>,
     recv: Vec<Vec<f64>>,
+    /// `ghosts` and `owned` cut into chunks (built on the first activation).
+    chunked: Option<(Vec<Chunked>, Vec<Chunked>)>,
+    /// Active chunks of this step, per peer: my ghost chunks I touched (`g`), my owned
+    /// chunks the peer touched (`r`), my owned chunks stored after that (`o`), my ghost
+    /// chunks the peer stores (`q`).
+    g: Vec<Vec<u32>>,
+    r: Vec<Vec<u32>>,
+    o: Vec<Vec<u32>>,
+    q: Vec<Vec<u32>>,
+    sum_send: Vec<Vec<usize>>,
+    sum_recv: Vec<Vec<usize>>,
+    copy_send: Vec<Vec<usize>>,
+    copy_recv: Vec<Vec<usize>>,
+    /// Stored ghost nodes that no copy reaches this step (their owner stores nothing
+    /// there, so their value is zero); the ghost copy zeroes them, else they would
+    /// keep an earlier step's value.
+    stale: Vec<usize>,
+}
+
+/// A halo list cut into chunks: the entries of one tile of the global node grid
+/// (wrapped global node / [`TILE`] per axis), made contiguous, chunks in the order of
+/// their first entry. The two ranks of a pair see the same list in the same order and
+/// the same global nodes, so they cut it alike and can name a chunk by its number.
+#[derive(Clone, Debug, Default)]
+struct Chunked {
+    /// Local dense node indices, grouped by chunk.
+    nodes: Vec<usize>,
+    /// Key of the local tile ([`Tiles::key_of`]) of each node.
+    keys: Vec<u64>,
+    /// Chunk `c` is `nodes[start[c]..start[c + 1]]`.
+    start: Vec<usize>,
+    /// Chunk `c`'s distinct local tile keys: `tiles[tile_start[c]..tile_start[c + 1]]`.
+    tiles: Vec<u64>,
+    tile_start: Vec<usize>,
+}
+
+impl Chunked {
+    fn new<const D: usize>(
+        list: &[usize],
+        block: &Block<D>,
+        layout: &Layout<D>,
+        t: &Tiles<D>,
+    ) -> Self {
+        let mut order: Vec<(usize, [usize; D])> = Vec::with_capacity(list.len());
+        let mut first: BTreeMap<[usize; D], usize> = BTreeMap::new();
+        for (i, &n) in list.iter().enumerate() {
+            let w = layout
+                .wrap_node(block.global(block.coords(n)))
+                .expect("halo nodes lie in the grid");
+            let tile: [usize; D] = std::array::from_fn(|a| w[a] / TILE);
+            let f = *first.entry(tile).or_insert(i);
+            order.push((f, [0; D]));
+            order[i].1 = tile;
+        }
+        // Stable: entries keep their list order within a chunk.
+        let mut idx: Vec<usize> = (0..list.len()).collect();
+        idx.sort_by_key(|&i| order[i].0);
+        let mut c = Chunked::default();
+        let mut prev = usize::MAX;
+        for &i in &idx {
+            if order[i].0 != prev {
+                prev = order[i].0;
+                c.start.push(c.nodes.len());
+                c.tile_start.push(c.tiles.len());
+            }
+            let n = list[i];
+            let k = t.key_of(block.coords(n));
+            c.nodes.push(n);
+            c.keys.push(k);
+            let from = *c.tile_start.last().expect("a chunk is open");
+            if !c.tiles[from..].contains(&k) {
+                c.tiles.push(k);
+            }
+        }
+        c.start.push(c.nodes.len());
+        c.tile_start.push(c.tiles.len());
+        c
+    }
+
+    fn chunks(&self) -> usize {
+        self.start.len() - 1
+    }
+
+    fn tiles_of(&self, c: usize) -> &[u64] {
+        &self.tiles[self.tile_start[c]..self.tile_start[c + 1]]
+    }
+
+    /// Append the storage indices of the stored nodes of the chunks not in `chunks`
+    /// (ascending).
+    fn stored_outside<const D: usize>(
+        &self,
+        chunks: &[u32],
+        block: &Block<D>,
+        t: &Tiles<D>,
+        out: &mut Vec<usize>,
+    ) {
+        let mut next = chunks.iter().peekable();
+        for c in 0..self.chunks() {
+            if next.peek().is_some_and(|&&x| x as usize == c) {
+                next.next();
+                continue;
+            }
+            for i in self.start[c]..self.start[c + 1] {
+                let slot = t.slot_of_key(self.keys[i]);
+                if slot != 0 {
+                    out.push(t.index_in(slot, block.coords(self.nodes[i])));
+                }
+            }
+        }
+    }
+
+    /// Replace `out` by the storage indices of the nodes of `chunks` (all stored).
+    fn storage<const D: usize>(
+        &self,
+        chunks: &[u32],
+        block: &Block<D>,
+        t: &Tiles<D>,
+        out: &mut Vec<usize>,
+    ) {
+        out.clear();
+        for &c in chunks {
+            let c = c as usize;
+            for i in self.start[c]..self.start[c + 1] {
+                let slot = t.slot_of_key(self.keys[i]);
+                debug_assert!(slot != 0, "an active chunk's tiles are stored");
+                out.push(t.index_in(slot, block.coords(self.nodes[i])));
+            }
+        }
+    }
+
+    /// Replace `out` by the chunks (as `f64`) with a tile for which `on` holds.
+    fn active(&self, on: impl Fn(u64) -> bool, out: &mut Vec<f64>) {
+        out.clear();
+        for c in 0..self.chunks() {
+            if self.tiles_of(c).iter().any(|&k| on(k)) {
+                out.push(c as f64);
+            }
+        }
+    }
+
+    /// Touch every tile of `chunks`.
+    fn touch<const D: usize>(&self, chunks: &[u32], t: &mut Tiles<D>) {
+        for &c in chunks {
+            for &k in self.tiles_of(c as usize) {
+                t.touch_key(k);
+            }
+        }
+    }
+}
+
+/// Chunk numbers received as `f64` (exact below 2^53), checked against the list.
+fn chunk_ids(buf: &[f64], list: &Chunked, out: &mut Vec<u32>) {
+    out.clear();
+    for &x in buf {
+        let c = x as usize;
+        assert!(
+            c < list.chunks() && c as f64 == x,
+            "ranks disagree on the halo's chunks"
+        );
+        out.push(c as u32);
+    }
 }
 
 impl<const D: usize> Block<D> {
@@ -57,8 +225,14 @@ impl<const D: usize> Block<D> {
             own_lo,
             own_hi,
             halo: Halo::default(),
+            layout: layout.clone(),
         };
         b.halo = build_halo(layout, rank);
+        let h = &mut b.halo;
+        h.sum_send = h.ghosts.clone();
+        h.sum_recv = h.owned.clone();
+        h.copy_send = h.owned.clone();
+        h.copy_recv = h.ghosts.clone();
         b
     }
 
@@ -108,39 +282,81 @@ impl<const D: usize> Block<D> {
         &self.halo.peers
     }
 
-    /// Every local node a halo operation reads or writes (ghost nodes and owned nodes
-    /// that are ghosts elsewhere), as local coordinates; some may repeat.
-    pub fn halo_nodes(&self) -> impl Iterator<Item = [usize; D]> + '_ {
-        self.halo
-            .ghosts
-            .iter()
-            .chain(&self.halo.owned)
-            .flatten()
-            .map(|&i| self.coords(i))
+    /// Collective: agree with the peers on the halo nodes in use this step, and touch
+    /// their tiles. Call after touching the tiles of this rank's particles and before
+    /// [`Tiles::finish`]; then [`Block::map_active_halo`]. The halo lists are cut into
+    /// chunks (one global tile's nodes each); two exchanges of chunk numbers decide:
+    /// 1. each rank tells the owners which of its ghost chunks it touched; an owner
+    ///    stores those chunks (a neighbour's particles put mass there);
+    /// 2. each owner tells the ranks that hold its owned chunks as ghosts which of
+    ///    them it stores now (its particles', and those of step 1 from any rank);
+    ///    they store them, so that every node with mass reaches every copy.
+    ///
+    /// The ghost sum then sends the chunks of step 1, the ghost copy those of step 2.
+    /// A halo chunk no rank's particles come near is neither stored nor sent, so the
+    /// halo's cost follows the material, not the block faces.
+    pub fn activate_halo(&mut self, comm: &dyn Communicator, tiles: &mut Tiles<D>) {
+        if self.halo.chunked.is_none() {
+            let chunk = |l: &Vec<Vec<usize>>| -> Vec<Chunked> {
+                l.iter()
+                    .map(|list| Chunked::new(list, self, &self.layout, tiles))
+                    .collect()
+            };
+            self.halo.chunked = Some((chunk(&self.halo.ghosts), chunk(&self.halo.owned)));
+        }
+        let h = &mut self.halo;
+        let n = h.peers.len();
+        for v in [&mut h.g, &mut h.r, &mut h.o, &mut h.q] {
+            v.resize_with(n, Vec::new);
+        }
+        let (ghosts, owned) = h.chunked.as_ref().expect("chunked above");
+        // Step 1: my touched ghost chunks to their owners.
+        let touched = tiles.touched_sorted();
+        for k in 0..n {
+            ghosts[k].active(|t| touched.binary_search(&t).is_ok(), &mut h.send[k]);
+        }
+        comm.exchange(&h.peers, &h.send, &mut h.recv);
+        for k in 0..n {
+            chunk_ids(&h.send[k], &ghosts[k], &mut h.g[k]);
+            chunk_ids(&h.recv[k], &owned[k], &mut h.r[k]);
+            ghosts[k].touch(&h.g[k], tiles);
+            owned[k].touch(&h.r[k], tiles);
+        }
+        // Step 2: my stored owned chunks to the ranks that hold them as ghosts.
+        let stored = tiles.touched_sorted();
+        for k in 0..n {
+            owned[k].active(|t| stored.binary_search(&t).is_ok(), &mut h.send[k]);
+        }
+        comm.exchange(&h.peers, &h.send, &mut h.recv);
+        for k in 0..n {
+            chunk_ids(&h.send[k], &owned[k], &mut h.o[k]);
+            chunk_ids(&h.recv[k], &ghosts[k], &mut h.q[k]);
+            owned[k].touch(&h.o[k], tiles);
+            ghosts[k].touch(&h.q[k], tiles);
+        }
     }
 
-    /// Renumber the nodes of the halo lists, e.g. from the dense local numbering of
-    /// [`Block::index`] to a sparse storage ([`crate::Tiles`]); fields passed to the
-    /// halo operations are then indexed by the new numbers. Call once, with the
-    /// numbering the fields use.
-    pub fn map_halo(&mut self, f: impl Fn(usize) -> usize) {
-        for list in self
-            .halo
-            .ghosts
-            .iter_mut()
-            .chain(self.halo.owned.iter_mut())
-        {
-            for i in list.iter_mut() {
-                *i = f(*i);
-            }
+    /// After [`Block::activate_halo`] and [`Tiles::finish`]: the halo operations use
+    /// the storage indices of the active chunks' nodes in `tiles`.
+    pub fn map_active_halo(&mut self, tiles: &Tiles<D>) {
+        let mut h = std::mem::take(&mut self.halo);
+        let (ghosts, owned) = h.chunked.as_ref().expect("activate_halo first");
+        h.stale.clear();
+        for k in 0..h.peers.len() {
+            ghosts[k].storage(&h.g[k], self, tiles, &mut h.sum_send[k]);
+            owned[k].storage(&h.r[k], self, tiles, &mut h.sum_recv[k]);
+            owned[k].storage(&h.o[k], self, tiles, &mut h.copy_send[k]);
+            ghosts[k].storage(&h.q[k], self, tiles, &mut h.copy_recv[k]);
+            ghosts[k].stored_outside(&h.q[k], self, tiles, &mut h.stale);
         }
+        self.halo = h;
     }
 
     /// Add every ghost node's value into its owner's node, then leave ghosts as they were
     /// (call [`Block::ghost_copy`] if they must hold the sum too).
     pub fn ghost_sum(&mut self, comm: &dyn Communicator, field: &mut [f64], ncomp: usize) {
         let h = &mut self.halo;
-        for (k, nodes) in h.ghosts.iter().enumerate() {
+        for (k, nodes) in h.sum_send.iter().enumerate() {
             let buf = &mut h.send[k];
             buf.clear();
             for &n in nodes {
@@ -148,7 +364,7 @@ impl<const D: usize> Block<D> {
             }
         }
         comm.exchange(&h.peers, &h.send, &mut h.recv);
-        for (k, nodes) in h.owned.iter().enumerate() {
+        for (k, nodes) in h.sum_recv.iter().enumerate() {
             let buf = &h.recv[k];
             debug_assert_eq!(buf.len(), nodes.len() * ncomp);
             for (j, &n) in nodes.iter().enumerate() {
@@ -162,7 +378,7 @@ impl<const D: usize> Block<D> {
     /// Copy every owned node's value to all its ghost copies on all ranks.
     pub fn ghost_copy(&mut self, comm: &dyn Communicator, field: &mut [f64], ncomp: usize) {
         let h = &mut self.halo;
-        for (k, nodes) in h.owned.iter().enumerate() {
+        for (k, nodes) in h.copy_send.iter().enumerate() {
             let buf = &mut h.send[k];
             buf.clear();
             for &n in nodes {
@@ -170,7 +386,10 @@ impl<const D: usize> Block<D> {
             }
         }
         comm.exchange(&h.peers, &h.send, &mut h.recv);
-        for (k, nodes) in h.ghosts.iter().enumerate() {
+        for &n in &h.stale {
+            field[n * ncomp..(n + 1) * ncomp].fill(0.0);
+        }
+        for (k, nodes) in h.copy_recv.iter().enumerate() {
             let buf = &h.recv[k];
             debug_assert_eq!(buf.len(), nodes.len() * ncomp);
             for (j, &n) in nodes.iter().enumerate() {

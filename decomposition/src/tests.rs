@@ -871,3 +871,205 @@ fn migration_to_any_rank_follows_the_new_cuts() {
         }
     }
 }
+
+// ---------------------------------------------------------------- sparse halo
+
+/// Linear-hat weights of a point `x` (cell units) on its cell's corner nodes: the
+/// corners as global (unwrapped) nodes and their weights.
+fn corners<const D: usize>(x: [f64; D]) -> Vec<([i64; D], f64)> {
+    (0..1usize << D)
+        .map(|q| {
+            let mut w = 1.0;
+            let node: [i64; D] = std::array::from_fn(|a| {
+                let c = x[a].floor();
+                let xi = x[a] - c;
+                let up = (q >> a) & 1 == 1;
+                w *= if up { xi } else { 1.0 - xi };
+                c as i64 + i64::from(up)
+            });
+            (node, w)
+        })
+        .collect()
+}
+
+/// Two rounds (a step, then the cluster moves) of: touch the tiles of this rank's
+/// particles' corners, agree on the halo, scatter, ghost sum, ghost copy. After each
+/// round every node any rank stores holds the serial sum of its wrapped node (owned
+/// and ghost alike, zero where no particle reaches, including ghosts stored for an
+/// earlier round), every node with a nonzero sum is stored on its owner, and a small
+/// cluster stores a few tiles, not the block faces.
+fn check_sparse_halo<const D: usize>(layout: &Layout<D>, seed: u64) {
+    let mut rng = Rng::new(seed);
+    // A cluster 5 cells wide somewhere (across block boundaries and periodic faces
+    // when it falls there), then moved by up to two cells per axis.
+    let rounds: Vec<Vec<([f64; D], f64)>> = {
+        let lo: [f64; D] = std::array::from_fn(|a| rng.below(layout.cells[a]) as f64);
+        let shift: [f64; D] = std::array::from_fn(|_| rng.int(-2, 2) as f64);
+        let pts: Vec<([f64; D], f64)> = (0..30)
+            .map(|_| {
+                let x = std::array::from_fn(|a| {
+                    let span = (layout.cells[a] as f64 - 1e-9).min(5.0);
+                    lo[a] + rng.below(1000) as f64 / 1000.0 * span
+                });
+                (x, 1.0 + rng.below(7) as f64)
+            })
+            .collect();
+        let wrap = |x: [f64; D]| -> Option<[f64; D]> {
+            let mut y = x;
+            for a in 0..D {
+                let n = layout.cells[a] as f64;
+                if layout.periodic[a] {
+                    y[a] = x[a].rem_euclid(n);
+                } else if !(0.0..n).contains(&x[a]) {
+                    return None;
+                }
+            }
+            Some(y)
+        };
+        let first: Vec<_> = pts
+            .iter()
+            .filter_map(|(x, m)| wrap(*x).map(|y| (y, *m)))
+            .collect();
+        let second: Vec<_> = pts
+            .iter()
+            .filter_map(|(x, m)| wrap(std::array::from_fn(|a| x[a] + shift[a])).map(|y| (y, *m)))
+            .collect();
+        // The first round's cluster thinned out: some nodes lose their mass while
+        // their tiles may stay stored.
+        let thinned: Vec<_> = first.iter().copied().step_by(3).collect();
+        vec![first, thinned, second]
+    };
+    let serial: Vec<HashMap<[usize; D], f64>> = rounds
+        .iter()
+        .map(|pts| {
+            let mut m = HashMap::new();
+            for (x, mass) in pts {
+                for (g, w) in corners(*x) {
+                    if let Some(wn) = layout.wrap_node(g) {
+                        *m.entry(wn).or_insert(0.0) += mass * w;
+                    }
+                }
+            }
+            m
+        })
+        .collect();
+    LocalComm::run(layout.ranks(), |comm| {
+        let me = comm.rank();
+        let mut b = Block::new(layout, me);
+        let mut tiles = crate::Tiles::<D>::new(b.node_dims, b.own_lo);
+        let mut field: Vec<f64> = Vec::new();
+        // A field computed on owned nodes and copied to the ghosts (like the grid
+        // velocity): kept between rounds and zeroed only when the stored tiles change,
+        // as the solver does.
+        let mut copied: Vec<f64> = Vec::new();
+        for (round, pts) in rounds.iter().enumerate() {
+            let mine: Vec<&([f64; D], f64)> = pts
+                .iter()
+                .filter(|(x, _)| {
+                    layout.cell_owner(std::array::from_fn(|a| x[a].floor() as usize)) == me
+                })
+                .collect();
+            let node_lo = b.node_lo;
+            let local = |g: [i64; D]| -> [usize; D] {
+                std::array::from_fn(|a| (g[a] - node_lo[a]) as usize)
+            };
+            tiles.begin();
+            for (x, _) in &mine {
+                let c: [i64; D] = std::array::from_fn(|a| x[a].floor() as i64 - b.node_lo[a]);
+                tiles.touch(c, c.map(|v| v + 1));
+            }
+            b.activate_halo(comm, &mut tiles);
+            if tiles.finish() || round == 0 {
+                copied.clear();
+                copied.resize(tiles.nodes(), 0.0);
+            }
+            b.map_active_halo(&tiles);
+            field.clear();
+            field.resize(tiles.nodes(), 0.0);
+            for (x, m) in &mine {
+                for (g, w) in corners(*x) {
+                    if layout.wrap_node(g).is_some() {
+                        let i = tiles
+                            .index(local(g))
+                            .expect("a particle's nodes are stored");
+                        field[i] += m * w;
+                    }
+                }
+            }
+            b.ghost_sum(comm, &mut field, 1);
+            for slot in 1..tiles.slots() {
+                for o in 0..tiles.tile_nodes() {
+                    if tiles.local(slot, o).is_some_and(|l| b.is_owned(l)) {
+                        let n = slot * tiles.tile_nodes() + o;
+                        copied[n] = field[n];
+                    }
+                }
+            }
+            b.ghost_copy(comm, &mut copied, 1);
+            let field = &copied;
+            let mut stored_owned = Vec::new();
+            for slot in 1..tiles.slots() {
+                for o in 0..tiles.tile_nodes() {
+                    let Some(l) = tiles.local(slot, o) else {
+                        continue;
+                    };
+                    let w = layout
+                        .wrap_node(b.global(l))
+                        .expect("stored nodes lie in the grid");
+                    let want = serial[round].get(&w).copied().unwrap_or(0.0);
+                    let got = field[slot * tiles.tile_nodes() + o];
+                    assert!(
+                        (got - want).abs() <= 1e-12 * want.abs().max(1.0),
+                        "{layout:?} rank {me} round {round}: node {w:?} holds {got}, serial {want}"
+                    );
+                    if b.is_owned(l) {
+                        stored_owned.push(w);
+                    }
+                }
+            }
+            // Every node with mass that this rank owns is stored here.
+            for (w, v) in &serial[round] {
+                if *v != 0.0 && layout.node_owner(*w) == me {
+                    assert!(
+                        stored_owned.contains(w),
+                        "{layout:?} round {round}: {w:?} not stored"
+                    );
+                }
+            }
+            // Sparse: the cluster's tiles and a ring around them, not the faces.
+            let cluster_tiles = 3usize.pow(D as u32) * 4usize.pow(D as u32);
+            assert!(
+                tiles.active() <= cluster_tiles,
+                "{layout:?} rank {me}: {} tiles stored",
+                tiles.active()
+            );
+        }
+    });
+}
+
+#[test]
+fn sparse_halo_delivers_every_sum_and_stores_little() {
+    let mut seed = 1;
+    let mut next = || {
+        seed += 1;
+        seed
+    };
+    for l in layouts2() {
+        for _ in 0..3 {
+            check_sparse_halo(&l, next());
+        }
+    }
+    for l in layouts3() {
+        check_sparse_halo(&l, next());
+    }
+    // Big boxes, where the faces are long: the stored tiles follow the cluster.
+    for (cells, per, procs) in [
+        ([64, 48], [true, false], [2, 2]),
+        ([40, 40], [false, true], [3, 1]),
+    ] {
+        let l = Layout::new(cells, per, procs).unwrap();
+        for _ in 0..4 {
+            check_sparse_halo(&l, next());
+        }
+    }
+}

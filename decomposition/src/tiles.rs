@@ -4,9 +4,10 @@
 //! The local node box stays the address space (a node is named by its local
 //! coordinates, `usize` per axis, so a 65536² or 4096³ box cannot overflow), but
 //! storage is `slot * TILE_NODES + offset`: slot 0 is a read-only *zero tile* that
-//! every missing neighbour points at, slots `1..=permanent` hold the tiles that are
-//! always kept (the halo's), and the remaining slots the tiles the caller touched
-//! since [`Tiles::begin`], in increasing tile key (last axis slowest). Within a tile,
+//! every missing neighbour points at, and slots from 1 on hold the tiles the caller
+//! touched since [`Tiles::begin`] (its particles' and the halo's that
+//! [`crate::Block::activate_halo`] agreed on), in increasing tile key (last axis
+//! slowest). Within a tile,
 //! nodes are numbered axis 0 fastest. Fields are stored node-major over this storage
 //! (`field[index * ncomp + c]`), so memory and every loop over the tiles follow the
 //! active set, not the box.
@@ -40,8 +41,6 @@ pub struct Tiles<const D: usize> {
     shift: [usize; D],
     /// Tiles per axis.
     tdims: [usize; D],
-    /// Keys of the tiles kept whatever the caller touches, ascending.
-    permanent: Vec<u64>,
     /// Key of the tile in each slot (slot 0: the zero tile, `u64::MAX`).
     keys: Vec<u64>,
     /// (key, slot) ascending by key, for look-ups.
@@ -52,7 +51,7 @@ pub struct Tiles<const D: usize> {
     /// slot times `TILE_NODES`), index `Σ_a (d_a + 1) 3^a` for offsets
     /// `d ∈ {-1, 0, 1}^D`; 0 (the zero tile) where the neighbour is not active.
     nbr: Vec<[usize; NEIGHBOURS]>,
-    /// Touched keys since `begin` (scratch), then the non-permanent active keys.
+    /// Touched keys since `begin` (scratch), then the active keys.
     touched: Vec<u64>,
     active: Vec<u64>,
     /// A direct-mapped memory of recently touched keys, so that the particles of one
@@ -73,7 +72,6 @@ impl<const D: usize> Tiles<D> {
             dims,
             shift,
             tdims,
-            permanent: Vec::new(),
             keys: Vec::new(),
             lookup: Vec::new(),
             origin: Vec::new(),
@@ -147,17 +145,6 @@ impl<const D: usize> Tiles<D> {
         self.key(std::array::from_fn(|a| (l[a] + self.shift[a]) >> TILE_LOG))
     }
 
-    /// Keep the tiles of these local nodes whatever is touched (the halo's nodes, so
-    /// that halo lists can be mapped to storage once). Call before the first `begin`.
-    pub fn set_permanent(&mut self, nodes: impl IntoIterator<Item = [usize; D]>) {
-        let mut keys: Vec<u64> = nodes.into_iter().map(|l| self.key_of(l)).collect();
-        keys.sort_unstable();
-        keys.dedup();
-        self.permanent = keys;
-        self.active.clear();
-        self.assign();
-    }
-
     /// Start collecting the touched tiles of the next active set.
     pub fn begin(&mut self) {
         self.touched.clear();
@@ -201,21 +188,31 @@ impl<const D: usize> Tiles<D> {
         }
     }
 
-    /// Make the touched tiles (and the permanent ones) the active set. Returns whether
+    /// Touch the tile with key `k` (a key of [`Tiles::key_of`]).
+    #[inline]
+    pub fn touch_key(&mut self, k: u64) {
+        let r = &mut self.recent[k as usize & (RECENT - 1)];
+        if *r != k {
+            *r = k;
+            self.touched.push(k);
+        }
+    }
+
+    /// The keys touched since [`Tiles::begin`], ascending without repeats (the
+    /// [`Tiles::finish`] makes them the active set).
+    pub fn touched_sorted(&mut self) -> &[u64] {
+        self.touched.sort_unstable();
+        self.touched.dedup();
+        &self.touched
+    }
+
+    /// Make the touched tiles the active set. Returns whether
     /// it changed; if not, slots are as before. Storage grows amortised: the caller's
     /// fields are resized to [`Tiles::nodes`], which keeps their capacity.
     pub fn finish(&mut self) -> bool {
         let mut touched = std::mem::take(&mut self.touched);
         touched.sort_unstable();
         touched.dedup();
-        // Drop the permanent keys (both lists ascending).
-        let mut p = 0;
-        touched.retain(|&k| {
-            while p < self.permanent.len() && self.permanent[p] < k {
-                p += 1;
-            }
-            !(p < self.permanent.len() && self.permanent[p] == k)
-        });
         let changed = touched != self.active;
         if changed {
             std::mem::swap(&mut self.active, &mut touched);
@@ -225,26 +222,18 @@ impl<const D: usize> Tiles<D> {
         changed
     }
 
-    /// Slots, look-up table, origins and neighbour tables for `permanent` + `active`.
+    /// Slots, look-up table, origins and neighbour tables for `active`.
     fn assign(&mut self) {
         self.keys.clear();
         self.keys.push(u64::MAX);
-        self.keys.extend_from_slice(&self.permanent);
         self.keys.extend_from_slice(&self.active);
         self.lookup.clear();
-        // Merge the two ascending lists.
-        let np = self.permanent.len();
-        let (mut i, mut j) = (0, 0);
-        while i < np || j < self.active.len() {
-            let take_p = j == self.active.len() || (i < np && self.permanent[i] < self.active[j]);
-            if take_p {
-                self.lookup.push((self.permanent[i], (1 + i) as u32));
-                i += 1;
-            } else {
-                self.lookup.push((self.active[j], (1 + np + j) as u32));
-                j += 1;
-            }
-        }
+        self.lookup.extend(
+            self.active
+                .iter()
+                .enumerate()
+                .map(|(j, &k)| (k, (1 + j) as u32)),
+        );
         assert!(
             self.keys.len() < u32::MAX as usize,
             "more active tiles than a u32 slot can name"
@@ -392,7 +381,6 @@ mod tests {
     fn storage_is_injective_and_neighbourhoods_agree() {
         let dims = [13usize, 11, 6];
         let mut t = Tiles::<3>::new(dims, [2, 0, 1]);
-        t.set_permanent([[0, 0, 0]]);
         t.begin();
         t.touch([5, 3, 2], [6, 4, 3]);
         t.touch([11, 9, 4], [12, 10, 5]);

@@ -443,24 +443,12 @@ impl<'c, const D: usize> Solver<'c, D> {
         s
     }
 
-    /// This rank's block and the tile storage of its grid. The halo's nodes stay stored
-    /// whatever the particles do, so its lists are mapped to storage once.
+    /// This rank's block and the tile storage of its grid. Which halo nodes are stored
+    /// and exchanged is agreed with the peers every time the tiles are activated
+    /// ([`Block::activate_halo`]).
     fn block_and_tiles(layout: &Layout<D>, rank: usize) -> (Block<D>, Tiles<D>) {
-        let mut block = Block::new(layout, rank);
-        let mut tiles = Tiles::new(block.node_dims, block.own_lo);
-        tiles.set_permanent(block.halo_nodes());
-        let dims = block.node_dims;
-        block.map_halo(|i| {
-            let mut r = i;
-            let l: [usize; D] = std::array::from_fn(|a| {
-                let c = r % dims[a];
-                r /= dims[a];
-                c
-            });
-            tiles
-                .index(l)
-                .expect("the halo's tiles are permanent, hence stored")
-        });
+        let block = Block::new(layout, rank);
+        let tiles = Tiles::new(block.node_dims, block.own_lo);
         (block, tiles)
     }
 
@@ -584,7 +572,12 @@ impl<'c, const D: usize> Solver<'c, D> {
             self.ptile.push(node);
         }
         self.slabs.finish();
-        if self.tiles.finish() {
+        // The halo nodes any rank's particles come near, stored on every rank that
+        // holds them (a neighbour's particles may need nodes this rank's do not).
+        self.block.activate_halo(self.comm, &mut self.tiles);
+        let changed = self.tiles.finish();
+        self.block.map_active_halo(&self.tiles);
+        if changed {
             self.size_fields();
             let mut prev: Option<[i64; D]> = None;
             for (x, t) in self.parts.x.iter().zip(self.ptile.iter_mut()) {
