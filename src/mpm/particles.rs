@@ -14,7 +14,7 @@
 use crate::input::scene::{BodySpec, Model, Scene, Shape};
 use crate::physics::benchmark::Benchmark;
 use crate::physics::material::Material;
-use crate::physics::shape::Geom;
+use crate::physics::shape::{Geom, GradientScheme};
 use crate::physics::tensor::{det, vector, Mat, Vector};
 use nalgebra::Matrix3;
 
@@ -307,7 +307,7 @@ impl Carries {
                 || scene
                     .snapshot_plan()
                     .is_some_and(|o| o.fields.contains(&crate::input::scene::Field::Displacement)),
-            half: scene.method.gradient == crate::input::scene::Gradient::Gimp,
+            half: GradientScheme::of(scene.method.gradient).gimp,
             plastic: scene.materials.iter().any(|m| m.model == Model::J2Plastic),
             damage: scene.materials.iter().any(|m| m.model == Model::Brittle),
             stress_zz: scene.dim == 2 && scene.materials.iter().any(|m| m.model == Model::Brittle),

@@ -3,12 +3,12 @@
 //! (ghost sum after particle→grid, ghost copy before grid→particle and before the
 //! node→node stencils, migration after the position update).
 
-use crate::input::scene::{Face, Gradient, Scene, Update};
+use crate::input::scene::{Face, Scene, Update};
 use crate::mpm::kernel::{self, AvgRecord, NodeRecord, SlabOrder};
 use crate::mpm::particles::{Carries, Particles};
 use crate::physics::benchmark::Benchmark;
 use crate::physics::material::Material;
-use crate::physics::shape::{Alpha, Geom};
+use crate::physics::shape::{Alpha, Geom, GradientScheme};
 use crate::physics::tensor::{vector, Mat, Vector};
 use decomposition::tiles::NEIGHBOURS;
 use decomposition::{Block, Communicator, Layout, Migrator, Tiles};
@@ -20,8 +20,8 @@ macro_rules! ctx {
             geom: &$s.geom,
             node_lo: $s.block.node_lo,
             tiles: &$s.tiles,
-            gimp: $s.gradient == Gradient::Gimp,
-            alpha: $s.alpha,
+            gimp: $s.scheme.gimp,
+            alpha: $s.scheme.alpha,
             materials: &$s.materials,
             gravity: $s.gravity,
             body_force: $s.benchmark.as_ref().filter(|b| b.has_body_force()),
@@ -113,8 +113,8 @@ pub struct Solver<'c, const D: usize> {
     pub materials: Vec<Material>,
     pub benchmark: Option<Benchmark<D>>,
     gravity: Vector<D>,
-    pub gradient: Gradient,
-    pub alpha: Alpha,
+    /// The gradient scheme, resolved once: shape functions, α, two-step or not.
+    pub scheme: GradientScheme,
     pub update: Update,
     /// The phases of a step: the update order's, resolved for the scheme.
     phases: Vec<Phase>,
@@ -365,12 +365,6 @@ impl<'c, const D: usize> Solver<'c, D> {
         let benchmark = Benchmark::<D>::new(scene);
         let carries = Carries::for_scene(scene);
         let migrator = Migrator::new(&layout, &block, Particles::<D>::record_width(carries));
-        let gradient = scene.method.gradient;
-        let alpha = match gradient {
-            Gradient::Mpm | Gradient::Gimp => Alpha::Constant(1.0),
-            Gradient::Averaged => Alpha::Constant(0.0),
-            Gradient::Mpmcg => Alpha::ProductOfShapes,
-        };
         let mut s = Self {
             comm,
             geom,
@@ -384,8 +378,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                 .gravity
                 .as_ref()
                 .map_or(Vector::<D>::zeros(), |gr| vector::<D>(&gr.value)),
-            gradient,
-            alpha,
+            scheme: GradientScheme::of(scene.method.gradient),
             update: scene.method.update,
             phases: Vec::new(),
             flip: scene.method.flip,
@@ -454,14 +447,14 @@ impl<'c, const D: usize> Solver<'c, D> {
 
     /// Replace the scheme's α (tests: α ≡ 0 is `averaged`, α ≡ 1 is `mpm`).
     pub fn set_alpha(&mut self, alpha: Alpha) {
-        self.alpha = alpha;
+        self.scheme.alpha = alpha;
         self.setup_grid();
         self.resolve_phases();
     }
 
     /// The step's phases for this scheme: one-step schemes skip the grid averages.
     fn resolve_phases(&mut self) {
-        let two = self.two_step();
+        let two = self.scheme.two_step();
         self.phases = self
             .update
             .phases()
@@ -477,15 +470,8 @@ impl<'c, const D: usize> Solver<'c, D> {
             .collect();
     }
 
-    /// The scheme evaluates its gradient through grid averages (σ̄, L̄)?
-    pub fn two_step(&self) -> bool {
-        self.gradient == Gradient::Averaged
-            || self.gradient == Gradient::Mpmcg
-            || self.alpha != Alpha::Constant(1.0)
-    }
-
     fn setup_grid(&mut self) {
-        let two = self.two_step();
+        let two = self.scheme.two_step();
         self.sw = NodeRecord::<D>::width(two);
         if two {
             for q in 0..(1 << D) {
@@ -515,7 +501,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             nn <= u32::MAX as usize,
             "{nn} stored grid nodes on one rank: more than a 32-bit node index can name"
         );
-        let two = self.two_step();
+        let two = self.scheme.two_step();
         let fit = |v: &mut Vec<f64>, len: usize| {
             v.clear();
             v.resize(len, 0.0);
@@ -536,11 +522,7 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// the cell and two above), give each particle its cell's node in the storage,
     /// and group the particles by slab for the scatter.
     fn activate_tiles(&mut self) {
-        let (below, above) = if self.gradient == Gradient::Gimp {
-            (1, 2)
-        } else {
-            (0, 1)
-        };
+        let (below, above) = if self.scheme.gimp { (1, 2) } else { (0, 1) };
         let node_lo = self.block.node_lo;
         // One pass touches the tiles and looks the cells' nodes up in the current set;
         // only if the set changed does a second pass look them up again. Particles
@@ -596,7 +578,7 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// `moved`: the particles moved since the last scatter, so their slab order must
     /// be rebuilt (the second scatter of a USF or MUSL step sees the same positions).
     fn scatter(&mut self, forces: bool, moved: bool) {
-        let two = self.two_step();
+        let two = self.scheme.two_step();
         if moved {
             self.activate_tiles();
         }
@@ -609,7 +591,7 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// The scatter proper, into `scat`, summed over ranks. `from_grid`: momentum of the
     /// field `xpic_term` interpolated at the particles instead of their velocities.
     fn scatter_pass(&mut self, forces: bool, from_grid: bool) {
-        let two = self.two_step() && !from_grid;
+        let two = self.scheme.two_step() && !from_grid;
         self.scat.iter_mut().for_each(|v| *v = 0.0);
         let ctx = ctx!(self);
         let parts = kernel::ScatterParts {
@@ -630,7 +612,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             from_grid,
         };
         by_nodes!(
-            self.gradient == Gradient::Gimp,
+            self.scheme.gimp,
             scatter,
             &ctx,
             &parts,
@@ -1097,8 +1079,8 @@ impl<'c, const D: usize> Solver<'c, D> {
             flip: self.flip,
             stress,
             move_now,
-            two_step: self.two_step(),
-            recon: self.two_step() && move_now,
+            two_step: self.scheme.two_step(),
+            recon: self.scheme.two_step() && move_now,
             speed,
         };
         let mut ctx = ctx!(self);
@@ -1109,7 +1091,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             .any(|f| matches!(f, Face::Slip | Face::Fixed));
         let parts = slices!(self);
         let t = by_nodes!(
-            self.gradient == Gradient::Gimp,
+            self.scheme.gimp,
             gather,
             &ctx,
             parts,
@@ -1130,8 +1112,8 @@ impl<'c, const D: usize> Solver<'c, D> {
         let m = kernel::StressMode {
             slot,
             dt,
-            two_step: self.two_step(),
-            moves: moves && self.two_step(),
+            two_step: self.scheme.two_step(),
+            moves: moves && self.scheme.two_step(),
             speed,
         };
         let mut ctx = ctx!(self);
@@ -1143,7 +1125,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                 .any(|f| matches!(f, Face::Slip | Face::Fixed));
         let parts = slices!(self);
         let t = by_nodes!(
-            self.gradient == Gradient::Gimp,
+            self.scheme.gimp,
             update_stress,
             &ctx,
             parts,
@@ -1518,7 +1500,7 @@ particles_per_cell = 3
             s.parts.vol[p] *= 0.5 + rng.f64();
         }
         s.scatter(true, true);
-        if s.two_step() {
+        if s.scheme.two_step() {
             s.averaged_force();
         }
         let mut vel = vec![0.0; s.tiles.nodes() * 4];
@@ -1544,14 +1526,14 @@ particles_per_cell = 3
                 fv += s.scat[n * s.sw + NodeRecord::<2>::force(a)] * s.vel[n * 4 + 2 + a];
             }
         }
-        if s.two_step() {
+        if s.scheme.two_step() {
             s.averaged_velocity_gradient(1);
         }
         let ctx = ctx!(s);
         let mut work = 0.0;
         for p in 0..s.parts.len() {
             let k = ctx.kern::<2, 4>(&s.parts.x[p], None, s.ptile[p]);
-            let l = kernel::velocity_gradient(&k, &s.vel, &s.avg, 1, s.two_step());
+            let l = kernel::velocity_gradient(&k, &s.vel, &s.avg, 1, s.scheme.two_step());
             work -= s.parts.vol[p] * s.parts.stress[p].component_mul(&l).sum();
         }
         (fv, work)
@@ -1603,14 +1585,14 @@ particles_per_cell = 3
                 }
                 s.block.ghost_copy(s.comm, &mut vel, 4);
                 s.vel = vel;
-                if s.two_step() {
+                if s.scheme.two_step() {
                     s.averaged_velocity_gradient(1);
                 }
                 let ctx = ctx!(s);
                 let mut worst = 0.0f64;
                 for p in 0..s.parts.len() {
                     let k = ctx.kern::<2, 4>(&s.parts.x[p], None, s.ptile[p]);
-                    let l = kernel::velocity_gradient(&k, &s.vel, &s.avg, 1, s.two_step());
+                    let l = kernel::velocity_gradient(&k, &s.vel, &s.avg, 1, s.scheme.two_step());
                     for a in 0..2 {
                         for b in 0..2 {
                             worst = worst.max((l[(a, b)] - w[a][b]).abs());
@@ -1628,7 +1610,7 @@ particles_per_cell = 3
     /// storage order, changes when a particle enters a new tile.)
     fn internal_forces(s: &mut Solver<'static, 2>) -> Vec<f64> {
         s.scatter(true, true);
-        if s.two_step() {
+        if s.scheme.two_step() {
             s.averaged_force();
         }
         let mut f = std::collections::BTreeMap::new();
@@ -2114,7 +2096,7 @@ particles_per_cell = 2
     /// One velocity update as a step does it: scatter, grid update, XPIC field, gather.
     fn update(s: &mut Solver<'_, 2>, dt: f64) {
         s.scatter(true, true);
-        if s.two_step() {
+        if s.scheme.two_step() {
             s.averaged_force();
         }
         s.grid_velocity(dt);

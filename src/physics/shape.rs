@@ -5,6 +5,8 @@
 //! node* if it lies on the grid boundary, where the integrals over the grid domain are
 //! halved. On a periodic axis there are no end nodes.
 
+use crate::input::scene::Gradient;
+
 /// `floor` as an integer without a libm call (x86-64's baseline has no SSE4.1 round):
 /// truncate, then step down for negative non-integers.
 #[inline(always)]
@@ -165,6 +167,37 @@ pub fn grid_integral<const D: usize>(geom: &Geom<D>, gi: [i64; D], dj: [i64; D])
         *wd = p;
     }
     w
+}
+
+/// A gradient scheme as the solver runs it, resolved once from the scene's name: the
+/// shape functions of the particle loops (hat functions or GIMP's) and the weight α of
+/// the standard gradient against the grid-averaged one. Whether a step has the node →
+/// node steps follows from α.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GradientScheme {
+    /// GIMP's shape functions (3 nodes per axis) instead of hat functions (2).
+    pub gimp: bool,
+    pub alpha: Alpha,
+}
+
+impl GradientScheme {
+    pub fn of(g: Gradient) -> Self {
+        let alpha = match g {
+            Gradient::Mpm | Gradient::Gimp => Alpha::Constant(1.0),
+            Gradient::Averaged => Alpha::Constant(0.0),
+            Gradient::Mpmcg => Alpha::ProductOfShapes,
+        };
+        Self {
+            gimp: g == Gradient::Gimp,
+            alpha,
+        }
+    }
+
+    /// The gradient goes through grid averages (σ̄, L̄): the step has MPMCG's node →
+    /// node steps. Everything but α ≡ 1 does.
+    pub fn two_step(self) -> bool {
+        self.alpha != Alpha::Constant(1.0)
+    }
 }
 
 /// Weight function α(x) of MPMCG: 1 gives MPM's gradient, 0 the averaged one. It must
