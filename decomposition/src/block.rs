@@ -5,6 +5,7 @@ use std::collections::BTreeMap;
 
 use crate::comm::Communicator;
 use crate::layout::{Layout, GHOST};
+use crate::traffic::Traffic;
 
 /// One rank's view of the grid.
 #[derive(Clone, Debug)]
@@ -41,6 +42,8 @@ struct Halo {
     owned: Vec<Vec<usize>>,
     send: Vec<Vec<f64>>,
     recv: Vec<Vec<f64>>,
+    /// What `ghost_sum` and `ghost_copy` sent to other ranks so far.
+    traffic: Traffic,
 }
 
 impl<const D: usize> Block<D> {
@@ -119,6 +122,13 @@ impl<const D: usize> Block<D> {
             .map(|&i| self.coords(i))
     }
 
+    /// What the halo operations ([`Block::ghost_sum`], [`Block::ghost_copy`]) of this
+    /// block have sent to other ranks since it was made: bytes, non-empty messages and
+    /// the number of operations. Exchanges with itself (periodic faces) are not counted.
+    pub fn traffic(&self) -> Traffic {
+        self.halo.traffic
+    }
+
     /// Renumber the nodes of the halo lists, e.g. from the dense local numbering of
     /// [`Block::index`] to a sparse storage ([`crate::Tiles`]); fields passed to the
     /// halo operations are then indexed by the new numbers. Call once, with the
@@ -147,6 +157,7 @@ impl<const D: usize> Block<D> {
                 buf.extend_from_slice(&field[n * ncomp..(n + 1) * ncomp]);
             }
         }
+        h.traffic.record(self.rank, &h.peers, &h.send);
         comm.exchange(&h.peers, &h.send, &mut h.recv);
         for (k, nodes) in h.owned.iter().enumerate() {
             let buf = &h.recv[k];
@@ -169,6 +180,7 @@ impl<const D: usize> Block<D> {
                 buf.extend_from_slice(&field[n * ncomp..(n + 1) * ncomp]);
             }
         }
+        h.traffic.record(self.rank, &h.peers, &h.send);
         comm.exchange(&h.peers, &h.send, &mut h.recv);
         for (k, nodes) in h.ghosts.iter().enumerate() {
             let buf = &h.recv[k];
