@@ -11,7 +11,7 @@ use crate::scene::{Face, Gradient, Scene, Update};
 use crate::shape::{Alpha, Geom};
 use crate::tensor::{vector, Mat, Vector};
 use decomposition::tiles::NEIGHBOURS;
-use decomposition::{Block, Communicator, Layout, Migrator, Tiles};
+use decomposition::{Block, Communicator, Layout, Migrator, Tiles, Traffic};
 
 /// The read-only context of the particle loops, borrowed field by field from a solver.
 macro_rules! ctx {
@@ -1018,6 +1018,13 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// Which optional particle arrays this solver's particles carry.
     pub fn carries(&self) -> Carries {
         self.carries
+    }
+
+    /// What this rank has sent to other ranks since the solver was made: by the halo
+    /// operations (ghost sums and copies) and by particle migration. The set-up sends
+    /// nothing, so this is the traffic of the steps taken.
+    pub fn traffic(&self) -> (Traffic, Traffic) {
+        (self.block.traffic(), self.migrator.traffic())
     }
 
     /// Advance one step. On failure the particle state is that of the failed step.
