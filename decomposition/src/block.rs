@@ -6,6 +6,7 @@ use std::collections::BTreeMap;
 use crate::comm::Communicator;
 use crate::layout::{Layout, GHOST};
 use crate::tiles::{Tiles, TILE};
+use crate::traffic::Traffic;
 
 /// One rank's view of the grid.
 #[derive(Clone, Debug)]
@@ -65,6 +66,8 @@ struct Halo {
     /// there, so their value is zero); the ghost copy zeroes them, else they would
     /// keep an earlier step's value.
     stale: Vec<usize>,
+    /// What `ghost_sum`, `ghost_copy` and `activate_halo` sent to other ranks so far.
+    traffic: Traffic,
 }
 
 /// A halo list cut into chunks: the entries of one tile of the global node grid
@@ -315,6 +318,7 @@ impl<const D: usize> Block<D> {
         for k in 0..n {
             ghosts[k].active(|t| touched.binary_search(&t).is_ok(), &mut h.send[k]);
         }
+        h.traffic.record(self.rank, &h.peers, &h.send);
         comm.exchange(&h.peers, &h.send, &mut h.recv);
         for k in 0..n {
             chunk_ids(&h.send[k], &ghosts[k], &mut h.g[k]);
@@ -327,6 +331,7 @@ impl<const D: usize> Block<D> {
         for k in 0..n {
             owned[k].active(|t| stored.binary_search(&t).is_ok(), &mut h.send[k]);
         }
+        h.traffic.record(self.rank, &h.peers, &h.send);
         comm.exchange(&h.peers, &h.send, &mut h.recv);
         for k in 0..n {
             chunk_ids(&h.send[k], &owned[k], &mut h.o[k]);
@@ -334,6 +339,14 @@ impl<const D: usize> Block<D> {
             owned[k].touch(&h.o[k], tiles);
             ghosts[k].touch(&h.q[k], tiles);
         }
+    }
+
+    /// What the halo operations of this block ([`Block::ghost_sum`],
+    /// [`Block::ghost_copy`], and the chunk agreement of [`Block::activate_halo`])
+    /// have sent to other ranks since it was made: bytes, non-empty messages and the
+    /// number of operations. Exchanges with itself (periodic faces) are not counted.
+    pub fn traffic(&self) -> Traffic {
+        self.halo.traffic
     }
 
     /// After [`Block::activate_halo`] and [`Tiles::finish`]: the halo operations use
@@ -363,6 +376,7 @@ impl<const D: usize> Block<D> {
                 buf.extend_from_slice(&field[n * ncomp..(n + 1) * ncomp]);
             }
         }
+        h.traffic.record(self.rank, &h.peers, &h.send);
         comm.exchange(&h.peers, &h.send, &mut h.recv);
         for (k, nodes) in h.sum_recv.iter().enumerate() {
             let buf = &h.recv[k];
@@ -385,6 +399,7 @@ impl<const D: usize> Block<D> {
                 buf.extend_from_slice(&field[n * ncomp..(n + 1) * ncomp]);
             }
         }
+        h.traffic.record(self.rank, &h.peers, &h.send);
         comm.exchange(&h.peers, &h.send, &mut h.recv);
         for &n in &h.stale {
             field[n * ncomp..(n + 1) * ncomp].fill(0.0);

@@ -27,6 +27,7 @@
 use crate::block::Block;
 use crate::comm::Communicator;
 use crate::layout::{Layout, GHOST};
+use crate::traffic::Traffic;
 use crate::Error;
 
 /// Where a particle belongs after a move.
@@ -55,6 +56,8 @@ pub struct Migrator<const D: usize> {
     recv: Vec<Vec<f64>>,
     received: Vec<f64>,
     error: Option<Error>,
+    /// What the exchanges sent to other ranks so far.
+    traffic: Traffic,
 }
 
 impl<const D: usize> Migrator<D> {
@@ -80,6 +83,7 @@ impl<const D: usize> Migrator<D> {
             recv: vec![Vec::new(); n],
             received: Vec::new(),
             error: None,
+            traffic: Traffic::default(),
         }
     }
 
@@ -174,6 +178,14 @@ impl<const D: usize> Migrator<D> {
         self.error.get_or_insert(err);
     }
 
+    /// What [`Migrator::exchange`] has sent to other ranks since this migrator was
+    /// made: bytes of records, non-empty messages and the number of exchanges (one that
+    /// failed sends nothing and is not counted). Records a rank routes to itself are
+    /// not counted.
+    pub fn traffic(&self) -> Traffic {
+        self.traffic
+    }
+
     /// Records queued so far for all peers.
     pub fn queued(&self) -> usize {
         self.send.iter().map(Vec::len).sum::<usize>() / self.width
@@ -206,6 +218,7 @@ impl<const D: usize> Migrator<D> {
                     rank: failed[0] as usize,
                 }));
         }
+        self.traffic.record(self.rank, &self.peers, &self.send);
         comm.exchange(&self.peers, &self.send, &mut self.recv);
         for s in &mut self.send {
             s.clear();

@@ -256,6 +256,8 @@ pub struct Summary {
     pub restarted_from: Option<RestartSummary>,
     /// Wall time spent writing files, part of `wall_seconds`.
     pub output_seconds: OutputSeconds,
+    /// Bytes and messages sent between ranks per step.
+    pub halo: HaloSummary,
 }
 
 /// Wall time (rank 0's clock) spent writing snapshots and checkpoints.
@@ -263,6 +265,40 @@ pub struct Summary {
 pub struct OutputSeconds {
     pub snapshots: f64,
     pub checkpoints: f64,
+}
+
+/// Point-to-point traffic between ranks per step, averaged over the steps of this run:
+/// what the network would carry. A rank's exchange with itself (a periodic face it
+/// owns both sides of) is a local copy and not counted, so one rank reports zeros.
+#[derive(Serialize, Debug, Clone)]
+pub struct HaloSummary {
+    /// The steps averaged over.
+    pub steps: u64,
+    /// The grid's halo: ghost sums and copies of nodal fields.
+    pub grid: TrafficSummary,
+    /// Particles moving to the rank that owns their new cell.
+    pub migration: TrafficSummary,
+    /// Other ranks each rank shares grid nodes with (its halo and migration peers).
+    pub peers_per_rank: Spread,
+}
+
+/// One kind of exchange, per step.
+#[derive(Serialize, Debug, Clone)]
+pub struct TrafficSummary {
+    /// Exchanges per step, the same on every rank (each is a round of messages).
+    pub exchanges_per_step: f64,
+    /// Payload bytes a rank sent to other ranks per step.
+    pub bytes_per_rank_per_step: Spread,
+    /// Non-empty messages a rank sent to other ranks per step.
+    pub messages_per_rank_per_step: Spread,
+}
+
+/// `min`, `mean` and `max` over ranks of a per-rank figure that need not be whole.
+#[derive(Serialize, Debug, Clone)]
+pub struct Spread {
+    pub min: f64,
+    pub mean: f64,
+    pub max: f64,
 }
 
 /// Run a validated scene on `comm`'s ranks. Returns the summary (written on rank 0).
@@ -1126,6 +1162,7 @@ impl<'a, const D: usize> Run<'a, D> {
     ) -> Summary {
         let (particles_per_rank, grid) = self.loads(last.particles);
         let imbalance = self.solver.imbalance();
+        let halo = self.traffic();
         self.history.flush();
         let (scene, solver, tot0) = (self.scene, &self.solver, &self.st.initial);
         Summary {
@@ -1180,6 +1217,49 @@ impl<'a, const D: usize> Run<'a, D> {
                 .map(|p| p.display().to_string()),
             restarted_from: self.restarted_from.clone(),
             output_seconds: self.output_seconds.clone(),
+            halo,
+        }
+    }
+
+    /// Collective: per-step traffic between ranks over this run's steps, spread over
+    /// ranks. Three reductions of five numbers, once per run.
+    fn traffic(&self) -> HaloSummary {
+        let (comm, solver) = (self.comm, &self.solver);
+        let steps = solver.step - self.step_start;
+        let (halo, mig) = solver.traffic();
+        let me = comm.rank();
+        let peers = solver.block.peers().iter().filter(|&&p| p != me).count();
+        let per_step = |x: u64| x as f64 / steps.max(1) as f64;
+        let mine = [
+            per_step(halo.bytes),
+            per_step(halo.messages),
+            per_step(mig.bytes),
+            per_step(mig.messages),
+            peers as f64,
+        ];
+        let (mut lo, mut hi, mut sum) = (mine, mine, mine);
+        comm.min_f64(&mut lo);
+        comm.max_f64(&mut hi);
+        comm.sum_f64(&mut sum);
+        let n = comm.size() as f64;
+        let spread = |k: usize| Spread {
+            min: lo[k],
+            mean: sum[k] / n,
+            max: hi[k],
+        };
+        HaloSummary {
+            steps,
+            grid: TrafficSummary {
+                exchanges_per_step: per_step(halo.exchanges),
+                bytes_per_rank_per_step: spread(0),
+                messages_per_rank_per_step: spread(1),
+            },
+            migration: TrafficSummary {
+                exchanges_per_step: per_step(mig.exchanges),
+                bytes_per_rank_per_step: spread(2),
+                messages_per_rank_per_step: spread(3),
+            },
+            peers_per_rank: spread(4),
         }
     }
 

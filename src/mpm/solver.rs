@@ -11,7 +11,7 @@ use crate::physics::material::Material;
 use crate::physics::shape::{Alpha, Geom, GradientScheme};
 use crate::physics::tensor::{vector, Mat, Vector};
 use decomposition::tiles::NEIGHBOURS;
-use decomposition::{Block, Communicator, Layout, Migrator, Tiles};
+use decomposition::{Block, Communicator, Layout, Migrator, Tiles, Traffic};
 
 /// The read-only context of the particle loops, borrowed field by field from a solver.
 macro_rules! ctx {
@@ -130,6 +130,8 @@ pub struct Solver<'c, const D: usize> {
     pub dt: f64,
     /// Times the block boundaries moved ([`Solver::relayout`]), restarts included.
     pub rebalances: u64,
+    /// Halo and migration traffic of the blocks and migrators a rebalance replaced.
+    traffic_before: (Traffic, Traffic),
     /// The particle imbalance [`Solver::rebalance`] found, or left if it moved the
     /// blocks.
     pub last_imbalance: f64,
@@ -393,6 +395,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             step: 0,
             dt: 0.0,
             rebalances: 0,
+            traffic_before: Default::default(),
             last_imbalance: 1.0,
             external_work: 0.0,
             max_speed: 0.0,
@@ -1002,6 +1005,17 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.carries
     }
 
+    /// What this rank has sent to other ranks since the solver was made: by the halo
+    /// operations (ghost sums and copies, and the agreement on the halo chunks in use)
+    /// and by particle migration, rebalances included (their blocks and migrators are
+    /// replaced, so their counts are carried over).
+    pub fn traffic(&self) -> (Traffic, Traffic) {
+        let (mut halo, mut mig) = self.traffic_before;
+        halo += self.block.traffic();
+        mig += self.migrator.traffic();
+        (halo, mig)
+    }
+
     /// Advance one step. On failure the particle state is that of the failed step.
     pub fn advance(&mut self) -> Result<(), Failure> {
         self.advance_with(&mut [])
@@ -1327,6 +1341,9 @@ impl<'c, const D: usize> Solver<'c, D> {
         for r in recs.iter() {
             self.parts.unpack(r, self.carries);
         }
+        self.traffic_before.0 += self.block.traffic();
+        self.traffic_before.1 += self.migrator.traffic();
+        self.traffic_before.1 += mig.traffic();
         let (block, tiles) = Self::block_and_tiles(&layout, me);
         self.migrator = Migrator::new(&layout, &block, self.migrator.width());
         self.layout = layout;
