@@ -892,53 +892,57 @@ fn corners<const D: usize>(x: [f64; D]) -> Vec<([i64; D], f64)> {
         .collect()
 }
 
-/// Two rounds (a step, then the cluster moves) of: touch the tiles of this rank's
+/// The particles (position in cell units, mass) of each round: a cluster 5 cells wide
+/// somewhere (across block boundaries and periodic faces when it falls there), the same
+/// cluster thinned out (nodes lose their mass while their tiles may stay stored), and
+/// the cluster moved by up to two cells per axis.
+fn cluster_rounds<const D: usize>(layout: &Layout<D>, seed: u64) -> Vec<Vec<([f64; D], f64)>> {
+    let mut rng = Rng::new(seed);
+    let lo: [f64; D] = std::array::from_fn(|a| rng.below(layout.cells[a]) as f64);
+    let shift: [f64; D] = std::array::from_fn(|_| rng.int(-2, 2) as f64);
+    let pts: Vec<([f64; D], f64)> = (0..30)
+        .map(|_| {
+            let x = std::array::from_fn(|a| {
+                let span = (layout.cells[a] as f64 - 1e-9).min(5.0);
+                lo[a] + rng.below(1000) as f64 / 1000.0 * span
+            });
+            (x, 1.0 + rng.below(7) as f64)
+        })
+        .collect();
+    let wrap = |x: [f64; D]| -> Option<[f64; D]> {
+        let mut y = x;
+        for a in 0..D {
+            let n = layout.cells[a] as f64;
+            if layout.periodic[a] {
+                y[a] = x[a].rem_euclid(n);
+            } else if !(0.0..n).contains(&x[a]) {
+                return None;
+            }
+        }
+        Some(y)
+    };
+    let first: Vec<_> = pts
+        .iter()
+        .filter_map(|(x, m)| wrap(*x).map(|y| (y, *m)))
+        .collect();
+    let second: Vec<_> = pts
+        .iter()
+        .filter_map(|(x, m)| wrap(std::array::from_fn(|a| x[a] + shift[a])).map(|y| (y, *m)))
+        .collect();
+    // The first round's cluster thinned out: some nodes lose their mass while
+    // their tiles may stay stored.
+    let thinned: Vec<_> = first.iter().copied().step_by(3).collect();
+    vec![first, thinned, second]
+}
+
+/// Three rounds ([`cluster_rounds`]) of: touch the tiles of this rank's
 /// particles' corners, agree on the halo, scatter, ghost sum, ghost copy. After each
 /// round every node any rank stores holds the serial sum of its wrapped node (owned
 /// and ghost alike, zero where no particle reaches, including ghosts stored for an
 /// earlier round), every node with a nonzero sum is stored on its owner, and a small
 /// cluster stores a few tiles, not the block faces.
 fn check_sparse_halo<const D: usize>(layout: &Layout<D>, seed: u64) {
-    let mut rng = Rng::new(seed);
-    // A cluster 5 cells wide somewhere (across block boundaries and periodic faces
-    // when it falls there), then moved by up to two cells per axis.
-    let rounds: Vec<Vec<([f64; D], f64)>> = {
-        let lo: [f64; D] = std::array::from_fn(|a| rng.below(layout.cells[a]) as f64);
-        let shift: [f64; D] = std::array::from_fn(|_| rng.int(-2, 2) as f64);
-        let pts: Vec<([f64; D], f64)> = (0..30)
-            .map(|_| {
-                let x = std::array::from_fn(|a| {
-                    let span = (layout.cells[a] as f64 - 1e-9).min(5.0);
-                    lo[a] + rng.below(1000) as f64 / 1000.0 * span
-                });
-                (x, 1.0 + rng.below(7) as f64)
-            })
-            .collect();
-        let wrap = |x: [f64; D]| -> Option<[f64; D]> {
-            let mut y = x;
-            for a in 0..D {
-                let n = layout.cells[a] as f64;
-                if layout.periodic[a] {
-                    y[a] = x[a].rem_euclid(n);
-                } else if !(0.0..n).contains(&x[a]) {
-                    return None;
-                }
-            }
-            Some(y)
-        };
-        let first: Vec<_> = pts
-            .iter()
-            .filter_map(|(x, m)| wrap(*x).map(|y| (y, *m)))
-            .collect();
-        let second: Vec<_> = pts
-            .iter()
-            .filter_map(|(x, m)| wrap(std::array::from_fn(|a| x[a] + shift[a])).map(|y| (y, *m)))
-            .collect();
-        // The first round's cluster thinned out: some nodes lose their mass while
-        // their tiles may stay stored.
-        let thinned: Vec<_> = first.iter().copied().step_by(3).collect();
-        vec![first, thinned, second]
-    };
+    let rounds = cluster_rounds(layout, seed);
     let serial: Vec<HashMap<[usize; D], f64>> = rounds
         .iter()
         .map(|pts| {
