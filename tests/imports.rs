@@ -131,3 +131,99 @@ fn module_imports_have_no_circle() {
         visit(m, &g, &mut Vec::new(), &mut done);
     }
 }
+
+/// The backquoted names in `text`: spans between two backquotes on one line.
+fn quoted(text: &str) -> Vec<&str> {
+    text.lines()
+        .flat_map(|l| l.split('`').skip(1).step_by(2))
+        .collect()
+}
+
+/// `docs/architecture.md` is where a newcomer learns where to add a material, a scheme,
+/// a field or a benchmark: every file it names exists, and every Rust name it quotes
+/// (`Type`, `function`, `Type::item`, `macro!`) occurs as a word in the code, so its
+/// recipes cannot point at something renamed or removed.
+#[test]
+fn architecture_doc_names_only_what_exists() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let doc = std::fs::read_to_string(root.join("docs/architecture.md")).unwrap();
+    let mut files = Vec::new();
+    for dir in ["src", "decomposition/src", "tests"] {
+        rs_files(&root.join(dir), &mut files);
+    }
+    let code: String = files
+        .iter()
+        .map(|p| std::fs::read_to_string(p).unwrap())
+        .collect();
+    let word = |w: &str| {
+        code.match_indices(w).any(|(i, _)| {
+            let ident = |c: char| c.is_alphanumeric() || c == '_';
+            let before = code[..i].chars().next_back().is_none_or(|c| !ident(c));
+            let after = code[i + w.len()..].chars().next().is_none_or(|c| !ident(c));
+            before && after
+        })
+    };
+    let (mut paths, mut names) = (0, 0);
+    let mut missing = Vec::new();
+    for q in quoted(&doc) {
+        let is_path = ["src/", "tests/", "inputs/", "scripts/", "docs/"]
+            .iter()
+            .any(|p| q.starts_with(p));
+        if q.contains("NAME") {
+            continue; // a placeholder: `src/physics/material/NAME.rs`
+        } else if is_path {
+            paths += 1;
+            if !root.join(q.split_whitespace().next().unwrap()).exists() {
+                missing.push(format!("file {q}"));
+            }
+        } else if !q.is_empty()
+            && q.split("::").all(|s| {
+                let s = s.trim_end_matches('!');
+                !s.is_empty() && s.chars().all(|c| c.is_alphanumeric() || c == '_')
+            })
+        {
+            names += 1;
+            for seg in q.split("::") {
+                if !word(seg.trim_end_matches('!')) {
+                    missing.push(format!("name {seg} (in `{q}`)"));
+                }
+            }
+        }
+    }
+    assert!(paths >= 10 && names >= 40, "{paths} paths, {names} names");
+    assert!(missing.is_empty(), "docs/architecture.md names {missing:?}");
+}
+
+/// Every material module carries its closed-form tests beside it (the recipe's first
+/// step), and every `Law` of the plan has a `Material` of the same name.
+#[test]
+fn every_material_module_has_its_tests_and_its_law() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = root.join("src/physics/material");
+    let registry = std::fs::read_to_string(dir.join("mod.rs")).unwrap();
+    let plan = std::fs::read_to_string(root.join("src/input/plan.rs")).unwrap();
+    let modules: Vec<&str> = registry
+        .lines()
+        .filter_map(|l| l.strip_prefix("pub mod ")?.strip_suffix(';'))
+        .collect();
+    assert_eq!(modules.len(), 4, "{modules:?}");
+    for m in modules {
+        let text = std::fs::read_to_string(dir.join(format!("{m}.rs"))).unwrap();
+        assert!(
+            text.contains("#[cfg(test)]"),
+            "{m}.rs has no tests beside it"
+        );
+        let camel: String = m
+            .split('_')
+            .map(|w| w[..1].to_uppercase() + &w[1..])
+            .collect();
+        assert!(
+            registry.contains(&format!("Material::{camel}(")),
+            "no Material::{camel}"
+        );
+        assert!(
+            plan.contains(&format!("    {camel},")) || plan.contains(&format!("    {camel} {{")),
+            "no Law::{camel} in src/input/plan.rs"
+        );
+    }
+}

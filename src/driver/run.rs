@@ -4,7 +4,8 @@
 
 use crate::driver::progress::Progress;
 use crate::driver::signals;
-use crate::input::scene::{Balance, CheckpointEvery, Face, Scene};
+use crate::input::plan::CheckpointEvery;
+use crate::input::scene::{Balance, Face, Scene};
 use crate::mpm::particles::Particles;
 use crate::mpm::solver::{Failure, Solver, Totals};
 use crate::output::checkpoint::{self, RunState, SolverState};
@@ -560,7 +561,7 @@ fn set_up<'c, const D: usize>(
             .snapshot_plan()
             .filter(|o| o.every.is_finite())
             .map_or(f64::INFINITY, |o| next(o.every));
-        run.next_checkpoint = match scene.checkpoint.as_ref().map(|c| c.schedule()) {
+        run.next_checkpoint = match scene.plan.checkpoint {
             Some(CheckpointEvery::Time(every)) => next(every),
             _ => f64::INFINITY,
         };
@@ -755,7 +756,7 @@ struct CheckpointSchedule {
 impl CheckpointSchedule {
     fn new(scene: &Scene, restart: Option<&PathBuf>, step: u64) -> Self {
         Self {
-            every: scene.checkpoint.as_ref().map(|c| c.schedule()),
+            every: scene.plan.checkpoint,
             clock: Instant::now(),
             last: restart.cloned(),
             last_step: restart.map(|_| step),

@@ -2,6 +2,7 @@
 //! runs. Every error names the file, the key (with line and column when they are
 //! known) and what was expected.
 
+use crate::input::plan::{BenchmarkPlan, CheckpointEvery, Law, MaterialPlan, Plan};
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::io::Read;
@@ -28,6 +29,9 @@ pub struct Scene {
     pub checkpoint: Option<CheckpointSpec>,
     #[serde(default)]
     pub parallel: Parallel,
+    /// What validation resolved (filled by [`parse`], not a key of the file).
+    #[serde(skip)]
+    pub plan: Plan,
 }
 
 /// `[parallel]`: how the grid's blocks follow the material over ranks.
@@ -415,26 +419,6 @@ pub struct CheckpointSpec {
 
 fn default_keep() -> usize {
     2
-}
-
-/// The checkpoint schedule of a validated `[checkpoint]` table.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum CheckpointEvery {
-    Time(f64),
-    Steps(u64),
-    Seconds(f64),
-}
-
-impl CheckpointSpec {
-    /// The one schedule a validated table holds.
-    pub fn schedule(&self) -> CheckpointEvery {
-        match (self.every, self.every_steps, self.every_seconds) {
-            (Some(t), _, _) => CheckpointEvery::Time(t),
-            (_, Some(n), _) => CheckpointEvery::Steps(n),
-            (_, _, Some(s)) => CheckpointEvery::Seconds(s),
-            _ => unreachable!("validated: one of every, every_steps, every_seconds"),
-        }
-    }
 }
 
 /// A scene error: file, key, position and what was expected.
@@ -897,11 +881,11 @@ pub fn parse(text: &str, file: &str) -> Result<Scene, SceneError> {
         }
         err(None, span.map(|s| s.start), message)
     })?;
-    let scene: Scene = serde_path_to_error::deserialize(de).map_err(|e| {
+    let mut scene: Scene = serde_path_to_error::deserialize(de).map_err(|e| {
         let (key, pos, message) = explain(text, e.path(), e.inner());
         err(key, pos, message)
     })?;
-    validate(&scene).map_err(|(key, message)| {
+    scene.plan = validate(&scene).map_err(|(key, message)| {
         let pos = locate(text, &key);
         err(Some(key), pos, message)
     })?;
@@ -1056,7 +1040,7 @@ fn grid_size(cells: &[usize]) -> Result<(), Invalid> {
 
 /// What each benchmark kind needs of the scene (the benchmark module relies on it; the
 /// check lives here so that the scene does not depend on the solutions' code).
-fn validate_benchmark(s: &Scene, b: &BenchmarkSpec) -> Result<(), (String, String)> {
+fn validate_benchmark(s: &Scene, b: &BenchmarkSpec) -> Result<BenchmarkPlan, Invalid> {
     let m0 = &s.materials[0];
     let body = &s.bodies[0];
     let need_model = |model: Model, what: &str| {
@@ -1077,12 +1061,12 @@ fn validate_benchmark(s: &Scene, b: &BenchmarkSpec) -> Result<(), (String, Strin
             if b.c.is_some() {
                 return Err(("benchmark.c".into(), "not used by `vibrating_bar`".into()));
             }
-            if !matches!(body.shape, Shape::Box { .. }) {
+            let Shape::Box { lower, upper } = &body.shape else {
                 return Err((
                     "bodies[0].shape".into(),
                     "`vibrating_bar` needs the bar as a `box`".into(),
                 ));
-            }
+            };
             if m0.poisson_ratio != 0.0 && s.dim > 1 {
                 return Err((
                     "materials[0].poisson_ratio".into(),
@@ -1090,6 +1074,11 @@ fn validate_benchmark(s: &Scene, b: &BenchmarkSpec) -> Result<(), (String, Strin
                         .into(),
                 ));
             }
+            Ok(BenchmarkPlan::VibratingBar {
+                amplitude: b.amplitude.unwrap_or(0.1),
+                mode: b.mode.unwrap_or(1),
+                bar: [lower[0], upper[0]],
+            })
         }
         BenchmarkKind::AxisAlignedMms | BenchmarkKind::GeneralizedVortex => {
             let name = if b.kind == BenchmarkKind::AxisAlignedMms {
@@ -1105,12 +1094,17 @@ fn validate_benchmark(s: &Scene, b: &BenchmarkSpec) -> Result<(), (String, Strin
                 if s.dim != 2 {
                     return Err(("dim".into(), "`generalized_vortex` is a 2D problem".into()));
                 }
-                if !matches!(body.shape, Shape::Annulus { .. }) {
+                let Shape::Annulus { center, .. } = &body.shape else {
                     return Err((
                         "bodies[0].shape".into(),
                         "`generalized_vortex` needs the ring as an `annulus`".into(),
                     ));
-                }
+                };
+                Ok(BenchmarkPlan::GeneralizedVortex {
+                    amplitude: b.amplitude.unwrap_or(1.0),
+                    c: b.c.unwrap_or(1.0),
+                    center: [center[0], center[1]],
+                })
             } else {
                 for a in 0..s.dim {
                     if s.grid.lower[a] != 0.0 || s.grid.upper[a] != 1.0 {
@@ -1120,13 +1114,17 @@ fn validate_benchmark(s: &Scene, b: &BenchmarkSpec) -> Result<(), (String, Strin
                         ));
                     }
                 }
+                Ok(BenchmarkPlan::AxisAlignedMms {
+                    amplitude: b.amplitude.unwrap_or(0.05),
+                    c: b.c.unwrap_or(100.0),
+                })
             }
         }
     }
-    Ok(())
 }
 
-fn validate(s: &Scene) -> Result<(), Invalid> {
+/// Check every key and resolve what the run reads in typed form.
+fn validate(s: &Scene) -> Result<Plan, Invalid> {
     let d = s.dim;
     if !(1..=3).contains(&d) {
         return Err(("dim".into(), format!("must be 1, 2 or 3, got {d}")));
@@ -1135,16 +1133,21 @@ fn validate(s: &Scene) -> Result<(), Invalid> {
     validate_time(s)?;
     validate_method(s)?;
     validate_grid(s)?;
-    validate_materials(s)?;
-    validate_bodies(s)?;
-    validate_benchmark_table(s)?;
+    let materials = validate_materials(s)?;
+    let body_material = validate_bodies(s)?;
+    let benchmark = validate_benchmark_table(s)?;
     if let Some(gr) = &s.gravity {
         vector("gravity.value", &gr.value, s.dim)?;
     }
     validate_output(s)?;
-    validate_checkpoint(s)?;
+    let checkpoint = validate_checkpoint(s)?;
     validate_parallel(s)?;
-    Ok(())
+    Ok(Plan {
+        materials,
+        body_material,
+        benchmark,
+        checkpoint,
+    })
 }
 
 /// `[parallel]`: an imbalance threshold of at least 1 and a positive check interval.
@@ -1303,14 +1306,15 @@ fn validate_grid(s: &Scene) -> Result<(), Invalid> {
 }
 
 /// `[[materials]]`: at least one, unique names, elastic constants in range and each
-/// model's own parameters.
-fn validate_materials(s: &Scene) -> Result<(), Invalid> {
+/// model's own parameters, resolved into typed materials.
+fn validate_materials(s: &Scene) -> Result<Vec<MaterialPlan>, Invalid> {
     if s.materials.is_empty() {
         return Err((
             "materials".into(),
             "at least one [[materials]] entry is required".into(),
         ));
     }
+    let mut plans = Vec::with_capacity(s.materials.len());
     for (i, m) in s.materials.iter().enumerate() {
         let k = |f: &str| format!("materials[{i}].{f}");
         if m.name.is_empty() {
@@ -1328,14 +1332,20 @@ fn validate_materials(s: &Scene) -> Result<(), Invalid> {
                 format!("must be in (-1, 0.5), got {}", m.poisson_ratio),
             ));
         }
-        model_parameters(i, m)?;
+        plans.push(MaterialPlan {
+            density: m.density,
+            youngs_modulus: m.youngs_modulus,
+            poisson_ratio: m.poisson_ratio,
+            law: model_parameters(i, m)?,
+        });
     }
-    Ok(())
+    Ok(plans)
 }
 
 /// The parameters of one model (`materials[i]`): rejected for the other models; a
-/// required one must be > 0, an optional one (default 0) >= 0.
-fn model_parameters(i: usize, m: &MaterialSpec) -> Result<(), Invalid> {
+/// required one must be > 0, an optional one (default 0) >= 0. Returns the model's
+/// law with its parameters.
+fn model_parameters(i: usize, m: &MaterialSpec) -> Result<Law, Invalid> {
     let k = |f: &str| format!("materials[{i}].{f}");
     let own = [
         ("yield_stress", m.yield_stress, Model::J2Plastic, true),
@@ -1355,35 +1365,48 @@ fn model_parameters(i: usize, m: &MaterialSpec) -> Result<(), Invalid> {
                     return Err((k(key), format!("must be >= 0, got {x}")));
                 }
             }
-            None if required && m.model == model => {
-                return Err((k(key), format!("is required by model = \"{name}\"")))
-            }
             None => {}
         }
     }
-    Ok(())
+    let required = |key: &str, v: Option<f64>| {
+        let name = variants::<Model>()[m.model as usize];
+        v.ok_or_else(|| (k(key), format!("is required by model = \"{name}\"")))
+    };
+    Ok(match m.model {
+        Model::LinearElastic => Law::LinearElastic,
+        Model::NeoHookean => Law::NeoHookean,
+        Model::J2Plastic => Law::J2Plastic {
+            yield_stress: required("yield_stress", m.yield_stress)?,
+            hardening: m.hardening.unwrap_or(0.0),
+        },
+        Model::Brittle => Law::Brittle {
+            tensile_strength: required("tensile_strength", m.tensile_strength)?,
+        },
+    })
 }
 
-/// `[[bodies]]`: at least one, each valid.
-fn validate_bodies(s: &Scene) -> Result<(), Invalid> {
+/// `[[bodies]]`: at least one, each valid. Returns each body's material index.
+fn validate_bodies(s: &Scene) -> Result<Vec<usize>, Invalid> {
     if s.bodies.is_empty() {
         return Err((
             "bodies".into(),
             "at least one [[bodies]] entry is required".into(),
         ));
     }
-    for (i, b) in s.bodies.iter().enumerate() {
-        validate_body(s, i, b)?;
-    }
-    Ok(())
+    s.bodies
+        .iter()
+        .enumerate()
+        .map(|(i, b)| validate_body(s, i, b))
+        .collect()
 }
 
 /// `bodies[i]`: a defined material, particles per cell in 1..=16, velocities of `dim`
-/// components, a valid shape inside the grid (or cut by slip faces only).
-fn validate_body(s: &Scene, i: usize, b: &BodySpec) -> Result<(), Invalid> {
+/// components, a valid shape inside the grid (or cut by slip faces only). Returns its
+/// material's index.
+fn validate_body(s: &Scene, i: usize, b: &BodySpec) -> Result<usize, Invalid> {
     let k = |f: &str| format!("bodies[{i}].{f}");
     let (d, g) = (s.dim, &s.grid);
-    if !s.materials.iter().any(|m| m.name == b.material) {
+    let Some(material) = s.materials.iter().position(|m| m.name == b.material) else {
         let names: Vec<_> = s.materials.iter().map(|m| m.name.as_str()).collect();
         return Err((
             k("material"),
@@ -1392,7 +1415,7 @@ fn validate_body(s: &Scene, i: usize, b: &BodySpec) -> Result<(), Invalid> {
                 b.material
             ),
         ));
-    }
+    };
     if b.particles_per_cell == 0 {
         return Err((k("particles_per_cell"), "must be >= 1, got 0".into()));
     }
@@ -1446,7 +1469,7 @@ fn validate_body(s: &Scene, i: usize, b: &BodySpec) -> Result<(), Invalid> {
             ));
         }
     }
-    Ok(())
+    Ok(material)
 }
 
 /// A body's shape, checked, and its bounding box; `k` names a key of the body.
@@ -1524,8 +1547,11 @@ fn body_bounds(
 }
 
 /// `[benchmark]`: its numbers, then what the kind needs of the scene.
-fn validate_benchmark_table(s: &Scene) -> Result<(), Invalid> {
-    if let Some(b) = &s.benchmark {
+fn validate_benchmark_table(s: &Scene) -> Result<Option<BenchmarkPlan>, Invalid> {
+    let Some(b) = &s.benchmark else {
+        return Ok(None);
+    };
+    {
         if let Some(a) = b.amplitude {
             finite("benchmark.amplitude", a)?;
         }
@@ -1535,9 +1561,8 @@ fn validate_benchmark_table(s: &Scene) -> Result<(), Invalid> {
         if b.mode == Some(0) {
             return Err(("benchmark.mode".into(), "must be >= 1, got 0".into()));
         }
-        validate_benchmark(s, b)?;
     }
-    Ok(())
+    validate_benchmark(s, b).map(Some)
 }
 
 /// `[output]`: no snapshot keys with `snapshots = false`, an interval that makes a
@@ -1581,8 +1606,11 @@ fn validate_output(s: &Scene) -> Result<(), Invalid> {
 }
 
 /// `[checkpoint]`: exactly one schedule, each in range, and `keep >= 1`.
-fn validate_checkpoint(s: &Scene) -> Result<(), Invalid> {
-    if let Some(c) = &s.checkpoint {
+fn validate_checkpoint(s: &Scene) -> Result<Option<CheckpointEvery>, Invalid> {
+    let Some(c) = &s.checkpoint else {
+        return Ok(None);
+    };
+    {
         let given: Vec<&str> = [
             ("every", c.every.is_some()),
             ("every_steps", c.every_steps.is_some()),
@@ -1592,23 +1620,14 @@ fn validate_checkpoint(s: &Scene) -> Result<(), Invalid> {
         .filter(|k| k.1)
         .map(|k| k.0)
         .collect();
-        match given.len() {
-            0 => {
-                return Err((
-                    "checkpoint".into(),
-                    "give one of `every` (simulated time), `every_steps` or `every_seconds` (wall clock)".into(),
-                ))
-            }
-            1 => {}
-            _ => {
-                return Err((
-                    format!("checkpoint.{}", given[1]),
-                    format!(
-                        "give only one of `every`, `every_steps`, `every_seconds`, not both `{}` and `{}`",
-                        given[0], given[1]
-                    ),
-                ))
-            }
+        if given.len() > 1 {
+            return Err((
+                format!("checkpoint.{}", given[1]),
+                format!(
+                    "give only one of `every`, `every_steps`, `every_seconds`, not both `{}` and `{}`",
+                    given[0], given[1]
+                ),
+            ));
         }
         if let Some(t) = c.every {
             interval("checkpoint.every", t, s.time.end, "checkpoints")?;
@@ -1629,5 +1648,14 @@ fn validate_checkpoint(s: &Scene) -> Result<(), Invalid> {
             ));
         }
     }
-    Ok(())
+    Ok(Some(match (c.every, c.every_steps, c.every_seconds) {
+        (Some(t), _, _) => CheckpointEvery::Time(t),
+        (_, Some(n), _) => CheckpointEvery::Steps(n),
+        (_, _, Some(s)) => CheckpointEvery::Seconds(s),
+        (None, None, None) => return Err((
+            "checkpoint".into(),
+            "give one of `every` (simulated time), `every_steps` or `every_seconds` (wall clock)"
+                .into(),
+        )),
+    }))
 }

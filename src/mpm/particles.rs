@@ -11,7 +11,8 @@
 //! benchmarks, the GIMP half-width only for `gimp`, the out-of-plane stress only for
 //! `brittle` in 2D.
 
-use crate::input::scene::{BodySpec, Model, Scene, Shape};
+use crate::input::plan::Law;
+use crate::input::scene::{BodySpec, Scene, Shape};
 use crate::physics::benchmark::Benchmark;
 use crate::physics::material::Material;
 use crate::physics::shape::{Geom, GradientScheme};
@@ -297,20 +298,22 @@ fn retain<T: Copy>(v: &mut Vec<T>, keep: &[bool]) {
 impl Carries {
     /// The optional particle arrays a scene needs.
     pub fn for_scene(scene: &Scene) -> Self {
+        let laws = || scene.plan.materials.iter().map(|m| m.law);
         Carries {
             def_grad: scene
+                .plan
                 .materials
                 .iter()
-                .any(|m| Material::from_spec(m).needs_def_grad()),
+                .any(|m| Material::from_plan(m).needs_def_grad()),
             // Benchmarks measure displacement errors; a displacement output needs it too.
             x0: scene.benchmark.is_some()
                 || scene
                     .snapshot_plan()
                     .is_some_and(|o| o.fields.contains(&crate::input::scene::Field::Displacement)),
             half: GradientScheme::of(scene.method.gradient).gimp,
-            plastic: scene.materials.iter().any(|m| m.model == Model::J2Plastic),
-            damage: scene.materials.iter().any(|m| m.model == Model::Brittle),
-            stress_zz: scene.dim == 2 && scene.materials.iter().any(|m| m.model == Model::Brittle),
+            plastic: laws().any(|l| matches!(l, Law::J2Plastic { .. })),
+            damage: laws().any(|l| matches!(l, Law::Brittle { .. })),
+            stress_zz: scene.dim == 2 && laws().any(|l| matches!(l, Law::Brittle { .. })),
         }
     }
 }
@@ -363,12 +366,7 @@ impl<const D: usize> Particles<D> {
             _ => 0.0,
         };
         let mut id_base = 0u64;
-        for body in &scene.bodies {
-            let mi = scene
-                .materials
-                .iter()
-                .position(|m| m.name == body.material)
-                .expect("validated");
+        for (body, &mi) in scene.bodies.iter().zip(&scene.plan.body_material) {
             let n = body.particles_per_cell;
             let sub = n.pow(D as u32);
             let seed = BodySeed {

@@ -6,7 +6,8 @@
 //! Sadeghirad & Guilkey and of Wang, Coombs, Augarde et al. (2019). The README
 //! ("Scenes in `inputs/`", "Verification") says what each is checked against.
 
-use crate::input::scene::{BenchmarkKind, Scene, Shape};
+use crate::input::plan::BenchmarkPlan;
+use crate::input::scene::Scene;
 use crate::physics::material::{lame, Material};
 use crate::physics::tensor::{Mat, Vector};
 use std::f64::consts::PI;
@@ -51,45 +52,41 @@ const PHASE: [f64; 3] = [0.0, 2.0 * PI / 3.0, 4.0 * PI / 3.0];
 
 impl<const D: usize> Benchmark<D> {
     pub fn new(s: &Scene) -> Option<Self> {
-        let b = s.benchmark.as_ref()?;
-        let m = &s.materials[0];
+        let m = &s.plan.materials[0];
         let (lambda, mu) = lame(m.youngs_modulus, m.poisson_ratio);
-        Some(match b.kind {
-            BenchmarkKind::VibratingBar => {
-                let (lo, hi) = match &s.bodies[0].shape {
-                    Shape::Box { lower, upper } => (lower[0], upper[0]),
-                    _ => unreachable!("validated"),
-                };
-                let n = b.mode.unwrap_or(1) as f64;
-                let beta = (2.0 * n - 1.0) * PI / (2.0 * (hi - lo));
-                let speed = Material::from_spec(m).wave_speed(1.0);
+        Some(match s.plan.benchmark? {
+            BenchmarkPlan::VibratingBar {
+                amplitude,
+                mode,
+                bar: [lo, hi],
+            } => {
+                let beta = (2.0 * mode as f64 - 1.0) * PI / (2.0 * (hi - lo));
+                let speed = Material::from_plan(m).wave_speed(1.0);
                 Benchmark::VibratingBar {
-                    v0: b.amplitude.unwrap_or(0.1),
+                    v0: amplitude,
                     beta,
                     omega: beta * speed,
                     x0: lo,
                 }
             }
-            BenchmarkKind::AxisAlignedMms => Benchmark::AxisAlignedMms {
-                a: b.amplitude.unwrap_or(0.05),
-                c: b.c.unwrap_or(100.0),
+            BenchmarkPlan::AxisAlignedMms { amplitude, c } => Benchmark::AxisAlignedMms {
+                a: amplitude,
+                c,
                 mu,
                 lambda,
                 rho0: m.density,
             },
-            BenchmarkKind::GeneralizedVortex => {
-                let center = match &s.bodies[0].shape {
-                    Shape::Annulus { center, .. } => [center[0], center[1]],
-                    _ => unreachable!("validated"),
-                };
-                Benchmark::GeneralizedVortex {
-                    a: b.amplitude.unwrap_or(1.0),
-                    c: b.c.unwrap_or(1.0),
-                    mu,
-                    rho0: m.density,
-                    center,
-                }
-            }
+            BenchmarkPlan::GeneralizedVortex {
+                amplitude,
+                c,
+                center,
+            } => Benchmark::GeneralizedVortex {
+                a: amplitude,
+                c,
+                mu,
+                rho0: m.density,
+                center,
+            },
         })
     }
 

@@ -7,7 +7,7 @@ pub mod j2_plastic;
 pub mod linear_elastic;
 pub mod neo_hookean;
 
-use crate::input::scene::{MaterialSpec, Model};
+use crate::input::plan::{Law, MaterialPlan};
 use crate::physics::tensor::Mat;
 use nalgebra::Matrix3;
 
@@ -38,31 +38,36 @@ pub fn lame(e: f64, nu: f64) -> (f64, f64) {
 }
 
 impl Material {
-    pub fn from_spec(s: &MaterialSpec) -> Self {
-        let (lambda, mu) = lame(s.youngs_modulus, s.poisson_ratio);
-        match s.model {
-            Model::LinearElastic => Material::LinearElastic(linear_elastic::LinearElastic {
+    /// The model of a validated material.
+    pub fn from_plan(p: &MaterialPlan) -> Self {
+        let (lambda, mu) = lame(p.youngs_modulus, p.poisson_ratio);
+        let density = p.density;
+        match p.law {
+            Law::LinearElastic => Material::LinearElastic(linear_elastic::LinearElastic {
                 lambda,
                 mu,
-                density: s.density,
+                density,
             }),
-            Model::NeoHookean => Material::NeoHookean(neo_hookean::NeoHookean {
+            Law::NeoHookean => Material::NeoHookean(neo_hookean::NeoHookean {
                 lambda,
                 mu,
-                density: s.density,
+                density,
             }),
-            Model::J2Plastic => Material::J2Plastic(j2_plastic::J2Plastic {
+            Law::J2Plastic {
+                yield_stress,
+                hardening,
+            } => Material::J2Plastic(j2_plastic::J2Plastic {
                 lambda,
                 mu,
-                density: s.density,
-                yield_stress: s.yield_stress.expect("validated"),
-                hardening: s.hardening.unwrap_or(0.0),
+                density,
+                yield_stress,
+                hardening,
             }),
-            Model::Brittle => Material::Brittle(brittle::Brittle {
+            Law::Brittle { tensile_strength } => Material::Brittle(brittle::Brittle {
                 lambda,
                 mu,
-                density: s.density,
-                tensile_strength: s.tensile_strength.expect("validated"),
+                density,
+                tensile_strength,
             }),
         }
     }

@@ -1,0 +1,69 @@
+//! The parts of a scene that validation resolves into typed values, once: each
+//! material's model with exactly the parameters it needs (no `Option` left to unwrap),
+//! each body's material as an index, the benchmark with its defaults applied, and the
+//! checkpoint schedule. The solver, the seeding, the benchmarks and the run loop read
+//! these, never the raw `Option`s or names of the scene file.
+
+/// A material's constitutive law with its own parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Law {
+    LinearElastic,
+    NeoHookean,
+    /// J2 plasticity at finite strain with linear isotropic hardening.
+    J2Plastic {
+        yield_stress: f64,
+        hardening: f64,
+    },
+    /// Linear elastic with tensile failure.
+    Brittle {
+        tensile_strength: f64,
+    },
+}
+
+/// A validated material: elastic constants in range and its law.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MaterialPlan {
+    pub density: f64,
+    pub youngs_modulus: f64,
+    pub poisson_ratio: f64,
+    pub law: Law,
+}
+
+/// An exact-solution problem with its parameters (defaults applied).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum BenchmarkPlan {
+    /// A bar on `[bar[0], bar[1]]` along x, fixed at its lower end, in mode `mode`.
+    VibratingBar {
+        amplitude: f64,
+        mode: u32,
+        bar: [f64; 2],
+    },
+    /// The manufactured solution of the unit square/cube.
+    AxisAlignedMms { amplitude: f64, c: f64 },
+    /// The ring about `center`, in 2D.
+    GeneralizedVortex {
+        amplitude: f64,
+        c: f64,
+        center: [f64; 2],
+    },
+}
+
+/// The checkpoint schedule of a validated `[checkpoint]` table.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CheckpointEvery {
+    Time(f64),
+    Steps(u64),
+    Seconds(f64),
+}
+
+/// What validation resolved; built only by `scene::parse`, which refuses a scene
+/// before it gets here.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Plan {
+    /// One per `[[materials]]` entry, in order.
+    pub materials: Vec<MaterialPlan>,
+    /// Per `[[bodies]]` entry: the index of its material in `materials`.
+    pub body_material: Vec<usize>,
+    pub benchmark: Option<BenchmarkPlan>,
+    pub checkpoint: Option<CheckpointEvery>,
+}
