@@ -69,6 +69,25 @@ impl<const D: usize> NodeRecord<D> {
     }
 }
 
+/// Velocity slot: the grid velocity `p / m`, before this step's forces (with walls).
+pub const FROM_MOMENTUM: usize = 0;
+/// Velocity slot: the grid velocity after forces and walls, `p / m + dt f / m`.
+pub const UPDATED: usize = 1;
+
+/// Layout of a node's velocity record, [`VelRecord::WIDTH`] numbers per node: slot
+/// [`FROM_MOMENTUM`] then slot [`UPDATED`], `D` each. FLIP needs both (the
+/// increment); the stress update and the move read one.
+pub struct VelRecord<const D: usize>;
+
+impl<const D: usize> VelRecord<D> {
+    pub const WIDTH: usize = 2 * D;
+    /// Where velocity slot `slot` of node `node` starts.
+    #[inline(always)]
+    pub const fn at(node: usize, slot: usize) -> usize {
+        node * 2 * D + slot * D
+    }
+}
+
 /// Interpolation data of one particle over its `N` nodes.
 pub struct Kern<const D: usize, const N: usize> {
     pub idx: [usize; N],
@@ -400,7 +419,7 @@ pub(crate) fn moving_velocity<const D: usize, const N: usize>(
                 if c < 1.0 {
                     let mut vn = 0.0;
                     for n in 0..N {
-                        vn += k.s[n] * vel[k.idx[n] * 2 * D + slot * D + a];
+                        vn += k.s[n] * vel[VelRecord::<D>::at(k.idx[n], slot) + a];
                     }
                     u[a] = c * u[a] + (1.0 - c) * vn;
                 }
@@ -453,10 +472,10 @@ pub(crate) fn velocity_gradient<const D: usize, const N: usize>(
     two: bool,
 ) -> Mat<D> {
     let mut l = Mat::<D>::zeros();
-    let d2 = 2 * D;
     for n in 0..N {
         let i = k.idx[n];
-        let v = &vel[i * d2 + slot * D..i * d2 + slot * D + D];
+        let at = VelRecord::<D>::at(i, slot);
+        let v = &vel[at..at + D];
         if k.alpha != 0.0 {
             for b in 0..D {
                 let g = k.alpha * k.g[n][b];
@@ -527,7 +546,6 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
 ) -> Tally {
     par(parts, &|mut s: Slices<'_, D>| {
         let mut t = Tally::ZERO;
-        let d2 = 2 * D;
         for p in 0..s.len() {
             let half = if ctx.gimp {
                 Some(&s.parts.half[p])
@@ -538,7 +556,8 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
             let mut vn = Vector::<D>::zeros();
             let mut dv = Vector::<D>::zeros();
             for n in 0..N {
-                let v = &vel[k.idx[n] * d2..k.idx[n] * d2 + d2];
+                let at = VelRecord::<D>::at(k.idx[n], FROM_MOMENTUM);
+                let v = &vel[at..at + VelRecord::<D>::WIDTH];
                 for a in 0..D {
                     vn[a] += k.s[n] * v[D + a];
                     dv[a] += k.s[n] * (v[D + a] - v[a]);

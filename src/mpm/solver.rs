@@ -4,7 +4,9 @@
 //! node→node stencils, migration after the position update).
 
 use crate::input::scene::{Face, Scene, Update};
-use crate::mpm::kernel::{self, AvgRecord, NodeRecord, SlabOrder};
+use crate::mpm::kernel::{
+    self, AvgRecord, NodeRecord, SlabOrder, VelRecord, FROM_MOMENTUM, UPDATED,
+};
 use crate::mpm::particles::{Carries, Particles};
 use crate::physics::benchmark::Benchmark;
 use crate::physics::material::Material;
@@ -238,7 +240,7 @@ impl Update {
                 },
                 AveragedForce,
                 GridUpdate { forces: true },
-                AveragedGradient { slot: 1 },
+                AveragedGradient { slot: UPDATED },
                 Gather {
                     stress: true,
                     move_now: true,
@@ -252,9 +254,11 @@ impl Update {
                     moved: true,
                 },
                 GridUpdate { forces: false },
-                AveragedGradient { slot: 0 },
+                AveragedGradient {
+                    slot: FROM_MOMENTUM,
+                },
                 Stress {
-                    slot: 0,
+                    slot: FROM_MOMENTUM,
                     speed: false,
                     moves: false,
                 },
@@ -265,7 +269,7 @@ impl Update {
                 AveragedForce,
                 GridUpdate { forces: true },
                 // The reconstruction the particles move with (two-step schemes).
-                AveragedGradient { slot: 1 },
+                AveragedGradient { slot: UPDATED },
                 Gather {
                     stress: false,
                     move_now: true,
@@ -291,9 +295,11 @@ impl Update {
                     moved: false,
                 },
                 GridUpdate { forces: false },
-                AveragedGradient { slot: 0 },
+                AveragedGradient {
+                    slot: FROM_MOMENTUM,
+                },
                 Stress {
-                    slot: 0,
+                    slot: FROM_MOMENTUM,
                     speed: true,
                     moves: true,
                 },
@@ -324,7 +330,12 @@ impl<'c, const D: usize> Solver<'c, D> {
     pub fn new(scene: &Scene, comm: &'c dyn Communicator, layout: Layout<D>) -> Self {
         let geom = Self::geometry(scene);
         let block = Block::new(&layout, comm.rank());
-        let materials: Vec<Material> = scene.materials.iter().map(Material::from_spec).collect();
+        let materials: Vec<Material> = scene
+            .plan
+            .materials
+            .iter()
+            .map(Material::from_plan)
+            .collect();
         let benchmark = Benchmark::<D>::new(scene);
         let parts = Particles::seed(
             scene,
@@ -363,7 +374,12 @@ impl<'c, const D: usize> Solver<'c, D> {
             std::array::from_fn(|a| [g.boundary.face(a, false), g.boundary.face(a, true)]);
         let geom = Self::geometry(scene);
         let (block, tiles) = Self::block_and_tiles(&layout, comm.rank());
-        let materials: Vec<Material> = scene.materials.iter().map(Material::from_spec).collect();
+        let materials: Vec<Material> = scene
+            .plan
+            .materials
+            .iter()
+            .map(Material::from_plan)
+            .collect();
         let benchmark = Benchmark::<D>::new(scene);
         let carries = Carries::for_scene(scene);
         let migrator = Migrator::new(&layout, &block, Particles::<D>::record_width(carries));
@@ -510,7 +526,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             v.resize(len, 0.0);
         };
         fit(&mut self.scat, nn * self.sw);
-        fit(&mut self.vel, nn * 2 * D);
+        fit(&mut self.vel, nn * VelRecord::<D>::WIDTH);
         let n2 = if two { nn } else { 0 };
         fit(&mut self.avg, n2 * AvgRecord::<D>::WIDTH);
         let nx = if self.xpic.is_some() { nn * D } else { 0 };
@@ -642,11 +658,11 @@ impl<'c, const D: usize> Solver<'c, D> {
         let m = self.xpic.expect("XPIC phase only in XPIC runs");
         let mf = m as f64;
         let sw = self.sw;
-        let d2 = 2 * D;
+        let d2 = VelRecord::<D>::WIDTH;
         let nn = self.vel.len() / d2;
         for n in 0..nn {
             for a in 0..D {
-                let v = self.vel[n * d2 + a];
+                let v = self.vel[VelRecord::<D>::at(n, FROM_MOMENTUM) + a];
                 self.xpic_term[n * D + a] = v;
                 self.xpic_add[n * D + a] = (mf - 1.0) * v;
             }
@@ -832,7 +848,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.for_owned(|n, c| {
             let rec = &self.scat[n * sw..(n + 1) * sw];
             let m = rec[NodeRecord::<D>::MASS];
-            let v = &mut vel[n * 2 * D..(n + 1) * 2 * D];
+            let v = &mut vel[VelRecord::<D>::at(n, FROM_MOMENTUM)..][..VelRecord::<D>::WIDTH];
             if m > self.mass_floor {
                 for a in 0..D {
                     v[a] = rec[NodeRecord::<D>::momentum(a)] / m;
@@ -887,7 +903,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                 rec.iter_mut().for_each(|x| *x = 0.0);
                 return;
             }
-            let vel = |i: usize| &self.vel[i * 2 * D + slot * D..i * 2 * D + slot * D + D];
+            let vel = |i: usize| &self.vel[VelRecord::<D>::at(i, slot)..][..D];
             let mut l = [0.0; 9];
             self.tiles.neighbourhood(j, &mut nb);
             self.cells_around(&nb, &cj, |q, cell, wc| {
