@@ -9,6 +9,7 @@
 
 use decomposition::{Layout, SerialComm};
 use mpmcg::input::scene::{self, Gradient};
+use mpmcg::mpm::particles::Particles;
 use mpmcg::mpm::solver::Solver;
 use mpmcg::physics::shape::Alpha;
 
@@ -238,6 +239,82 @@ fn momentum_and_mass_conserved_3d() {
     check::<3>();
 }
 
+/// A particle's gradients, node by node.
+type Grads<const D: usize> = Vec<([i64; D], [f64; D])>;
+type NodeMap<const D: usize, T> = std::collections::BTreeMap<[i64; D], T>;
+
+/// The reference particle → grid transfer: nodal mass, momentum and internal force
+/// `f_i = −Σ_p v_p σ_p · G_i(x_p)`.
+#[allow(clippy::needless_range_loop)]
+fn reference_scatter<const D: usize>(
+    parts: &Particles<D>,
+    shapes: &dyn Fn(usize) -> Vec<([i64; D], f64)>,
+    grads: &[Grads<D>],
+) -> (NodeMap<D, f64>, NodeMap<D, [f64; D]>, NodeMap<D, [f64; D]>) {
+    let (mut mass, mut mom, mut force) = (NodeMap::new(), NodeMap::new(), NodeMap::new());
+    for p in 0..parts.len() {
+        for (nd, w) in shapes(p) {
+            *mass.entry(nd).or_default() += parts.mass[p] * w;
+            let e = mom.entry(nd).or_insert([0.0; D]);
+            (0..D).for_each(|a| e[a] += parts.mass[p] * w * parts.v[p][a]);
+        }
+        for (nd, g) in &grads[p] {
+            let e = force.entry(*nd).or_insert([0.0; D]);
+            for a in 0..D {
+                for b in 0..D {
+                    e[a] -= parts.vol[p] * parts.stress[p][(a, b)] * g[b];
+                }
+            }
+        }
+    }
+    (mass, mom, force)
+}
+
+/// A particle's change over one step by the reference formulas: velocity increment,
+/// moving velocity and velocity gradient.
+struct Step<const D: usize> {
+    dt: f64,
+    dv: [f64; D],
+    moved: [f64; D],
+    l: [[f64; D]; D],
+}
+
+impl<const D: usize> Step<D> {
+    /// The largest relative difference between the solver's step of particle `p`
+    /// (`before` → `after`) and the reference: velocity, position, linear elastic
+    /// stress (E = 1000, ν = 0.3) and volume.
+    #[allow(clippy::needless_range_loop)]
+    fn error(&self, p: usize, before: &Particles<D>, after: &Particles<D>) -> f64 {
+        let Step { dt, dv, moved, l } = self;
+        let dt = *dt;
+        let (lambda, mu) = mpmcg::physics::material::lame(1000.0, 0.3);
+        let mut worst = 0.0f64;
+        let tr: f64 = (0..D).map(|a| l[a][a]).sum();
+        let vscale = before.v[p].abs().max() + dv.iter().map(|v| v.abs()).fold(0.0, f64::max);
+        let lscale: f64 = l.iter().flatten().map(|v| v.abs()).fold(0.0, f64::max);
+        for a in 0..D {
+            worst = worst.max((after.v[p][a] - before.v[p][a] - dv[a]).abs() / vscale);
+            worst =
+                worst.max((after.x[p][a] - before.x[p][a] - dt * moved[a]).abs() / (dt * vscale));
+            for b in 0..D {
+                let d = 0.5 * (l[a][b] + l[b][a]);
+                let ds = dt * (2.0 * mu * d + if a == b { lambda * tr } else { 0.0 });
+                let got = after.stress[p][(a, b)] - before.stress[p][(a, b)];
+                worst =
+                    worst.max((got - ds).abs() / (dt * (2.0 * mu + D as f64 * lambda) * lscale));
+            }
+        }
+        let mut inc = mpmcg::physics::tensor::Mat::<D>::identity();
+        for a in 0..D {
+            for b in 0..D {
+                inc[(a, b)] += dt * l[a][b];
+            }
+        }
+        let j = mpmcg::physics::tensor::det(&inc);
+        worst.max((after.vol[p] / before.vol[p] - j).abs() / (dt * lscale))
+    }
+}
+
 /// One USL step of the solver against the same step written out with the reference
 /// gradients of `mpmcg::physics::gradient`, Ω the continuous cell weights of the particles:
 /// `f_i = −Σ_p v_p σ_p · G_i(x_p)`, `v_i' = v_i + dt f_i / m_i`,
@@ -284,7 +361,7 @@ fn check_step<const D: usize>(
             .map(|(nd, w, _)| (gr::wrap_node(&geom, nd), w))
             .collect()
     };
-    let grads: Vec<Vec<([i64; D], [f64; D])>> = (0..n)
+    let grads: Vec<Grads<D>> = (0..n)
         .map(|p| {
             let mut m: BTreeMap<[i64; D], [f64; D]> = BTreeMap::new();
             for (nd, g) in gr::gradient(&geom, &omega, scheme(p), &x[p]) {
@@ -294,27 +371,8 @@ fn check_step<const D: usize>(
             m.into_iter().collect()
         })
         .collect();
-    // Particle → grid.
-    let mut mass: BTreeMap<[i64; D], f64> = BTreeMap::new();
-    let mut mom: BTreeMap<[i64; D], [f64; D]> = BTreeMap::new();
-    let mut force: BTreeMap<[i64; D], [f64; D]> = BTreeMap::new();
-    for p in 0..n {
-        for (nd, w) in shapes(p) {
-            *mass.entry(nd).or_default() += s.parts.mass[p] * w;
-            let e = mom.entry(nd).or_insert([0.0; D]);
-            (0..D).for_each(|a| e[a] += s.parts.mass[p] * w * s.parts.v[p][a]);
-        }
-        for (nd, g) in &grads[p] {
-            let e = force.entry(*nd).or_insert([0.0; D]);
-            for a in 0..D {
-                for b in 0..D {
-                    e[a] -= s.parts.vol[p] * s.parts.stress[p][(a, b)] * g[b];
-                }
-            }
-        }
-    }
-    let stress0 = s.parts.stress.clone();
-    let (v0, vol0) = (s.parts.v.clone(), s.parts.vol.clone());
+    let (mass, mom, force) = reference_scatter(&s.parts, &shapes, &grads);
+    let before = s.parts.clone();
     s.advance().expect("step");
     let dt = s.dt;
     let floor = 1e-12 * s.parts.mass.iter().cloned().fold(f64::INFINITY, f64::min);
@@ -330,7 +388,6 @@ fn check_step<const D: usize>(
             std::array::from_fn(|a| p[a] / m + dt * f[a] / m),
         )
     };
-    let (lambda, mu) = mpmcg::physics::material::lame(1000.0, 0.3);
     let mut worst = 0.0f64;
     for p in 0..n {
         let mut dv = [0.0; D];
@@ -359,28 +416,8 @@ fn check_step<const D: usize>(
         } else {
             vn
         };
-        let tr: f64 = (0..D).map(|a| l[a][a]).sum();
-        let vscale = v0[p].abs().max() + dv.iter().map(|v| v.abs()).fold(0.0, f64::max);
-        let lscale: f64 = l.iter().flatten().map(|v| v.abs()).fold(0.0, f64::max);
-        for a in 0..D {
-            worst = worst.max((s.parts.v[p][a] - v0[p][a] - dv[a]).abs() / vscale);
-            worst = worst.max((s.parts.x[p][a] - x[p][a] - dt * moved[a]).abs() / (dt * vscale));
-            for b in 0..D {
-                let d = 0.5 * (l[a][b] + l[b][a]);
-                let ds = dt * (2.0 * mu * d + if a == b { lambda * tr } else { 0.0 });
-                let got = s.parts.stress[p][(a, b)] - stress0[p][(a, b)];
-                worst =
-                    worst.max((got - ds).abs() / (dt * (2.0 * mu + D as f64 * lambda) * lscale));
-            }
-        }
-        let mut inc = mpmcg::physics::tensor::Mat::<D>::identity();
-        for a in 0..D {
-            for b in 0..D {
-                inc[(a, b)] += dt * l[a][b];
-            }
-        }
-        let j = mpmcg::physics::tensor::det(&inc);
-        worst = worst.max((s.parts.vol[p] / vol0[p] - j).abs() / (dt * lscale));
+        let step = Step { dt, dv, moved, l };
+        worst = worst.max(step.error(p, &before, &s.parts));
     }
     worst
 }
