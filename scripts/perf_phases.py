@@ -7,12 +7,12 @@
 The release build's line tables carry the inlining chain of every address, so each
 sample of mpmcg's own code is resolved (addr2line -i) to the innermost function that is
 a phase of a step: `Solver::domain_weights`, `averaged_force`, `grid_velocity`,
-`averaged_velocity_gradient`, `relocate`, `sort`, the Move loop in `run_phase`,
+`averaged_velocity_gradient`, `relocate`, `sort`, `remap`,
 `kernel::scatter_slabs`, `SlabOrder::build`, `kernel::gather`, `kernel::update_stress`
 (the material's stress, a function of its own, is shown apart), and the run loop's
-`totals` (history rows) and rescue copy. Phases that run twice in a step (MUSL's two
-scatters, their domain weights and grid updates) are told apart by order: a scatter
-after a gather or a stress update is the second one. Samples outside mpmcg (libm's
+`totals` (history rows) and rescue copy. Phases that run twice in a step (the grid
+updates of MUSL, the scatters of USF or of MUSL with XPIC) are told apart by order: a
+scatter after a gather, a remap or a stress update is the second one. Samples outside mpmcg (libm's
 `log`, `memset`, `memmove`, the kernel) count with the phase of the mpmcg sample next
 to them in time (the previous one), and so does a helper that is not inlined (in 3D,
 `Geom::locate`); `memset` is the scatter's clear of the node records, `memmove` outside
@@ -37,6 +37,7 @@ PHASES = [
     (r"grid_velocity", "grid update"),
     (r"averaged_velocity_gradient", "averaged velocity gradient"),
     (r"Material::update_stress", "material stress"),
+    (r"remap_slabs|^remap<", "remap"),
     (r"kernel::gather|^gather<", "gather"),
     (r"kernel::update_stress|^update_stress<", "stress update"),
     (r"relocate", "relocate"),
@@ -44,7 +45,7 @@ PHASES = [
     (r"totals|strain_energy|errors<", "history totals"),
     (r"Rescue|copy_from|keep<", "rescue copy"),
     (r"choose_dt|compute_max_speed", "other solver"),
-    (r"run_phase", "move"),
+    (r"run_phase", "other solver"),
     (r"Particles.*seed|with_particles|Solver.*new|^seed<|^new<", "setup"),
 ]
 PHASES = [(re.compile(p), name) for p, name in PHASES]
@@ -219,9 +220,9 @@ def main():
     outside = collections.Counter()
     ordinal = 1
     for lab, ext in final[first:]:
-        if lab in ("gather", "stress update", "material stress"):
+        if lab in ("gather", "remap", "stress update", "material stress"):
             ordinal = 2
-        elif lab in ("move", "relocate", "sort", "rescue copy", "history totals"):
+        elif lab in ("relocate", "sort", "rescue copy", "history totals"):
             ordinal = 1
         if lab in TWICE:
             lab = f"{lab} ({ordinal})"

@@ -336,9 +336,11 @@ pub struct StressMode {
     pub slot: usize,
     pub dt: f64,
     pub two_step: bool,
-    /// Set the position increments `dx` from [`moving_velocity`] (two-step schemes
-    /// under MUSL, whose gather ran before the remap).
+    /// Move the particles with [`moving_velocity`] (two-step schemes under MUSL, whose
+    /// gather ran before the remap).
     pub moves: bool,
+    /// Move the particles by the increments `dx` kept (one-step schemes under MUSL).
+    pub moves_kept: bool,
     /// Report the fastest signal speed (see [`GatherMode::speed`]).
     pub speed: bool,
 }
@@ -434,7 +436,7 @@ pub(crate) fn moving_velocity<const D: usize, const N: usize>(
 /// of its velocity `v` is clipped to `vm`'s. Returns the kinetic energy the clip takes
 /// out (≤ 0), the wall's work.
 #[inline(always)]
-fn clip_at_slip_walls<const D: usize, const N: usize>(
+pub(crate) fn clip_at_slip_walls<const D: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
     k: &Kern<D, N>,
     v: &mut Vector<D>,
@@ -650,7 +652,9 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
                     t.work += clip_at_slip_walls(ctx, &k, &mut v, &vm, s.parts.mass[p]);
                     s.parts.v[p] = v;
                 }
-                s.dx[p] = vm * m.dt;
+                s.parts.x[p] += vm * m.dt;
+            } else if m.moves_kept {
+                s.parts.x[p] += s.dx[p];
             }
             if m.speed {
                 t.max_speed = t.max_speed.max(speed(ctx, &s, p));
@@ -763,9 +767,33 @@ pub struct ScatterMode {
 
 /// The scatter's view of the node records, shared by its threads.
 #[derive(Clone, Copy)]
-struct GridPtr {
+pub(crate) struct GridPtr {
     ptr: *mut f64,
     len: usize,
+}
+
+impl GridPtr {
+    pub(crate) fn new(field: &mut [f64]) -> Self {
+        GridPtr {
+            ptr: field.as_mut_ptr(),
+            len: field.len(),
+        }
+    }
+
+    /// The `width` numbers at `at` (bounds checked).
+    ///
+    /// # Safety
+    /// The field the pointer was made from is still borrowed exclusively by the caller's
+    /// caller, and no other thread reads or writes these numbers while the slice lives.
+    #[inline(always)]
+    pub(crate) unsafe fn record<'a>(self, at: usize, width: usize) -> &'a mut [f64] {
+        assert!(
+            at + width <= self.len,
+            "node record outside the grid storage"
+        );
+        // SAFETY: in bounds (checked above); exclusive by the caller's contract.
+        unsafe { std::slice::from_raw_parts_mut(self.ptr.add(at), width) }
+    }
 }
 
 // SAFETY: a `GridPtr` is only made in `scatter` from a `&mut [f64]` that it holds for
@@ -793,10 +821,7 @@ pub fn scatter<const D: usize, const NA: usize, const N: usize>(
     scat: &mut [f64],
     m: ScatterMode,
 ) {
-    let grid = GridPtr {
-        ptr: scat.as_mut_ptr(),
-        len: scat.len(),
-    };
+    let grid = GridPtr::new(scat);
     let ns = slabs.slabs();
     for colour in 0..2 {
         let first = colour;
@@ -863,16 +888,14 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
             Vector::<D>::zeros()
         };
         for n in 0..N {
-            let at = k.idx[n] * sw;
-            assert!(at + sw <= grid.len, "node record outside the grid storage");
             debug_assert!(
                 k.idx[n] >= ctx.tiles.tile_nodes(),
                 "a particle's node in the zero tile: its tile was not touched"
             );
-            // SAFETY: in bounds (checked above); no other thread writes this record
-            // while this one does (see `scatter`), and this thread holds no other
-            // reference into the buffer while `rec` lives.
-            let rec = unsafe { std::slice::from_raw_parts_mut(grid.ptr.add(at), sw) };
+            // SAFETY: no other thread writes this record while this one does (see
+            // `scatter`), and this thread holds no other reference into the buffer
+            // while `rec` lives.
+            let rec = unsafe { grid.record(k.idx[n] * sw, sw) };
             let s = k.s[n];
             rec[R::<D>::MASS] += mass * s;
             for a in 0..D {

@@ -4,4 +4,5 @@
 
 pub mod kernel;
 pub mod particles;
+pub mod remap;
 pub mod solver;

@@ -8,6 +8,7 @@ use crate::mpm::kernel::{
     self, AvgRecord, NodeRecord, SlabOrder, VelRecord, FROM_MOMENTUM, UPDATED,
 };
 use crate::mpm::particles::{Carries, Particles};
+use crate::mpm::remap::remap;
 use crate::physics::benchmark::Benchmark;
 use crate::physics::material::Material;
 use crate::physics::shape::{Alpha, Geom, GradientScheme};
@@ -161,6 +162,8 @@ pub struct Solver<'c, const D: usize> {
     /// updated grid velocity ([`Solver::xpic_field`]), and the recursion's current term.
     xpic_add: Vec<f64>,
     xpic_term: Vec<f64>,
+    /// MUSL's remapped momentum, `D` per node ([`Phase::Remap`]).
+    mom: Vec<f64>,
     /// Per node: its fill fraction `φ_k` (see [`Solver::domain_weights`]), copied to
     /// the ghosts.
     fill: Vec<f64>,
@@ -203,23 +206,28 @@ pub enum Phase {
     GridUpdate { forces: bool },
     /// MPMCG node → node step of the velocity gradient, `L̄_j`, from velocity `slot`.
     AveragedGradient { slot: usize },
-    /// Grid → particle: velocity (FLIP/PIC), position (now, or kept for `Move`), and
-    /// if `stress` the deformation and stress; `speed`: the step's last particle pass.
+    /// Grid → particle: velocity (FLIP/PIC), position (now, or the increment kept for
+    /// the `Stress` pass that moves), and if `stress` the deformation and stress;
+    /// `speed`: the step's last particle pass.
     Gather {
         stress: bool,
         move_now: bool,
         speed: bool,
     },
     /// Deformation and stress from velocity `slot` at the current positions.
-    /// `moves`: also set the position increments for `Move` (MUSL: the particles move
-    /// with the remapped velocity's reconstruction, see [`kernel::moving_velocity`]).
+    /// `moves` (MUSL): then move each particle, a two-step scheme's with the remapped
+    /// velocity's reconstruction ([`kernel::moving_velocity`]), a one-step scheme's by
+    /// the increment its `Remap` or `Gather` kept.
     Stress {
         slot: usize,
         speed: bool,
         moves: bool,
     },
-    /// Apply the position increments a `Gather { move_now: false }` kept.
-    Move,
+    /// MUSL: the particles' new velocities from the grid and the grid momentum of them,
+    /// at the positions of the step's scatter, in one pass (`mpm::remap`); mass, cover
+    /// and domain weights stay the scatter's. The same numbers as a `Gather` (no
+    /// stress, no move) followed by a `Scatter` without forces.
+    Remap,
     /// XPIC(m) only, just before the `Gather`: the grid field of its velocity update
     /// from the velocity before the force update, by m − 1 grid → particle → grid
     /// passes ([`Solver::xpic_field`]).
@@ -285,15 +293,7 @@ impl Update {
                 },
                 AveragedForce,
                 GridUpdate { forces: true },
-                Gather {
-                    stress: false,
-                    move_now: false,
-                    speed: false,
-                },
-                Scatter {
-                    forces: false,
-                    moved: false,
-                },
+                Remap,
                 GridUpdate { forces: false },
                 AveragedGradient {
                     slot: FROM_MOMENTUM,
@@ -303,7 +303,6 @@ impl Update {
                     speed: true,
                     moves: true,
                 },
-                Move,
             ],
         }
     }
@@ -424,6 +423,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             xpic: scene.method.xpic.map(|m| m as usize),
             xpic_add: Vec::new(),
             xpic_term: Vec::new(),
+            mom: Vec::new(),
             fill: Vec::new(),
             cell_w: Vec::new(),
             node_vol: Vec::new(),
@@ -442,8 +442,8 @@ impl<'c, const D: usize> Solver<'c, D> {
             perm: Vec::new(),
             scratch: Vec::new(),
         };
-        s.setup_grid();
         s.resolve_phases();
+        s.setup_grid();
         let mut mmin = [s.parts.mass.iter().cloned().fold(f64::INFINITY, f64::min)];
         s.comm.min_f64(&mut mmin);
         s.mass_floor = if mmin[0].is_finite() {
@@ -467,8 +467,8 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// Replace the scheme's α (tests: α ≡ 0 is `averaged`, α ≡ 1 is `mpm`).
     pub fn set_alpha(&mut self, alpha: Alpha) {
         self.scheme.alpha = alpha;
-        self.setup_grid();
         self.resolve_phases();
+        self.setup_grid();
     }
 
     /// The step's phases for this scheme: one-step schemes skip the grid averages.
@@ -480,11 +480,24 @@ impl<'c, const D: usize> Solver<'c, D> {
             .iter()
             .copied()
             .filter(|p| two || !matches!(p, Phase::AveragedForce | Phase::AveragedGradient { .. }))
-            .flat_map(|p| {
+            .flat_map(|p| match p {
                 // XPIC's field is computed right before the gather that updates the
-                // particle velocities.
-                let x = matches!(p, Phase::Gather { .. }) && self.xpic.is_some();
-                x.then_some(Phase::XpicField).into_iter().chain([p])
+                // particle velocities; its passes overwrite the scatter records, so
+                // MUSL's remap is then a gather and a full second scatter.
+                Phase::Remap if self.xpic.is_some() => vec![
+                    Phase::XpicField,
+                    Phase::Gather {
+                        stress: false,
+                        move_now: false,
+                        speed: false,
+                    },
+                    Phase::Scatter {
+                        forces: false,
+                        moved: false,
+                    },
+                ],
+                Phase::Gather { .. } if self.xpic.is_some() => vec![Phase::XpicField, p],
+                _ => vec![p],
             })
             .collect();
     }
@@ -532,6 +545,8 @@ impl<'c, const D: usize> Solver<'c, D> {
         let nx = if self.xpic.is_some() { nn * D } else { 0 };
         fit(&mut self.xpic_add, nx);
         fit(&mut self.xpic_term, nx);
+        let remaps = self.phases.contains(&Phase::Remap);
+        fit(&mut self.mom, if remaps { nn * D } else { 0 });
         fit(&mut self.fill, n2);
         fit(&mut self.cell_w, n2);
         fit(&mut self.node_vol, n2);
@@ -1085,14 +1100,72 @@ impl<'c, const D: usize> Solver<'c, D> {
             Phase::Stress { slot, speed, moves } => {
                 return self.update_stress_from(slot, dt, speed, moves)
             }
-            Phase::Move => {
-                for (x, dx) in self.parts.x.iter_mut().zip(&self.dx) {
-                    *x += dx;
-                }
-            }
             Phase::XpicField => self.xpic_field(),
+            Phase::Remap => return self.remap(dt),
         }
         true
+    }
+
+    /// MUSL's remap ([`Phase::Remap`]): new particle velocities, and their momentum
+    /// summed over ranks into the scatter records' momentum (the rest of the records,
+    /// mass and cover among them, is the step's scatter's).
+    fn remap(&mut self, dt: f64) -> bool {
+        let n = self.parts.len();
+        let keep_dx = !self.scheme.two_step();
+        // A one-step scheme moves by the increment kept here, at the end of the
+        // stress pass; a two-step scheme's stress pass moves with the reconstruction.
+        self.dx
+            .resize(if keep_dx { n } else { 0 }, Vector::<D>::zeros());
+        self.mom.iter_mut().for_each(|v| *v = 0.0);
+        let mut ctx = ctx!(self);
+        ctx.walls = self.has_walls();
+        let parts = crate::mpm::remap::RemapParts {
+            x: &self.parts.x,
+            mass: &self.parts.mass,
+            x0: &self.parts.x0,
+            half: &self.parts.half,
+            tile: &self.ptile,
+        };
+        let m = crate::mpm::remap::RemapMode {
+            dt,
+            flip: self.flip,
+            keep_dx,
+        };
+        let t = match (self.scheme.gimp, D) {
+            (false, 1) => remap::<D, 2, 2>,
+            (false, 2) => remap::<D, 2, 4>,
+            (false, _) => remap::<D, 2, 8>,
+            (true, 1) => remap::<D, 3, 3>,
+            (true, 2) => remap::<D, 3, 9>,
+            (true, _) => remap::<D, 3, 27>,
+        }(
+            &ctx,
+            &parts,
+            &mut self.parts.v,
+            &mut self.dx,
+            &self.slabs,
+            &self.vel,
+            &mut self.mom,
+            m,
+        );
+        self.block.ghost_sum(self.comm, &mut self.mom, D);
+        let sw = self.sw;
+        for (rec, p) in self.scat.chunks_exact_mut(sw).zip(self.mom.chunks_exact(D)) {
+            for a in 0..D {
+                rec[NodeRecord::<D>::momentum(a)] = p[a];
+            }
+        }
+        self.external_work += t.work;
+        t.ok
+    }
+
+    /// Whether a grid face is a wall (slip or fixed): the passes that clip or blend
+    /// velocities there need each particle's wall ends.
+    fn has_walls(&self) -> bool {
+        self.faces
+            .iter()
+            .flatten()
+            .any(|f| matches!(f, Face::Slip | Face::Fixed))
     }
 
     /// Grid → particle: velocities (FLIP/PIC blend) and positions from slot 1, and if
@@ -1114,11 +1187,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             speed,
         };
         let mut ctx = ctx!(self);
-        ctx.walls = self
-            .faces
-            .iter()
-            .flatten()
-            .any(|f| matches!(f, Face::Slip | Face::Fixed));
+        ctx.walls = self.has_walls();
         let parts = slices!(self);
         let t = by_nodes!(
             self.scheme.gimp,
@@ -1144,15 +1213,11 @@ impl<'c, const D: usize> Solver<'c, D> {
             dt,
             two_step: self.scheme.two_step(),
             moves: moves && self.scheme.two_step(),
+            moves_kept: moves && !self.scheme.two_step(),
             speed,
         };
         let mut ctx = ctx!(self);
-        ctx.walls = m.moves
-            && self
-                .faces
-                .iter()
-                .flatten()
-                .any(|f| matches!(f, Face::Slip | Face::Fixed));
+        ctx.walls = m.moves && self.has_walls();
         let parts = slices!(self);
         let t = by_nodes!(
             self.scheme.gimp,

@@ -61,7 +61,9 @@ impl<const D: usize> Geom<D> {
 
     /// Cell containing `x` and the local coordinate in it, per axis. On a bounded axis a
     /// point on the upper face belongs to the last cell (ξ = 1).
-    #[inline]
+    // Always inlined: the 3D build made it a call returning its arrays through memory,
+    // 8 % of a 3D step (docs/performance.md).
+    #[inline(always)]
     pub fn locate(&self, x: &[f64; D]) -> ([i64; D], [f64; D]) {
         let mut c = [0i64; D];
         let mut xi = [0.0; D];
@@ -250,7 +252,7 @@ fn bubble<const D: usize>(xi: &[f64; D]) -> f64 {
 }
 
 /// Linear hat functions.
-#[inline]
+#[inline(always)]
 pub fn linear<const D: usize>(geom: &Geom<D>, x: &[f64; D]) -> Weights1<D> {
     let (c, xi) = geom.locate(x);
     let mut w = [[0.0; 3]; D];
