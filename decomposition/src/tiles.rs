@@ -345,26 +345,68 @@ impl<const D: usize> Tiles<D> {
         let slot = n / Self::TILE_NODES;
         let off = n % Self::TILE_NODES;
         let nb = &self.nbr[slot];
-        // Per axis and offset: (tile step as 0/1/2, position in that tile).
+        // Per axis and offset: (tile step × 3^a, position bits in that tile).
         let mut step = [[(0usize, 0usize); 3]; D];
+        let mut pow = 1usize;
         for (a, st) in step.iter_mut().enumerate() {
             let r = (off >> (TILE_LOG * a as u32)) & (TILE - 1);
             for d in 0..3 {
                 let m = r + d + TILE - 1; // r + (d - 1), shifted by TILE to stay >= 0
-                st[d] = (m >> TILE_LOG, (m & (TILE - 1)) << (TILE_LOG * a as u32));
+                st[d] = (
+                    (m >> TILE_LOG) * pow,
+                    (m & (TILE - 1)) << (TILE_LOG * a as u32),
+                );
+            }
+            pow *= 3;
+        }
+        // The offsets d in odometer order (axis 0 fastest), without divisions.
+        let mut digit = [0usize; D];
+        for o in out.iter_mut().take(pow) {
+            let mut t = 0usize;
+            let mut within = 0usize;
+            for a in 0..D {
+                let (ts, w) = step[a][digit[a]];
+                t += ts;
+                within |= w;
+            }
+            *o = nb[t & (NEIGHBOURS - 1)] + within;
+            for d in digit.iter_mut() {
+                *d += 1;
+                if *d < 3 {
+                    break;
+                }
+                *d = 0;
             }
         }
-        for (i, o) in out.iter_mut().enumerate().take(3usize.pow(D as u32)) {
-            let mut r = i;
+    }
+
+    /// Storage indices of the `2^D` nodes `n + s d`, `d ∈ {0, 1}^D` (index
+    /// `Σ_a d_a 2^a`), `s = +1` if `upper` (the corners of the cell whose lower corner
+    /// is node `n`) else `−1` (the lower corners of the cells that have node `n` as a
+    /// corner): the entries of [`Tiles::neighbourhood`] a pass over one cell or over
+    /// one node's cells needs, at an eighth of its work in 3D. A node in a tile that is
+    /// not active maps into the zero tile.
+    #[inline]
+    pub fn octant(&self, n: usize, upper: bool, out: &mut [usize; 8]) {
+        let slot = n / Self::TILE_NODES;
+        let off = n % Self::TILE_NODES;
+        let nb = &self.nbr[slot];
+        for (q, o) in out.iter_mut().enumerate().take(1 << D) {
             let mut t = 0usize;
-            let mut pow = 1usize;
             let mut within = 0usize;
-            for st in step.iter() {
-                let (ts, w) = st[r % 3];
-                r /= 3;
-                t += ts * pow;
+            let mut pow = 1usize;
+            for a in 0..D {
+                let r = (off >> (TILE_LOG * a as u32)) & (TILE - 1);
+                let bit = (q >> a) & 1;
+                // Shifted by TILE: tile step 0 (the previous tile), 1 (this one) or 2.
+                let m = if upper {
+                    r + TILE + bit
+                } else {
+                    r + TILE - bit
+                };
+                t += (m >> TILE_LOG) * pow;
+                within |= (m & (TILE - 1)) << (TILE_LOG * a as u32);
                 pow *= 3;
-                within |= w;
             }
             *o = nb[t & (NEIGHBOURS - 1)] + within;
         }
@@ -376,7 +418,8 @@ mod tests {
     use super::*;
 
     /// Every node of the touched tiles gets a distinct storage index, missing ones
-    /// none, and the neighbourhood of a node agrees with indexing its neighbours.
+    /// none, and the neighbourhood of a node (and its octants) agrees with indexing its
+    /// neighbours.
     #[test]
     fn storage_is_injective_and_neighbourhoods_agree() {
         let dims = [13usize, 11, 6];
@@ -404,6 +447,16 @@ mod tests {
                         count += 1;
                         let mut nb = [0; NEIGHBOURS];
                         t.neighbourhood(i, &mut nb);
+                        // The octants are those of the neighbourhood.
+                        let mut corners = [0; 8];
+                        for (upper, s) in [(true, 1i64), (false, -1)] {
+                            t.octant(i, upper, &mut corners);
+                            for (q, &c) in corners.iter().enumerate() {
+                                let b = |a: usize| 1 + s * ((q >> a) & 1) as i64;
+                                let d = (b(0) + 3 * b(1) + 9 * b(2)) as usize;
+                                assert_eq!(c, nb[d], "octant {q} of node {i}, upper {upper}");
+                            }
+                        }
                         for d in 0..27 {
                             let o = [d % 3, (d / 3) % 3, d / 9];
                             let l: [i64; 3] =

@@ -777,10 +777,9 @@ impl<'c, const D: usize> Solver<'c, D> {
         // over the active tiles: a cell with its lower corner in a tile that is not
         // active has an untouched corner, so weight 0, which its zero tile reads.
         let dims = self.block.node_dims;
-        let centre = (3usize.pow(D as u32) - 1) / 2;
         let tn = self.tiles.tile_nodes();
         let mut cw = std::mem::take(&mut self.cell_w);
-        let mut nb = [0; NEIGHBOURS];
+        let mut corners = [0; 8];
         for slot in 1..self.tiles.slots() {
             for o in 0..tn {
                 let n = slot * tn + o;
@@ -789,9 +788,10 @@ impl<'c, const D: usize> Solver<'c, D> {
                     .local(slot, o)
                     .is_some_and(|l| (0..D).all(|a| l[a] + 1 < dims[a]));
                 cw[n] = if inside {
-                    self.tiles.neighbourhood(n, &mut nb);
-                    (0..1 << D)
-                        .map(|q| self.fill[nb[centre + self.corner_off[q]]])
+                    self.tiles.octant(n, true, &mut corners);
+                    corners[..1 << D]
+                        .iter()
+                        .map(|&c| self.fill[c])
                         .fold(1.0, f64::min)
                 } else {
                     0.0
@@ -801,11 +801,16 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.cell_w = cw;
         let share = self.geom.cell_volume() / (1 << D) as f64;
         let mut vol = std::mem::take(&mut self.node_vol);
-        let mut nb = [0; NEIGHBOURS];
+        let mut cells = [0; 8];
         self.for_owned(|n, c| {
+            // The cells around the node (as `cells_around` visits them).
+            self.tiles.octant(n, false, &mut cells);
             let mut v = 0.0;
-            self.tiles.neighbourhood(n, &mut nb);
-            self.cells_around(&nb, &c, |_, _, w| v += w);
+            for (q, &cell) in cells[..1 << D].iter().enumerate() {
+                if (0..D).all(|a| c[a] >= (q >> a) & 1) && self.cell_w[cell] > 0.0 {
+                    v += self.cell_w[cell];
+                }
+            }
             vol[n] = v * share;
         });
         self.node_vol = vol;
