@@ -1273,9 +1273,17 @@ impl<'c, const D: usize> Solver<'c, D> {
             if left.is_some() {
                 continue;
             }
-            let (cell, _) = self.geom.locate(&std::array::from_fn(|a| x[a]));
-            // Most particles stay in the block: skip the owner lookup for them.
+            // Most particles stay in the block: skip the cell and owner lookup for
+            // them. `s` in [lo, hi) is `Geom::locate`'s cell in the block (its floor
+            // of the same `s`, which the clamp at bounded faces leaves in the block).
             let (lo, hi) = (&self.block.cell_lo, &self.block.cell_hi);
+            if (0..D).all(|a| {
+                let s = (x[a] - self.geom.lower[a]) * self.geom.inv_h[a];
+                s >= lo[a] as f64 && s < hi[a] as f64
+            }) {
+                continue;
+            }
+            let (cell, _) = self.geom.locate(&std::array::from_fn(|a| x[a]));
             if (0..D).all(|a| cell[a] >= lo[a] as i64 && cell[a] < hi[a] as i64) {
                 continue;
             }
