@@ -935,6 +935,23 @@ fn cluster_rounds<const D: usize>(layout: &Layout<D>, seed: u64) -> Vec<Vec<([f6
     vec![first, thinned, second]
 }
 
+/// The nodal sums of the points' masses with linear weights, on one rank: what every
+/// rank's stored nodes must hold after the ghost sum and copy.
+fn serial_sums<const D: usize>(
+    layout: &Layout<D>,
+    pts: &[([f64; D], f64)],
+) -> HashMap<[usize; D], f64> {
+    let mut m = HashMap::new();
+    for (x, mass) in pts {
+        for (g, w) in corners(*x) {
+            if let Some(wn) = layout.wrap_node(g) {
+                *m.entry(wn).or_insert(0.0) += mass * w;
+            }
+        }
+    }
+    m
+}
+
 /// Three rounds ([`cluster_rounds`]) of: touch the tiles of this rank's
 /// particles' corners, agree on the halo, scatter, ghost sum, ghost copy. After each
 /// round every node any rank stores holds the serial sum of its wrapped node (owned
@@ -943,20 +960,8 @@ fn cluster_rounds<const D: usize>(layout: &Layout<D>, seed: u64) -> Vec<Vec<([f6
 /// cluster stores a few tiles, not the block faces.
 fn check_sparse_halo<const D: usize>(layout: &Layout<D>, seed: u64) {
     let rounds = cluster_rounds(layout, seed);
-    let serial: Vec<HashMap<[usize; D], f64>> = rounds
-        .iter()
-        .map(|pts| {
-            let mut m = HashMap::new();
-            for (x, mass) in pts {
-                for (g, w) in corners(*x) {
-                    if let Some(wn) = layout.wrap_node(g) {
-                        *m.entry(wn).or_insert(0.0) += mass * w;
-                    }
-                }
-            }
-            m
-        })
-        .collect();
+    let serial: Vec<HashMap<[usize; D], f64>> =
+        rounds.iter().map(|pts| serial_sums(layout, pts)).collect();
     LocalComm::run(layout.ranks(), |comm| {
         let me = comm.rank();
         let mut b = Block::new(layout, me);
