@@ -732,6 +732,49 @@ fn sigterm_writes_a_final_checkpoint_and_exits_4() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// The XDMF index of the snapshots `snaps` in `out`: every DataItem names an existing
+/// dataset of the stated size (5 snapshots of 8 items), and the times are those of the
+/// files.
+fn check_xdmf_index(out: &Path, snaps: &[PathBuf]) {
+    let xmf = std::fs::read_to_string(out.join("particles.xmf")).unwrap();
+    let mut items = 0;
+    for part in xmf.split("<DataItem ").skip(1) {
+        let dims: Vec<usize> = part
+            .split("Dimensions=\"")
+            .nth(1)
+            .unwrap()
+            .split('"')
+            .next()
+            .unwrap()
+            .split_whitespace()
+            .map(|d| d.parse().unwrap())
+            .collect();
+        let target = part.split('>').nth(1).unwrap().split('<').next().unwrap();
+        let (file, path) = target.split_once(":/").expect("file.h5:/path");
+        let f = hdf5::File::open(out.join(file)).unwrap_or_else(|e| panic!("{file}: {e}"));
+        let ds = f
+            .dataset(path)
+            .unwrap_or_else(|e| panic!("{file}:/{path}: {e}"));
+        assert_eq!(ds.shape(), dims, "{target}");
+        items += 1;
+    }
+    assert_eq!(
+        items,
+        5 * 8,
+        "connectivity, position, id, rank, material and three fields per snapshot"
+    );
+    let times: Vec<f64> = xmf
+        .split("<Time Value=\"")
+        .skip(1)
+        .map(|t| t.split('"').next().unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(times.len(), snaps.len());
+    for (t, p) in times.iter().zip(snaps) {
+        let f = hdf5::File::open(p).unwrap();
+        assert_eq!(*t, f.attr("time").unwrap().read_scalar::<f64>().unwrap());
+    }
+}
+
 /// (d) Snapshots and the XDMF index of a uniformly translating body on 2 ranks: shapes,
 /// ids, positions, the exact velocity, and every `file.h5:/path` of the index exists
 /// with the dimensions the index states.
@@ -818,45 +861,7 @@ fields = ["velocity", "stress", "displacement"]
     // Velocities that are powers of two survive every projection exactly.
     assert_eq!(worst_v, 0.0, "translation velocity off by {worst_v:e}");
 
-    // The XDMF index: every DataItem names an existing dataset of the stated size, and
-    // the times are those of the files.
-    let xmf = std::fs::read_to_string(out.join("particles.xmf")).unwrap();
-    let mut items = 0;
-    for part in xmf.split("<DataItem ").skip(1) {
-        let dims: Vec<usize> = part
-            .split("Dimensions=\"")
-            .nth(1)
-            .unwrap()
-            .split('"')
-            .next()
-            .unwrap()
-            .split_whitespace()
-            .map(|d| d.parse().unwrap())
-            .collect();
-        let target = part.split('>').nth(1).unwrap().split('<').next().unwrap();
-        let (file, path) = target.split_once(":/").expect("file.h5:/path");
-        let f = hdf5::File::open(out.join(file)).unwrap_or_else(|e| panic!("{file}: {e}"));
-        let ds = f
-            .dataset(path)
-            .unwrap_or_else(|e| panic!("{file}:/{path}: {e}"));
-        assert_eq!(ds.shape(), dims, "{target}");
-        items += 1;
-    }
-    assert_eq!(
-        items,
-        5 * 8,
-        "connectivity, position, id, rank, material and three fields per snapshot"
-    );
-    let times: Vec<f64> = xmf
-        .split("<Time Value=\"")
-        .skip(1)
-        .map(|t| t.split('"').next().unwrap().parse().unwrap())
-        .collect();
-    assert_eq!(times.len(), snaps.len());
-    for (t, p) in times.iter().zip(&snaps) {
-        let f = hdf5::File::open(p).unwrap();
-        assert_eq!(*t, f.attr("time").unwrap().read_scalar::<f64>().unwrap());
-    }
+    check_xdmf_index(&out, &snaps);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
