@@ -39,8 +39,14 @@ impl NeoHookean {
     /// over the reference density; never below the small-strain speed.
     #[inline]
     pub fn wave_speed(&self, j: f64) -> f64 {
-        let m =
-            (self.lambda + 2.0 * (self.mu - self.lambda * j.ln())).max(self.lambda + 2.0 * self.mu);
+        let small = self.lambda + 2.0 * self.mu;
+        // Under tension (ln J >= 0, λ >= 0) the tangent term is at most `small`, rounding
+        // included, so the maximum is `small` without the logarithm.
+        let m = if j >= 1.0 && self.lambda >= 0.0 {
+            small
+        } else {
+            (self.lambda + 2.0 * (self.mu - self.lambda * j.ln())).max(small)
+        };
         (m / self.density).sqrt()
     }
 }
@@ -54,6 +60,29 @@ mod tests {
             lambda: 5.0,
             mu: 3.0,
             density: 1.0,
+        }
+    }
+
+    /// The wave speed is `sqrt(max(λ + 2(μ − λ ln J), λ + 2μ) / ρ)`, bit for bit, on
+    /// both sides of J = 1 and for λ < 0 (ν < 0), where the shortcut under tension
+    /// must not apply.
+    #[test]
+    fn wave_speed_is_the_tangent_modulus_formula() {
+        for (lambda, mu) in [(5.0, 3.0), (-0.5, 3.0), (1e3 / 3.6 * 0.2 / 0.6, 1e3 / 2.4)] {
+            let m = NeoHookean {
+                lambda,
+                mu,
+                density: 1.7,
+            };
+            for j in [0.3, 0.9, 0.999_999, 1.0, 1.000_001, 1.2, 7.0] {
+                let tangent: f64 = lambda + 2.0 * (mu - lambda * f64::ln(j));
+                let want = (tangent.max(lambda + 2.0 * mu) / 1.7).sqrt();
+                assert_eq!(
+                    m.wave_speed(j).to_bits(),
+                    want.to_bits(),
+                    "λ {lambda}, J {j}"
+                );
+            }
         }
     }
 
