@@ -14,9 +14,28 @@ use common::{files, temp_dir};
 use decomposition::splitmix::mix;
 use hdf5::types::VarLenUnicode;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::{Command, Output, Stdio};
+use std::sync::Mutex;
 
 const BIN: &str = env!("CARGO_BIN_EXE_mpmcg");
+
+/// Held while this process has a checkpoint open for editing and while it starts a
+/// child: HDF5 opens files without close-on-exec, so a child started by another test
+/// thread meanwhile would inherit the file and its lock, and a restart from that file
+/// would fail with "unable to lock file".
+static FILES: Mutex<()> = Mutex::new(());
+
+/// Run `c` to its end, started under [`FILES`].
+fn output(mut c: Command) -> Output {
+    let child = {
+        let _held = FILES.lock().unwrap_or_else(|e| e.into_inner());
+        c.stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    child.wait_with_output().unwrap()
+}
 
 fn s(p: &Path) -> &str {
     p.to_str().expect("UTF-8 path")
@@ -54,18 +73,63 @@ every_steps = 5
 keep = 1
 "#;
 
-/// `mpmcg run SCENE` on `ranks` ranks (a plain process for one); returns the last
-/// checkpoint it wrote.
-fn checkpoint(dir: &Path, ranks: usize) -> PathBuf {
+/// A J2-plastic and a brittle disk (their records carry `be`, `eps_p`, `damage` and
+/// `stress_zz`), otherwise like [`SCENE`].
+const STATES: &str = r#"name = "states"
+dim = 2
+[time]
+end = 0.5
+cfl = 0.3
+[grid]
+lower = [0.0, 0.0]
+upper = [1.0, 1.0]
+cells = [8, 8]
+boundary = { x_lower = "periodic", x_upper = "periodic", y_lower = "periodic", y_upper = "periodic" }
+[[materials]]
+name = "p"
+model = "j2_plastic"
+density = 1000.0
+youngs_modulus = 1000.0
+poisson_ratio = 0.3
+yield_stress = 5.0
+hardening = 1.0
+[[materials]]
+name = "b"
+model = "brittle"
+density = 1000.0
+youngs_modulus = 1000.0
+poisson_ratio = 0.3
+tensile_strength = 5.0
+[[bodies]]
+material = "p"
+shape = { sphere = { center = [0.3, 0.3], radius = 0.15 } }
+velocity = [0.2, 0.2]
+[[bodies]]
+material = "b"
+shape = { sphere = { center = [0.7, 0.7], radius = 0.15 } }
+velocity = [-0.2, -0.2]
+[output]
+every = 0.5
+[checkpoint]
+every_steps = 5
+keep = 1
+"#;
+
+/// `mpmcg run` of `scene` text on `ranks` ranks (a plain process for one); returns the
+/// last checkpoint it wrote.
+fn checkpoint_of(dir: &Path, scene: &str, ranks: usize) -> PathBuf {
     let sc = dir.join("scene.toml");
-    std::fs::write(&sc, SCENE).unwrap();
+    std::fs::write(&sc, scene).unwrap();
     let out = dir.join("out");
     let args = ["run", s(&sc), "--out", s(&out), "--quiet"];
     let o = if ranks == 1 {
-        Command::new(BIN).args(args).output().unwrap()
+        let mut c = Command::new(BIN);
+        c.args(args);
+        output(c)
     } else {
         let mut c = common::mpirun(ranks);
-        c.arg(BIN).args(args).output().unwrap()
+        c.arg(BIN).args(args);
+        output(c)
     };
     assert_eq!(
         o.status.code(),
@@ -74,6 +138,11 @@ fn checkpoint(dir: &Path, ranks: usize) -> PathBuf {
         String::from_utf8_lossy(&o.stderr)
     );
     files(&out, "checkpoint_").pop().expect("a checkpoint")
+}
+
+/// A checkpoint of [`SCENE`].
+fn checkpoint(dir: &Path, ranks: usize) -> PathBuf {
+    checkpoint_of(dir, SCENE, ranks)
 }
 
 /// The checksum the writer stores for its rows (`checkpoint::row_hash`, summed over the
@@ -149,6 +218,7 @@ fn cell(f: &hdf5::File, row: usize, name: &str, x: f64) {
 fn edited(good: &Path, dir: &Path, name: &str, edit: &dyn Fn(&hdf5::File)) -> PathBuf {
     let p = dir.join(format!("{name}.h5"));
     std::fs::copy(good, &p).unwrap();
+    let _held = FILES.lock().unwrap_or_else(|e| e.into_inner());
     edit(&hdf5::File::open_rw(&p).unwrap());
     mpmcg::output::checkpoint::seal(&p).unwrap();
     p
@@ -180,10 +250,9 @@ fn fault(o: &Output, ckpt: &Path, out: &Path, words: &str, mpirun: bool) -> Opti
 
 /// One process: `mpmcg run --restart CKPT`.
 fn restart(ckpt: &Path, out: &Path) -> Output {
-    Command::new(BIN)
-        .args(["run", "--restart", s(ckpt), "--out", s(out), "--quiet"])
-        .output()
-        .unwrap()
+    let mut c = Command::new(BIN);
+    c.args(["run", "--restart", s(ckpt), "--out", s(out), "--quiet"]);
+    output(c)
 }
 
 type Edit = Box<dyn Fn(&hdf5::File)>;
@@ -432,6 +501,58 @@ fn each_dataset_edited_and_resealed_is_refused() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// The material-state columns (J2 plasticity, brittle damage and plane-strain σ_zz)
+/// and a material index past the scene's two. Before: `material_index_2` panicked (as
+/// `material_out_of_range`), `eps_p_negative`, `damage_above_1` and
+/// `stress_zz_infinite` ran on silently, `be_nan` ended as "numerically unstable"
+/// (exit 3).
+#[test]
+fn material_state_columns_are_checked() {
+    let dir = temp_dir("ckpt-states");
+    let good = checkpoint_of(&dir, STATES, 1);
+    let o = restart(&good, &dir.join("ok"));
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let cases = [
+        case("eps_p_negative", "`eps_p` = -0.1 is negative", |f| {
+            cell(f, 2, "eps_p", -0.1)
+        }),
+        case("be_nan", "`be` holds NaN", |f| {
+            cell(f, 2, "be[2][2]", f64::NAN)
+        }),
+        case("damage_above_1", "`damage` = 2 is not in [0, 1]", |f| {
+            cell(f, 3, "damage", 2.0)
+        }),
+        case("stress_zz_infinite", "`stress_zz` holds -inf", |f| {
+            cell(f, 3, "stress_zz", f64::NEG_INFINITY)
+        }),
+        case(
+            "material_index_2",
+            "material index 2 is not one of the scene's 2 materials",
+            |f| cell(f, 4, "material", 2.0),
+        ),
+    ];
+    let mut failed = Vec::new();
+    for (name, words, edit) in cases {
+        let ckpt = edited(&good, &dir, name, &*edit);
+        let out = dir.join(format!("out-{name}"));
+        if let Some(m) = fault(&restart(&ckpt, &out), &ckpt, &out, words, false) {
+            failed.push(format!("{name}: {m}"));
+        }
+    }
+    assert!(
+        failed.is_empty(),
+        "{} case(s) failed:\n{}",
+        failed.len(),
+        failed.join("\n")
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Particle rows edited and sealed again without their writer's checksum: refused by
 /// the checksum (already so before the value checks).
 #[test]
@@ -481,11 +602,10 @@ fn particle_cases_under_mpirun_agree() {
     for (name, words, edit) in cases {
         let ckpt = edited(&good, &dir, name, &*edit);
         let out = dir.join(format!("out-{name}"));
-        let o = common::mpirun(2)
-            .arg(BIN)
-            .args(["run", "--restart", s(&ckpt), "--out", s(&out), "--quiet"])
-            .output()
-            .unwrap();
+        let mut c = common::mpirun(2);
+        c.arg(BIN)
+            .args(["run", "--restart", s(&ckpt), "--out", s(&out), "--quiet"]);
+        let o = output(c);
         if let Some(m) = fault(&o, &ckpt, &out, words, true) {
             failed.push(format!("mpirun -n 2, {name}: {m}"));
         }
