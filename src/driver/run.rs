@@ -510,7 +510,15 @@ fn set_up<'c, const D: usize>(
             Some(l) if balance != Balance::Off => l,
             _ => layout.clone(),
         };
-        checkpoint::read::<D>(&h, comm.rank(), &layout, &geom, carries).map(|x| (h, x, layout))
+        checkpoint::read::<D>(
+            &h,
+            comm.rank(),
+            &layout,
+            &geom,
+            carries,
+            scene.materials.len(),
+        )
+        .map(|x| (h, x, layout))
     });
     if let Some(m) = agree(comm, r.as_ref().err().cloned()) {
         return Err(RunError::Input(m));

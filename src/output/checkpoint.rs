@@ -797,16 +797,20 @@ pub fn read_header(path: &Path) -> Result<Header, String> {
     if !(1..=3).contains(&dim) {
         return Err(format!("{p}: damaged checkpoint: dim = {dim}"));
     }
-    let ranks = attr_u64(&f, path, "ranks")? as usize;
+    let ranks = attr_u64(&f, path, "ranks")?;
     let blocks: Vec<u64> = attr_vec(&f, path, "blocks", dim)?;
-    if ranks == 0 || blocks.iter().product::<u64>() != ranks as u64 {
+    // Checked: an edited count must not overflow (a panic in a debug build).
+    let product = blocks.iter().try_fold(1u64, |acc, &b| acc.checked_mul(b));
+    if !(1..=MAX_RANKS).contains(&ranks) || blocks.contains(&0) || product != Some(ranks) {
         return Err(format!(
             "{p}: damaged checkpoint: blocks {blocks:?} do not match {ranks} ranks"
         ));
     }
+    let cells: Vec<u64> = attr_vec(&f, path, "cells", dim)?;
     let cuts = if has_attr(&f, "cuts") {
         let len = blocks.iter().map(|&b| b as usize + 1).sum();
         let c: Vec<u64> = attr_vec(&f, path, "cuts", len)?;
+        check_cuts(path, &c, &blocks, &cells)?;
         Some(c.into_iter().map(|c| c as usize).collect())
     } else {
         None
@@ -814,13 +818,33 @@ pub fn read_header(path: &Path) -> Result<Header, String> {
     let scene: Vec<u8> = dataset_any(&f, path, "scene")?;
     let scene_text = String::from_utf8(scene)
         .map_err(|_| format!("{p}: damaged checkpoint: the stored scene is not UTF-8 text"))?;
+    let step = attr_u64(&f, path, "step")?;
+    // Steps count up by one from 0, and the history stores them as numbers.
+    if step >= F64_INTEGERS {
+        return Err(format!(
+            "{p}: damaged checkpoint: attribute `step` = {step} is beyond any run's step count"
+        ));
+    }
+    let time = attr_f64(&f, path, "time")?;
+    if !(time.is_finite() && time >= 0.0) {
+        return Err(format!(
+            "{p}: damaged checkpoint: attribute `time` = {time} is not a finite time >= 0"
+        ));
+    }
+    // Absent in checkpoints from before lineages; present, it must be text.
+    let lineage = if has_attr(&f, "lineage") {
+        let id = lineage_of(&f);
+        Some(id.ok_or_else(|| format!("{p}: damaged checkpoint: attribute `lineage` is not text"))?)
+    } else {
+        None
+    };
     Ok(Header {
         path: path.to_path_buf(),
         scene_text,
         dim,
-        step: attr_u64(&f, path, "step")?,
-        time: attr_f64(&f, path, "time")?,
-        ranks,
+        step,
+        time,
+        ranks: ranks as usize,
         blocks: blocks.iter().map(|&b| b as usize).collect(),
         cuts,
         rebalances: if has_attr(&f, "rebalances") {
@@ -829,8 +853,32 @@ pub fn read_header(path: &Path) -> Result<Header, String> {
             0
         },
         particles: attr_u64(&f, path, "particles")?,
-        lineage: lineage_of(&f),
+        lineage,
     })
+}
+
+/// More writer ranks than any machine runs: refused before sizes are computed from them.
+const MAX_RANKS: u64 = 1 << 32;
+/// From here on not every integer is exact in f64 (the particle record, the history):
+/// no step count or particle id reaches it.
+const F64_INTEGERS: u64 = 1 << 53;
+
+/// The stored block boundaries, per axis `blocks[a] + 1` increasing cell indices from
+/// 0 to the axis' cells (whether the blocks are wide enough for the scene's ghost
+/// layers is [`read`]'s check, which knows the boundaries).
+fn check_cuts(path: &Path, cuts: &[u64], blocks: &[u64], cells: &[u64]) -> Result<(), String> {
+    let mut at = 0;
+    for (a, (&b, &n)) in blocks.iter().zip(cells).enumerate() {
+        let c = &cuts[at..at + b as usize + 1];
+        at += c.len();
+        if c[0] != 0 || c[c.len() - 1] != n || c.windows(2).any(|w| w[1] <= w[0]) {
+            return Err(format!(
+                "{}: damaged checkpoint: attribute `cuts` {c:?} on axis {a} are not increasing block boundaries from 0 to its {n} cells",
+                path.display()
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Everything a restart reads on one rank.
@@ -847,42 +895,72 @@ pub struct Restored<const D: usize> {
 /// rows in their order; otherwise it scans the rows of the writers whose blocks overlap
 /// its own and keeps those in its cells (a rank of a finer process grid reads a few
 /// writers' rows, not the whole file).
+///
+/// Every value the run consumes is checked (a checkpoint may have been edited with
+/// HDF5 tools and sealed again): each particle row must be one the solver can step
+/// (see [`RowCheck`]), with a material index below `materials`.
 pub fn read<const D: usize>(
     header: &Header,
     rank: usize,
     layout: &Layout<D>,
     geom: &Geom<D>,
     carries: Carries,
+    materials: usize,
 ) -> Result<Restored<D>, String> {
     let path = &header.path;
+    let p = path.display();
     let f = open(path)?;
     let rows = Rows::open::<D>(&f, header, layout, carries)?;
+    // Blocks the grid cannot have (too narrow for the ghost layers) were not written
+    // by a run: refused rather than silently read as uniform blocks.
+    let Some(writer) = header.writer_layout(layout) else {
+        return Err(format!(
+            "{p}: damaged checkpoint: attributes `blocks` {:?} and `cuts` {:?} are not a division of the {:?} cells",
+            header.blocks,
+            header.cuts.as_deref().unwrap_or_default(),
+            layout.cells
+        ));
+    };
     let writers = Writers::read(&f, path, header)?;
+    let check = RowCheck::new(geom, carries, materials);
     let same = header.layout(layout).as_ref() == Some(layout);
     let (parts, external_work, rows_read) = if same {
-        let (p, w) = rows.own(&writers, rank, carries)?;
+        let (p, w) = rows.own(&writers, rank, layout, &check, carries)?;
         let n = p.len() as u64;
         (p, w, n)
     } else {
         // Only the writers whose blocks overlap this rank's hold its particles.
         let (lo, hi) = layout.block_cells(rank);
-        let writer = header.writer_layout(layout);
-        let overlaps = |w: usize| match &writer {
-            Some(wl) => {
-                let (wlo, whi) = wl.block_cells(w);
-                (0..D).all(|a| wlo[a] < hi[a] && lo[a] < whi[a])
-            }
-            None => true,
+        let overlaps = |w: usize| {
+            let (wlo, whi) = writer.block_cells(w);
+            (0..D).all(|a| wlo[a] < hi[a] && lo[a] < whi[a])
         };
-        rows.all(&writers, rank, layout, geom, carries, overlaps)?
+        rows.all(&writers, rank, layout, &check, carries, overlaps)?
     };
-    let run = read_run_state::<D>(&f, path, rank)?;
+    rows.unique_ids(&parts)?;
+    let run = read_run_state::<D>(&f, path, rank, header.step)?;
+    let dt = attr_f64(&f, path, "dt")?;
+    // Every checkpoint follows a step (a state at step 0 has not taken one).
+    let dt_ok = dt.is_finite() && (dt > 0.0 || (dt == 0.0 && header.step == 0));
+    if !dt_ok {
+        return Err(format!(
+            "{p}: damaged checkpoint: attribute `dt` = {dt} is not a positive step size"
+        ));
+    }
+    // The next step size follows from it: NaN would give a step to the end at once,
+    // infinity a step of 0.
+    let max_speed = attr_f64(&f, path, "max_speed")?;
+    if !(max_speed.is_finite() && max_speed >= 0.0) {
+        return Err(format!(
+            "{p}: damaged checkpoint: attribute `max_speed` = {max_speed} is not a finite speed >= 0"
+        ));
+    }
     let solver = SolverState {
-        t: attr_f64(&f, path, "time")?,
-        step: attr_u64(&f, path, "step")?,
-        dt: attr_f64(&f, path, "dt")?,
+        t: header.time,
+        step: header.step,
+        dt,
         external_work,
-        max_speed: attr_f64(&f, path, "max_speed")?,
+        max_speed,
     };
     Ok(Restored {
         parts,
@@ -943,6 +1021,17 @@ impl<'a> Rows<'a> {
         let ds = f
             .dataset("particles")
             .map_err(|e| format!("{p}: damaged checkpoint: dataset `particles`: {e}"))?;
+        // HDF5 would convert other numbers on reading (integers, f32) and lose values.
+        let f64s = hdf5::types::TypeDescriptor::Float(hdf5::types::FloatSize::U8);
+        match ds.dtype().and_then(|t| t.to_descriptor()) {
+            Ok(t) if t == f64s => {}
+            Ok(t) => {
+                return Err(format!(
+                "{p}: damaged checkpoint: dataset `particles` holds {t} values, not 64-bit floats"
+            ))
+            }
+            Err(e) => return Err(format!("{p}: damaged checkpoint: dataset `particles`: {e}")),
+        }
         if ds.shape() != [n, width] {
             return Err(format!(
                 "{p}: damaged checkpoint: dataset `particles` has shape {:?}, expected [{n}, {width}]",
@@ -976,12 +1065,46 @@ impl<'a> Rows<'a> {
         )
     }
 
+    /// The rank of `layout` whose cells hold row `r`, or an error naming the row and
+    /// what `check` finds wrong with it.
+    fn row<const D: usize>(
+        &self,
+        check: &RowCheck<D>,
+        layout: &Layout<D>,
+        r: usize,
+        rec: &[f64],
+    ) -> Result<usize, String> {
+        check.owner(layout, rec).map_err(|what| {
+            format!(
+                "{}: damaged checkpoint: dataset `particles`, row {r}: {what}",
+                self.path.display()
+            )
+        })
+    }
+
+    /// No particle id twice among `parts` (this rank's): ids order particles within a
+    /// cell (the bit-for-bit continuation) and name them in the snapshots.
+    fn unique_ids<const D: usize>(&self, parts: &Particles<D>) -> Result<(), String> {
+        let mut ids = parts.id.clone();
+        ids.sort_unstable();
+        match ids.windows(2).find(|w| w[0] == w[1]) {
+            Some(w) => Err(format!(
+                "{}: damaged checkpoint: dataset `particles`: particle id {} is in more than one row",
+                self.path.display(),
+                w[0]
+            )),
+            None => Ok(()),
+        }
+    }
+
     /// Same rank count and process grid as the writer's: this rank's own rows, in the
     /// writer's memory order, and its external work.
     fn own<const D: usize>(
         &self,
         writers: &Writers,
         rank: usize,
+        layout: &Layout<D>,
+        check: &RowCheck<D>,
         carries: Carries,
     ) -> Result<(Particles<D>, f64), String> {
         let mut parts = Particles::<D>::default();
@@ -995,6 +1118,15 @@ impl<'a> Rows<'a> {
             let buf = self.read(at, end)?;
             for rec in buf.chunks_exact(self.width) {
                 hash = hash.wrapping_add(row_hash(k, rec));
+                // The writer's rows lie in its block, which is this rank's.
+                let r = r0 + k as usize;
+                let owner = self.row(check, layout, r, rec)?;
+                if owner != rank {
+                    return Err(format!(
+                        "{}: damaged checkpoint: dataset `particles`, row {r}: a particle of writer rank {rank} lies in the block of rank {owner}",
+                        self.path.display()
+                    ));
+                }
                 k += 1;
                 parts.unpack(rec, carries);
             }
@@ -1015,7 +1147,7 @@ impl<'a> Rows<'a> {
         writers: &Writers,
         rank: usize,
         layout: &Layout<D>,
-        geom: &Geom<D>,
+        check: &RowCheck<D>,
         carries: Carries,
         overlaps: impl Fn(usize) -> bool,
     ) -> Result<(Particles<D>, f64, u64), String> {
@@ -1031,11 +1163,7 @@ impl<'a> Rows<'a> {
                 let buf = self.read(at, end)?;
                 for (i, rec) in buf.chunks_exact(self.width).enumerate() {
                     hash = hash.wrapping_add(row_hash((at + i - r0) as u64, rec));
-                    let x: [f64; D] = std::array::from_fn(|a| rec[a]);
-                    let (c, _) = geom.locate(&x);
-                    let cell: [usize; D] =
-                        std::array::from_fn(|a| c[a].rem_euclid(layout.cells[a] as i64) as usize);
-                    if layout.cell_owner(cell) == rank {
+                    if self.row(check, layout, at + i, rec)? == rank {
                         parts.unpack(rec, carries);
                     }
                 }
@@ -1055,6 +1183,95 @@ impl<'a> Rows<'a> {
     }
 }
 
+/// What a particle row must hold for the solver to step it: finite values, positive
+/// mass, volumes and GIMP half-widths, a material index of the scene, an integer id,
+/// damage in [0, 1], plastic strain >= 0, and a position on the grid (where a step
+/// leaves every particle: below the upper face on periodic axes). A row that breaks
+/// one made the solver index out of its materials or grid (a panic), or run on with
+/// NaN.
+struct RowCheck<'a, const D: usize> {
+    geom: &'a Geom<D>,
+    materials: usize,
+    /// Per array of the record: column name, first value, values.
+    fields: Vec<(&'static str, usize, usize)>,
+}
+
+impl<'a, const D: usize> RowCheck<'a, D> {
+    fn new(geom: &'a Geom<D>, carries: Carries, materials: usize) -> Self {
+        let mut at = 0;
+        let fields = Particles::<D>::fields(carries)
+            .iter()
+            .map(|f| {
+                at += f.width;
+                (f.column, at - f.width, f.width)
+            })
+            .collect();
+        Self {
+            geom,
+            materials,
+            fields,
+        }
+    }
+
+    /// What is wrong with `rec`, if anything.
+    fn fault(&self, rec: &[f64]) -> Option<String> {
+        let g = self.geom;
+        for &(name, at, w) in &self.fields {
+            let v = &rec[at..at + w];
+            if let Some(x) = v.iter().find(|x| !x.is_finite()) {
+                return Some(format!("`{name}` holds {x}"));
+            }
+            let fault = match name {
+                "mass" | "vol" | "vol0" | "half" => v
+                    .iter()
+                    .find(|&&x| x <= 0.0)
+                    .map(|x| format!("`{name}` = {x} is not positive")),
+                "material" => (v[0] < 0.0 || v[0].fract() != 0.0 || v[0] >= self.materials as f64)
+                    .then(|| {
+                        format!(
+                            "material index {} is not one of the scene's {} materials",
+                            v[0], self.materials
+                        )
+                    }),
+                "id" => (v[0] < 0.0 || v[0].fract() != 0.0 || v[0] >= F64_INTEGERS as f64)
+                    .then(|| format!("particle id {} is not an integer id", v[0])),
+                "eps_p" => (v[0] < 0.0).then(|| format!("`eps_p` = {} is negative", v[0])),
+                "damage" => (!(0.0..=1.0).contains(&v[0]))
+                    .then(|| format!("`damage` = {} is not in [0, 1]", v[0])),
+                "x" => (0..D)
+                    .find(|&a| {
+                        let (lo, hi) = (g.lower[a], g.upper[a]);
+                        v[a] < lo || v[a] > hi || (g.periodic[a] && v[a] == hi)
+                    })
+                    .map(|a| {
+                        format!(
+                            "position {v:?} is outside the grid on axis {a} ([{}, {}])",
+                            g.lower[a], g.upper[a]
+                        )
+                    }),
+                _ => None,
+            };
+            if fault.is_some() {
+                return fault;
+            }
+        }
+        None
+    }
+
+    /// The rank of `layout` whose cells hold the particle of `rec`, or what is wrong
+    /// with it.
+    fn owner(&self, layout: &Layout<D>, rec: &[f64]) -> Result<usize, String> {
+        if let Some(m) = self.fault(rec) {
+            return Err(m);
+        }
+        let x: [f64; D] = std::array::from_fn(|a| rec[a]);
+        let (c, _) = self.geom.locate(&x);
+        let cell: [usize; D] =
+            std::array::from_fn(|a| c[a].rem_euclid(layout.cells[a] as i64) as usize);
+        Ok(layout.cell_owner(cell))
+    }
+}
+
 /// Per writer rank: its rows, where they start, its external work and its checksum.
 struct Writers {
     rows: Vec<u64>,
@@ -1067,13 +1284,15 @@ impl Writers {
     fn read(f: &hdf5::File, path: &Path, header: &Header) -> Result<Self, String> {
         let (writers, n) = (header.ranks, header.particles);
         let rows: Vec<u64> = dataset(f, path, "rank_rows", writers)?;
-        if rows.iter().sum::<u64>() != n {
+        // Checked: edited counts must not overflow (a panic in a debug build).
+        if rows.iter().try_fold(0u64, |s, &r| s.checked_add(r)) != Some(n) {
             return Err(format!(
                 "{}: damaged checkpoint: rank_rows {rows:?} do not add up to {n} particles",
                 path.display()
             ));
         }
         let work: Vec<f64> = dataset(f, path, "external_work", writers)?;
+        finite(path, "dataset `external_work`", &work, false)?;
         let sums: Vec<u64> = dataset(f, path, "checksum", writers)?;
         let starts: Vec<usize> = rows
             .iter()
@@ -1092,35 +1311,76 @@ impl Writers {
     }
 }
 
-/// The run loop's state (`history.csv` on rank 0 only).
+/// The run loop's state (`history.csv` on rank 0 only) of a checkpoint at `step`. Its
+/// totals, energy figures and error norms must be finite (they end up in the summary)
+/// and its schedule a number of steps and times (NaN would silently stop the history,
+/// snapshots or checkpoints).
 fn read_run_state<const D: usize>(
     f: &hdf5::File,
     path: &Path,
     rank: usize,
+    step: u64,
 ) -> Result<RunState, String> {
+    let p = path.display();
     let nt = 5 + D;
-    let le: Vec<f64> = attr_vec(f, path, "last_errors", 2)?;
-    let me: Vec<f64> = attr_vec(f, path, "max_errors", 2)?;
+    let floats = |name: &str, len: usize, nonneg: bool| -> Result<Vec<f64>, String> {
+        let v: Vec<f64> = attr_vec(f, path, name, len)?;
+        finite(path, &format!("attribute `{name}`"), &v, nonneg)?;
+        Ok(v)
+    };
+    let float = |name: &str, nonneg: bool| -> Result<f64, String> {
+        let x = attr_f64(f, path, name)?;
+        finite(path, &format!("attribute `{name}`"), &[x], nonneg)?;
+        Ok(x)
+    };
+    let me = floats("max_errors", 2, true)?;
+    let last_err = if attr_u64(f, path, "has_last_errors")? != 0 {
+        let le = floats("last_errors", 2, true)?;
+        Some((le[0], le[1]))
+    } else {
+        attr_vec::<f64>(f, path, "last_errors", 2)?;
+        None
+    };
     let steps: Vec<u64> = dataset_any(f, path, "snapshot_steps")?;
     let times: Vec<f64> = dataset(f, path, "snapshot_times", steps.len())?;
+    finite(path, "dataset `snapshot_times`", &times, true)?;
     let counts: Vec<u64> = dataset(f, path, "snapshot_particles", steps.len())?;
+    let last_history_step = attr_u64(f, path, "last_history_step")?;
+    if let Some(s) = steps
+        .iter()
+        .chain([&last_history_step])
+        .find(|&&s| s > step)
+    {
+        return Err(format!(
+            "{p}: damaged checkpoint: step {s} of its history or snapshots is after its step {step}"
+        ));
+    }
+    let when = |name: &str| -> Result<f64, String> {
+        let t = attr_f64(f, path, name)?;
+        if t.is_nan() {
+            return Err(format!(
+                "{p}: damaged checkpoint: attribute `{name}` is NaN"
+            ));
+        }
+        Ok(t)
+    };
     Ok(RunState {
         initial: totals_from(
-            &attr_vec::<f64>(f, path, "initial_totals", nt)?,
+            &floats("initial_totals", nt, false)?,
             attr_u64(f, path, "initial_particles")?,
         ),
         last: totals_from(
-            &attr_vec::<f64>(f, path, "last_totals", nt)?,
+            &floats("last_totals", nt, false)?,
             attr_u64(f, path, "last_particles")?,
         ),
-        energy_scale: attr_f64(f, path, "energy_scale")?,
-        max_energy_dev: attr_f64(f, path, "max_energy_deviation")?,
+        energy_scale: float("energy_scale", true)?,
+        max_energy_dev: float("max_energy_deviation", true)?,
         max_err: (me[0], me[1]),
-        last_err: (attr_u64(f, path, "has_last_errors")? != 0).then_some((le[0], le[1])),
-        next_history: attr_f64(f, path, "next_history_time")?,
-        last_history_step: attr_u64(f, path, "last_history_step")?,
-        next_snapshot: attr_f64(f, path, "next_snapshot_time")?,
-        next_checkpoint: attr_f64(f, path, "next_checkpoint_time")?,
+        last_err,
+        next_history: when("next_history_time")?,
+        last_history_step,
+        next_snapshot: when("next_snapshot_time")?,
+        next_checkpoint: when("next_checkpoint_time")?,
         snapshots: (0..steps.len())
             .map(|k| Entry {
                 step: steps[k],
@@ -1134,6 +1394,25 @@ fn read_run_state<const D: usize>(
             Vec::new()
         },
     })
+}
+
+/// `values` of `what` (an attribute or dataset) are finite and, if `nonneg`, >= 0.
+fn finite(path: &Path, what: &str, values: &[f64], nonneg: bool) -> Result<(), String> {
+    match values
+        .iter()
+        .find(|x| !x.is_finite() || (nonneg && **x < 0.0))
+    {
+        Some(x) => Err(format!(
+            "{}: damaged checkpoint: {what} holds {x}{}",
+            path.display(),
+            if nonneg && x.is_finite() {
+                " (must be >= 0)"
+            } else {
+                ""
+            }
+        )),
+        None => Ok(()),
+    }
 }
 
 #[cfg(test)]
