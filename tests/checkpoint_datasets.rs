@@ -266,6 +266,30 @@ fn case(
     (name, words, Box::new(edit))
 }
 
+/// Each case (name, words the error must say, edit) applied to a copy of `good` and
+/// restarted on one process: every one must be refused ([`fault`]); all failures are
+/// reported together.
+fn refused_on_one_rank(
+    good: &Path,
+    dir: &Path,
+    cases: impl IntoIterator<Item = (&'static str, &'static str, Edit)>,
+) {
+    let mut failed = Vec::new();
+    for (name, words, edit) in cases {
+        let ckpt = edited(good, dir, name, &*edit);
+        let out = dir.join(format!("out-{name}"));
+        if let Some(m) = fault(&restart(&ckpt, &out), &ckpt, &out, words, false) {
+            failed.push(format!("{name}: {m}"));
+        }
+    }
+    assert!(
+        failed.is_empty(),
+        "{} case(s) failed:\n{}",
+        failed.len(),
+        failed.join("\n")
+    );
+}
+
 /// The particle table's cases (every row value the solver consumes).
 fn particle_cases() -> Vec<(&'static str, &'static str, Edit)> {
     vec![
@@ -484,19 +508,10 @@ fn each_dataset_edited_and_resealed_is_refused() {
         "{}",
         String::from_utf8_lossy(&o.stderr)
     );
-    let mut failed = Vec::new();
-    for (name, words, edit) in particle_cases().into_iter().chain(other_cases()) {
-        let ckpt = edited(&good, &dir, name, &*edit);
-        let out = dir.join(format!("out-{name}"));
-        if let Some(m) = fault(&restart(&ckpt, &out), &ckpt, &out, words, false) {
-            failed.push(format!("{name}: {m}"));
-        }
-    }
-    assert!(
-        failed.is_empty(),
-        "{} case(s) failed:\n{}",
-        failed.len(),
-        failed.join("\n")
+    refused_on_one_rank(
+        &good,
+        &dir,
+        particle_cases().into_iter().chain(other_cases()),
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -536,20 +551,7 @@ fn material_state_columns_are_checked() {
             |f| cell(f, 4, "material", 2.0),
         ),
     ];
-    let mut failed = Vec::new();
-    for (name, words, edit) in cases {
-        let ckpt = edited(&good, &dir, name, &*edit);
-        let out = dir.join(format!("out-{name}"));
-        if let Some(m) = fault(&restart(&ckpt, &out), &ckpt, &out, words, false) {
-            failed.push(format!("{name}: {m}"));
-        }
-    }
-    assert!(
-        failed.is_empty(),
-        "{} case(s) failed:\n{}",
-        failed.len(),
-        failed.join("\n")
-    );
+    refused_on_one_rank(&good, &dir, cases);
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -329,12 +329,7 @@ impl<'c, const D: usize> Solver<'c, D> {
     pub fn new(scene: &Scene, comm: &'c dyn Communicator, layout: Layout<D>) -> Self {
         let geom = Self::geometry(scene);
         let block = Block::new(&layout, comm.rank());
-        let materials: Vec<Material> = scene
-            .plan
-            .materials
-            .iter()
-            .map(Material::from_plan)
-            .collect();
+        let materials = Material::all(&scene.plan.materials);
         let benchmark = Benchmark::<D>::new(scene);
         let parts = Particles::seed(
             scene,
@@ -373,12 +368,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             std::array::from_fn(|a| [g.boundary.face(a, false), g.boundary.face(a, true)]);
         let geom = Self::geometry(scene);
         let (block, tiles) = Self::block_and_tiles(&layout, comm.rank());
-        let materials: Vec<Material> = scene
-            .plan
-            .materials
-            .iter()
-            .map(Material::from_plan)
-            .collect();
+        let materials = Material::all(&scene.plan.materials);
         let benchmark = Benchmark::<D>::new(scene);
         let carries = Carries::for_scene(scene);
         let migrator = Migrator::new(&layout, &block, Particles::<D>::record_width(carries));

@@ -38,6 +38,12 @@ pub fn lame(e: f64, nu: f64) -> (f64, f64) {
 }
 
 impl Material {
+    /// The models of a scene's validated materials, in order (particles name them by
+    /// index).
+    pub fn all(plans: &[MaterialPlan]) -> Vec<Self> {
+        plans.iter().map(Self::from_plan).collect()
+    }
+
     /// The model of a validated material.
     pub fn from_plan(p: &MaterialPlan) -> Self {
         let (lambda, mu) = lame(p.youngs_modulus, p.poisson_ratio);
