@@ -13,23 +13,6 @@ use mpmcg::mpm::particles::Particles;
 use mpmcg::mpm::solver::Solver;
 use mpmcg::physics::shape::Alpha;
 
-/// splitmix64: deterministic pseudo-random numbers without a dependency.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    /// Uniform in [-1, 1).
-    fn sym(&mut self) -> f64 {
-        2.0 * ((self.next() >> 11) as f64 / (1u64 << 53) as f64) - 1.0
-    }
-}
-
 /// Where the block of linear elastic material sits in the unit square/cube.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Case {
@@ -113,12 +96,12 @@ fn solver_with_state<const D: usize>(
     if let Some(al) = alpha {
         s.set_alpha(al);
     }
-    let mut rng = Rng(seed);
+    let mut rng = decomposition::splitmix::Rng::new(seed);
     for p in 0..s.parts.len() {
         for a in 0..D {
-            s.parts.v[p][a] = [0.2, -0.1, 0.15][a] + 0.5 * rng.sym();
+            s.parts.v[p][a] = [0.2, -0.1, 0.15][a] + 0.5 * (2.0 * rng.f64() - 1.0);
             for b in 0..=a {
-                let x = 20.0 * rng.sym();
+                let x = 20.0 * (2.0 * rng.f64() - 1.0);
                 s.parts.stress[p][(a, b)] = x;
                 s.parts.stress[p][(b, a)] = x;
             }
