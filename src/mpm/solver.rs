@@ -234,6 +234,103 @@ pub enum Phase {
     XpicField,
 }
 
+/// The grid fields a node pass reads, borrowed from the solver so that the pass can run
+/// on several threads (the solver itself holds a communicator, which is not `Sync`).
+struct NodeView<'a, const D: usize> {
+    tiles: &'a Tiles<D>,
+    geom: &'a Geom<D>,
+    own_lo: [usize; D],
+    own_hi: [usize; D],
+    node_lo: [i64; D],
+    faces: [[Face; 2]; D],
+    cell_w: &'a [f64],
+    corner_off: [usize; CORNERS],
+}
+
+impl<const D: usize> NodeView<'_, D> {
+    /// `f(n, c, record, nb)` for every owned node of the active tiles, with its record
+    /// of `width` numbers in `out` (storage order) and a neighbourhood buffer for
+    /// [`Tiles::neighbourhood`], in parallel over tiles. For the passes
+    /// that write their own node's record only: each node's result depends only on what
+    /// it reads, so it is the same on any number of threads.
+    fn par_owned(
+        &self,
+        out: &mut [f64],
+        width: usize,
+        f: impl Fn(usize, [usize; D], &mut [f64], &mut [usize; NEIGHBOURS]) + Sync,
+    ) {
+        use rayon::prelude::*;
+        let tn = self.tiles.tile_nodes();
+        let len = self.tiles.slots() * tn * width;
+        let tile = |nb: &mut [usize; NEIGHBOURS], (slot, recs): (usize, &mut [f64])| {
+            for (o, rec) in recs.chunks_exact_mut(width).enumerate() {
+                if let Some(c) = self.tiles.local(slot, o) {
+                    if (0..D).all(|a| c[a] >= self.own_lo[a] && c[a] < self.own_hi[a]) {
+                        f(slot * tn + o, c, rec, nb);
+                    }
+                }
+            }
+        };
+        if rayon::current_num_threads() == 1 {
+            let mut nb = [0; NEIGHBOURS];
+            for slot_recs in out[..len].chunks_mut(tn * width).enumerate().skip(1) {
+                tile(&mut nb, slot_recs);
+            }
+            return;
+        }
+        out[..len]
+            .par_chunks_mut(tn * width)
+            .enumerate()
+            .skip(1)
+            .with_min_len(4)
+            .for_each_init(|| [0; NEIGHBOURS], tile);
+    }
+
+    /// Visit the cells of non-zero weight around local node `c` whose neighbourhood
+    /// (storage indices, [`Tiles::neighbourhood`]) is `nb`: for each, the node's corner
+    /// number in the cell, the cell's lower corner as a position in `nb`, and its
+    /// weight `w_c`. The cell's corner `r` is then `nb[cell + corner_off[r]]`.
+    #[inline]
+    fn cells_around(
+        &self,
+        nb: &[usize; NEIGHBOURS],
+        c: &[usize; D],
+        mut f: impl FnMut(usize, usize, f64),
+    ) {
+        let centre = (3usize.pow(D as u32) - 1) / 2;
+        for q in 0..(1 << D) {
+            if (0..D).any(|a| c[a] < (q >> a) & 1) {
+                continue; // no cell there: bounded grid face
+            }
+            let cell = centre - self.corner_off[q];
+            let w = self.cell_w[nb[cell]];
+            if w > 0.0 {
+                f(q, cell, w);
+            }
+        }
+    }
+
+    /// Fixed and slip faces on both velocity slots of a node.
+    #[inline]
+    fn apply_bc(&self, c: [usize; D], v: &mut [f64]) {
+        for a in 0..D {
+            let g = self.node_lo[a] + c[a] as i64;
+            let side = self.geom.end(a, g);
+            if side == 0 {
+                continue;
+            }
+            match self.faces[a][usize::from(side > 0)] {
+                Face::Fixed => v.iter_mut().for_each(|x| *x = 0.0),
+                Face::Slip => {
+                    v[a] = 0.0;
+                    v[D + a] = 0.0;
+                }
+                Face::Free | Face::Periodic => {}
+            }
+        }
+    }
+}
+
 impl Update {
     /// The phases of one step of this update order for a two-step scheme.
     pub fn phases(self) -> &'static [Phase] {
@@ -714,27 +811,17 @@ impl<'c, const D: usize> Solver<'c, D> {
         }
     }
 
-    /// Visit the cells of non-zero weight around local node `c` whose neighbourhood
-    /// (storage indices, [`Tiles::neighbourhood`]) is `nb`: for each, the node's corner
-    /// number in the cell, the cell's lower corner as a position in `nb`, and its
-    /// weight `w_c`. The cell's corner `r` is then `nb[cell + corner_off[r]]`.
-    #[inline]
-    fn cells_around(
-        &self,
-        nb: &[usize; NEIGHBOURS],
-        c: &[usize; D],
-        mut f: impl FnMut(usize, usize, f64),
-    ) {
-        let centre = (3usize.pow(D as u32) - 1) / 2;
-        for q in 0..(1 << D) {
-            if (0..D).any(|a| c[a] < (q >> a) & 1) {
-                continue; // no cell there: bounded grid face
-            }
-            let cell = centre - self.corner_off[q];
-            let w = self.cell_w[nb[cell]];
-            if w > 0.0 {
-                f(q, cell, w);
-            }
+    /// The grid fields the node passes read, shareable between threads.
+    fn nodes(&self) -> NodeView<'_, D> {
+        NodeView {
+            tiles: &self.tiles,
+            geom: &self.geom,
+            own_lo: self.block.own_lo,
+            own_hi: self.block.own_hi,
+            node_lo: self.block.node_lo,
+            faces: self.faces,
+            cell_w: &self.cell_w,
+            corner_off: self.corner_off,
         }
     }
 
@@ -826,15 +913,15 @@ impl<'c, const D: usize> Solver<'c, D> {
         });
         self.block.ghost_copy(self.comm, &mut avg, aw);
         let mut scat = std::mem::take(&mut self.scat);
-        let mut nb = [0; NEIGHBOURS];
-        self.for_owned(|i, ci| {
+        let (nodes, cell_k, sigma) = (self.nodes(), &self.cell_k, &avg);
+        nodes.par_owned(&mut scat, sw, |i, ci, rec, nb| {
             let mut f = [0.0; D];
-            self.tiles.neighbourhood(i, &mut nb);
-            self.cells_around(&nb, &ci, |q, cell, wc| {
+            nodes.tiles.neighbourhood(i, nb);
+            nodes.cells_around(nb, &ci, |q, cell, wc| {
                 for r in 0..(1 << D) {
-                    let j = nb[cell + self.corner_off[r]];
-                    let w = &self.cell_k[r][q];
-                    let s = &avg[j * aw..j * aw + dd];
+                    let j = nb[cell + nodes.corner_off[r]];
+                    let w = &cell_k[r][q];
+                    let s = &sigma[j * aw..j * aw + dd];
                     for a in 0..D {
                         for b in 0..D {
                             f[a] += wc * s[a * D + b] * w[b];
@@ -843,7 +930,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                 }
             });
             for a in 0..D {
-                scat[i * sw + NodeRecord::<D>::force(a)] -= f[a];
+                rec[NodeRecord::<D>::force(a)] -= f[a];
             }
         });
         self.scat = scat;
@@ -873,24 +960,9 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.vel = vel;
     }
 
-    /// Fixed and slip faces on both velocity slots of a node.
-    #[inline]
+    /// Fixed and slip faces on both velocity slots of a node ([`NodeView::apply_bc`]).
     fn apply_bc(&self, c: [usize; D], v: &mut [f64]) {
-        for a in 0..D {
-            let g = self.block.node_lo[a] + c[a] as i64;
-            let side = self.geom.end(a, g);
-            if side == 0 {
-                continue;
-            }
-            match self.faces[a][usize::from(side > 0)] {
-                Face::Fixed => v.iter_mut().for_each(|x| *x = 0.0),
-                Face::Slip => {
-                    v[a] = 0.0;
-                    v[D + a] = 0.0;
-                }
-                Face::Free | Face::Periodic => {}
-            }
-        }
+        self.nodes().apply_bc(c, v);
     }
 
     /// `L̄_j = (1/V_j) Σ_i v_i ⊗ ∫ w S_j ∇S_i dv` on owned nodes from velocity slot
@@ -905,21 +977,22 @@ impl<'c, const D: usize> Solver<'c, D> {
         let aw = AvgRecord::<D>::WIDTH;
         let h = self.geom.h;
         let mut avg = std::mem::take(&mut self.avg);
-        let mut nb = [0; NEIGHBOURS];
-        self.for_owned(|j, cj| {
-            let vol = self.node_vol[j];
-            let rec = &mut avg[j * aw..(j + 1) * aw];
+        let nodes = self.nodes();
+        let (grid_vel, node_vol) = (&self.vel, &self.node_vol);
+        let (cell_k, cell_m) = (&self.cell_k, &self.cell_m);
+        nodes.par_owned(&mut avg, aw, |j, cj, rec, nb| {
+            let vol = node_vol[j];
             if vol <= 0.0 {
                 rec.iter_mut().for_each(|x| *x = 0.0);
                 return;
             }
-            let vel = |i: usize| &self.vel[VelRecord::<D>::at(i, slot)..][..D];
+            let vel = |i: usize| &grid_vel[VelRecord::<D>::at(i, slot)..][..D];
             let mut l = [0.0; 9];
-            self.tiles.neighbourhood(j, &mut nb);
-            self.cells_around(&nb, &cj, |q, cell, wc| {
+            nodes.tiles.neighbourhood(j, nb);
+            nodes.cells_around(nb, &cj, |q, cell, wc| {
                 for r in 0..(1 << D) {
-                    let i = nb[cell + self.corner_off[r]];
-                    let w = &self.cell_k[q][r];
+                    let i = nb[cell + nodes.corner_off[r]];
+                    let w = &cell_k[q][r];
                     let v = vel(i);
                     for a in 0..D {
                         for b in 0..D {
@@ -932,10 +1005,10 @@ impl<'c, const D: usize> Solver<'c, D> {
                 l[c] /= vol;
             }
             let mut u = [0.0; 3];
-            self.cells_around(&nb, &cj, |q, cell, wc| {
+            nodes.cells_around(nb, &cj, |q, cell, wc| {
                 for r in 0..(1 << D) {
-                    let i = nb[cell + self.corner_off[r]];
-                    let m = wc * self.cell_m[q][r];
+                    let i = nb[cell + nodes.corner_off[r]];
+                    let m = wc * cell_m[q][r];
                     let v = vel(i);
                     for a in 0..D {
                         let mut x = v[a];
@@ -952,7 +1025,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                 vb[a] = u[a] / vol;
                 vb[D + a] = vb[a];
             }
-            self.apply_bc(cj, &mut vb[..2 * D]);
+            nodes.apply_bc(cj, &mut vb[..2 * D]);
             rec[..dd].copy_from_slice(&l[..dd]);
             rec[dd..].copy_from_slice(&vb[..D]);
         });
