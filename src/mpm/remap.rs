@@ -11,7 +11,9 @@
 //! step's scatter. The particle velocities and the nodal momenta are bit for bit those
 //! of the two passes: same formulas, and the momentum summed in the same slab order.
 
-use crate::mpm::kernel::{clip_at_slip_walls, Ctx, GridPtr, SlabOrder, VelRecord, FROM_MOMENTUM};
+use crate::mpm::kernel::{
+    clip_at_slip_walls, run_key, Ctx, GridPtr, NodeData, SlabOrder, FROM_MOMENTUM, UPDATED,
+};
 use crate::physics::tensor::Vector;
 
 /// Read-only particle arrays of the remap.
@@ -128,19 +130,33 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
         ok: true,
         work: 0.0,
     };
+    // Particles sorted by cell share their nodes in runs: the nodes' velocities are
+    // read, and their momentum sums added into the grid, once per run.
+    let mut nd = NodeData::<D, N>::new();
+    let mut sum = [[0.0; D]; N];
+    let mut key = u64::MAX;
+    let mut idx = [0usize; N];
     for &p in &slabs.order[slabs.start[first]..slabs.start[first + 1]] {
         let p = p as usize;
         assert!(p < pp.len, "slab order names particle {p} of {}", pp.len);
         let half = if ctx.gimp { Some(&parts.half[p]) } else { None };
-        let k = ctx.kern::<NA, N>(&parts.x[p], half, parts.tile[p]);
+        let (k, below) = ctx.weights::<NA, N>(&parts.x[p], half);
+        let run = run_key(parts.tile[p], below);
+        if run != key {
+            if key != u64::MAX {
+                add_momentum(grid, &idx, &mut sum);
+            }
+            key = run;
+            idx = ctx.node_indices::<NA, N>(parts.tile[p], below);
+            nd.load(&idx, vel, &[], None);
+        }
         let mut vn = Vector::<D>::zeros();
         let mut dv = Vector::<D>::zeros();
         for n in 0..N {
-            let at = VelRecord::<D>::at(k.idx[n], FROM_MOMENTUM);
-            let w = &vel[at..at + VelRecord::<D>::WIDTH];
+            let w = &nd.v[n];
             for a in 0..D {
-                vn[a] += k.s[n] * w[D + a];
-                dv[a] += k.s[n] * (w[D + a] - w[a]);
+                vn[a] += k.s[n] * w[UPDATED][a];
+                dv[a] += k.s[n] * (w[UPDATED][a] - w[FROM_MOMENTUM][a]);
             }
         }
         // SAFETY: p is in bounds (asserted) and visited by this thread only (see
@@ -159,13 +175,31 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
         }
         let mv = new * mass;
         for n in 0..N {
-            // SAFETY: see `kernel::scatter`: same slabs, same colours, so no other
-            // thread writes these D numbers; bounds checked by `record`.
-            let rec = unsafe { grid.record(k.idx[n] * D, D) };
             for a in 0..D {
-                rec[a] += mv[a] * k.s[n];
+                sum[n][a] += mv[a] * k.s[n];
             }
         }
     }
+    if key != u64::MAX {
+        add_momentum(grid, &idx, &mut sum);
+    }
     t
+}
+
+/// Add one run's momentum sums into the nodes `idx` of `mom` and clear them.
+#[inline(always)]
+fn add_momentum<const D: usize, const N: usize>(
+    grid: GridPtr,
+    idx: &[usize; N],
+    sum: &mut [[f64; D]; N],
+) {
+    for n in 0..N {
+        // SAFETY: see `kernel::scatter`: same slabs, same colours, so no other thread
+        // writes these D numbers; bounds checked by `record`.
+        let rec = unsafe { grid.record(idx[n] * D, D) };
+        for a in 0..D {
+            rec[a] += sum[n][a];
+        }
+        sum[n] = [0.0; D];
+    }
 }
