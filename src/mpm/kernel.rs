@@ -92,7 +92,9 @@ impl<const D: usize> VelRecord<D> {
 pub struct Kern<const D: usize, const N: usize> {
     pub idx: [usize; N],
     pub s: [f64; N],
-    pub g: [[f64; D]; N],
+    /// Shape-function gradients, `g[d][n]` along axis `d` at node `n` (nodes innermost,
+    /// so that a loop over the nodes runs over adjacent numbers).
+    pub g: [[f64; N]; D],
     pub alpha: f64,
     /// Local cell coordinate ξ per axis (linear shapes only: the offset of node `n`
     /// from the particle is `(ξ_a − o_a) h_a`, `o_a` its corner bit).
@@ -135,7 +137,7 @@ impl<const D: usize> Ctx<'_, D> {
         let mut k = Kern {
             idx: [0; N],
             s: [0.0; N],
-            g: [[0.0; D]; N],
+            g: [[0.0; N]; D],
             alpha: match self.alpha {
                 Alpha::ProductOfShapes => w.bubble,
                 Alpha::Constant(c) => c,
@@ -166,7 +168,7 @@ impl<const D: usize> Ctx<'_, D> {
                         p *= w.w[e][o[e]];
                     }
                 }
-                k.g[n][d] = p;
+                k.g[d][n] = p;
             }
             k.s[n] = s;
         }
@@ -395,22 +397,24 @@ impl<const D: usize> AvgRecord<D> {
 /// sorted by cell share their nodes): copied once per run into fixed places, so that
 /// the per-particle loops index a small buffer at constant offsets instead of the grid.
 pub(crate) struct NodeData<const D: usize, const N: usize> {
-    /// Velocity slots [`FROM_MOMENTUM`] and [`UPDATED`] per node.
-    pub v: [[[f64; D]; 2]; N],
-    /// Two-step schemes: `L̄` (row `a`, column `b`) and `v̄` per node ([`AvgRecord`]).
-    pub lb: [[[f64; D]; D]; N],
-    pub vb: [[f64; D]; N],
+    /// Velocity slots [`FROM_MOMENTUM`] and [`UPDATED`]: `v[slot][a][n]`, component `a`
+    /// at node `n` (nodes innermost, as in every array here).
+    pub v: [[[f64; N]; D]; 2],
+    /// Two-step schemes: `L̄` (`lb[a][b][n]`, row `a`, column `b`) and `v̄` per node
+    /// ([`AvgRecord`]).
+    pub lb: [[[f64; N]; D]; D],
+    pub vb: [[f64; N]; D],
     /// XPIC's field per node (`D` numbers a node), if any.
-    pub x: [[f64; D]; N],
+    pub x: [[f64; N]; D],
 }
 
 impl<const D: usize, const N: usize> NodeData<D, N> {
     pub fn new() -> Self {
         NodeData {
-            v: [[[0.0; D]; 2]; N],
-            lb: [[[0.0; D]; D]; N],
-            vb: [[0.0; D]; N],
-            x: [[0.0; D]; N],
+            v: [[[0.0; N]; D]; 2],
+            lb: [[[0.0; N]; D]; D],
+            vb: [[0.0; N]; D],
+            x: [[0.0; N]; D],
         }
     }
 
@@ -423,22 +427,22 @@ impl<const D: usize, const N: usize> NodeData<D, N> {
             let at = VelRecord::<D>::at(idx[n], FROM_MOMENTUM);
             let r = &vel[at..at + VelRecord::<D>::WIDTH];
             for a in 0..D {
-                self.v[n][FROM_MOMENTUM][a] = r[a];
-                self.v[n][UPDATED][a] = r[D + a];
+                self.v[FROM_MOMENTUM][a][n] = r[a];
+                self.v[UPDATED][a][n] = r[D + a];
             }
             if !avg.is_empty() {
                 let r = &avg[idx[n] * aw..(idx[n] + 1) * aw];
                 for a in 0..D {
                     for b in 0..D {
-                        self.lb[n][a][b] = r[a * D + b];
+                        self.lb[a][b][n] = r[a * D + b];
                     }
-                    self.vb[n][a] = r[AvgRecord::<D>::VBAR + a];
+                    self.vb[a][n] = r[AvgRecord::<D>::VBAR + a];
                 }
             }
             if let Some(x) = xpic {
                 let r = &x[idx[n] * D..(idx[n] + 1) * D];
                 for a in 0..D {
-                    self.x[n][a] = r[a];
+                    self.x[a][n] = r[a];
                 }
             }
         }
@@ -485,9 +489,9 @@ pub(crate) fn moving_velocity<const D: usize, const N: usize>(
             d[a] = (k.frac[a] - ((n >> a) & 1) as f64) * h[a];
         }
         for a in 0..D {
-            let mut x = nd.vb[n][a];
+            let mut x = nd.vb[a][n];
             for b in 0..D {
-                x += nd.lb[n][a][b] * d[b];
+                x += nd.lb[a][b][n] * d[b];
             }
             u[a] += k.s[n] * x;
         }
@@ -520,7 +524,7 @@ pub(crate) fn moving_velocity<const D: usize, const N: usize>(
                 if c < 1.0 {
                     let mut vn = 0.0;
                     for n in 0..N {
-                        vn += k.s[n] * nd.v[n][slot][a];
+                        vn += k.s[n] * nd.v[slot][a][n];
                     }
                     u[a] = c * u[a] + (1.0 - c) * vn;
                 }
@@ -589,21 +593,19 @@ pub(crate) fn velocity_gradient_at<const D: usize, const N: usize>(
 ) -> Mat<D> {
     let mut l = Mat::<D>::zeros();
     for n in 0..N {
-        let v = &nd.v[n][slot];
         if k.alpha != 0.0 {
             for b in 0..D {
-                let g = k.alpha * k.g[n][b];
+                let g = k.alpha * k.g[b][n];
                 for a in 0..D {
-                    l[(a, b)] += v[a] * g;
+                    l[(a, b)] += nd.v[slot][a][n] * g;
                 }
             }
         }
         if two && k.alpha != 1.0 {
             let c = (1.0 - k.alpha) * k.s[n];
-            let lb = &nd.lb[n];
             for a in 0..D {
                 for b in 0..D {
-                    l[(a, b)] += c * lb[a][b];
+                    l[(a, b)] += c * nd.lb[a][b][n];
                 }
             }
         }
@@ -677,10 +679,10 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
             let mut vn = Vector::<D>::zeros();
             let mut dv = Vector::<D>::zeros();
             for n in 0..N {
-                let v = &nd.v[n];
                 for a in 0..D {
-                    vn[a] += k.s[n] * v[UPDATED][a];
-                    dv[a] += k.s[n] * (v[UPDATED][a] - v[FROM_MOMENTUM][a]);
+                    let (v0, v1) = (nd.v[FROM_MOMENTUM][a][n], nd.v[UPDATED][a][n]);
+                    vn[a] += k.s[n] * v1;
+                    dv[a] += k.s[n] * (v1 - v0);
                 }
             }
             let old = s.parts.v[p];
@@ -690,7 +692,7 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
                     let mut u = vn;
                     for n in 0..N {
                         for a in 0..D {
-                            u[a] += k.s[n] * nd.x[n][a];
+                            u[a] += k.s[n] * nd.x[a][n];
                         }
                     }
                     u
@@ -1021,29 +1023,36 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
         } else {
             Vector::<D>::zeros()
         };
+        // Node-innermost loops over fixed arrays: each is a few vector operations.
         for n in 0..N {
-            let s = k.s[n];
-            acc.mass[n] += mass * s;
+            acc.mass[n] += mass * k.s[n];
+        }
+        for a in 0..D {
+            for n in 0..N {
+                acc.mom[a][n] += mv[a] * k.s[n];
+            }
+        }
+        if m.two_step {
+            for n in 0..N {
+                acc.cover[n] += vol * k.s[n];
+            }
+        }
+        if m.forces {
             for a in 0..D {
-                acc.mom[n][a] += mv[a] * s;
-            }
-            if m.two_step {
-                acc.cover[n] += vol * s;
-            }
-            if m.forces {
-                let g = &k.g[n];
-                for a in 0..D {
+                for n in 0..N {
                     let mut sg = 0.0;
                     for b in 0..D {
-                        sg += vs[(a, b)] * g[b];
+                        sg += vs[(a, b)] * k.g[b][n];
                     }
-                    acc.force[n][a] += fe[a] * s - k.alpha * sg;
+                    acc.force[a][n] += fe[a] * k.s[n] - k.alpha * sg;
                 }
-                if m.two_step {
-                    let c = (1.0 - k.alpha) * s;
-                    for a in 0..D {
-                        for b in 0..D {
-                            acc.stress[n][a][b] += c * vs[(a, b)];
+            }
+            if m.two_step {
+                let c: [f64; N] = std::array::from_fn(|n| (1.0 - k.alpha) * k.s[n]);
+                for a in 0..D {
+                    for b in 0..D {
+                        for n in 0..N {
+                            acc.stress[a][b][n] += c[n] * vs[(a, b)];
                         }
                     }
                 }
@@ -1060,11 +1069,12 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
 /// run. The particle loop adds into these fixed places, which need no index
 /// arithmetic or bounds checks and do not wait on the previous particle's store into
 /// the grid; the records see one addition per run instead of one per particle.
+/// Each sum is per node, nodes innermost.
 struct ScatterSums<const D: usize, const N: usize> {
     mass: [f64; N],
-    mom: [[f64; D]; N],
-    force: [[f64; D]; N],
-    stress: [[[f64; D]; D]; N],
+    mom: [[f64; N]; D],
+    force: [[f64; N]; D],
+    stress: [[[f64; N]; D]; D],
     cover: [f64; N],
 }
 
@@ -1072,9 +1082,9 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
     fn new() -> Self {
         ScatterSums {
             mass: [0.0; N],
-            mom: [[0.0; D]; N],
-            force: [[0.0; D]; N],
-            stress: [[[0.0; D]; D]; N],
+            mom: [[0.0; N]; D],
+            force: [[0.0; N]; D],
+            stress: [[[0.0; N]; D]; D],
             cover: [0.0; N],
         }
     }
@@ -1095,19 +1105,19 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
             let rec = unsafe { grid.record(idx[n] * sw, sw) };
             rec[R::<D>::MASS] += self.mass[n];
             for a in 0..D {
-                rec[R::<D>::momentum(a)] += self.mom[n][a];
+                rec[R::<D>::momentum(a)] += self.mom[a][n];
             }
             if m.two_step {
                 rec[R::<D>::cover(sw)] += self.cover[n];
             }
             if m.forces {
                 for a in 0..D {
-                    rec[R::<D>::force(a)] += self.force[n][a];
+                    rec[R::<D>::force(a)] += self.force[a][n];
                 }
                 if m.two_step {
                     for a in 0..D {
                         for b in 0..D {
-                            rec[R::<D>::stress_sum(a, b)] += self.stress[n][a][b];
+                            rec[R::<D>::stress_sum(a, b)] += self.stress[a][b][n];
                         }
                     }
                 }

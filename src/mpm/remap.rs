@@ -133,7 +133,7 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
     // Particles sorted by cell share their nodes in runs: the nodes' velocities are
     // read, and their momentum sums added into the grid, once per run.
     let mut nd = NodeData::<D, N>::new();
-    let mut sum = [[0.0; D]; N];
+    let mut sum = [[0.0; N]; D];
     let mut key = u64::MAX;
     let mut idx = [0usize; N];
     for &p in &slabs.order[slabs.start[first]..slabs.start[first + 1]] {
@@ -153,10 +153,10 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
         let mut vn = Vector::<D>::zeros();
         let mut dv = Vector::<D>::zeros();
         for n in 0..N {
-            let w = &nd.v[n];
             for a in 0..D {
-                vn[a] += k.s[n] * w[UPDATED][a];
-                dv[a] += k.s[n] * (w[UPDATED][a] - w[FROM_MOMENTUM][a]);
+                let (v0, v1) = (nd.v[FROM_MOMENTUM][a][n], nd.v[UPDATED][a][n]);
+                vn[a] += k.s[n] * v1;
+                dv[a] += k.s[n] * (v1 - v0);
             }
         }
         // SAFETY: p is in bounds (asserted) and visited by this thread only (see
@@ -174,9 +174,9 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
             unsafe { *pp.dx.add(p) = vn * m.dt };
         }
         let mv = new * mass;
-        for n in 0..N {
-            for a in 0..D {
-                sum[n][a] += mv[a] * k.s[n];
+        for a in 0..D {
+            for n in 0..N {
+                sum[a][n] += mv[a] * k.s[n];
             }
         }
     }
@@ -191,15 +191,15 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
 fn add_momentum<const D: usize, const N: usize>(
     grid: GridPtr,
     idx: &[usize; N],
-    sum: &mut [[f64; D]; N],
+    sum: &mut [[f64; N]; D],
 ) {
     for n in 0..N {
         // SAFETY: see `kernel::scatter`: same slabs, same colours, so no other thread
         // writes these D numbers; bounds checked by `record`.
         let rec = unsafe { grid.record(idx[n] * D, D) };
         for a in 0..D {
-            rec[a] += sum[n][a];
+            rec[a] += sum[a][n];
         }
-        sum[n] = [0.0; D];
     }
+    *sum = [[0.0; N]; D];
 }
