@@ -105,7 +105,8 @@ pub struct Kern<const D: usize, const N: usize> {
 
 impl<const D: usize> Ctx<'_, D> {
     /// A particle's interpolation data over its `N` nodes, their storage indices
-    /// included: [`Ctx::weights`] and [`Ctx::node_indices`] in one.
+    /// and wall ends included: [`Ctx::weights`], [`Ctx::node_indices`] and the wall
+    /// ends in one, from the position alone.
     #[inline(always)]
     pub fn kern<const NA: usize, const N: usize>(
         &self,
@@ -113,25 +114,34 @@ impl<const D: usize> Ctx<'_, D> {
         half: Option<&[f64; D]>,
         cell_node: u32,
     ) -> Kern<D, N> {
-        let (mut k, below) = self.weights::<NA, N>(x, half);
+        let xa: [f64; D] = std::array::from_fn(|a| x[a]);
+        let xi = self.geom.locate(&xa).1;
+        let (mut k, below, w) = self.weights::<NA, N>(x, half, &xi);
         k.idx = self.node_indices::<NA, N>(cell_node, below);
+        k.ends = self.wall_ends::<NA>(&self.node_sides::<NA>(cell_node, below), &w);
         k
     }
 
-    /// A particle's weights, gradients, α and wall ends, without the nodes' storage
-    /// indices (`idx` left zero), and per axis whether its first node lies one below
-    /// its cell (GIMP only). Particles sorted by cell share their nodes in runs: the
-    /// particle loops look the nodes up once per run ([`NodeSet`]).
+    /// A particle's weights, gradients and α, without the nodes' storage indices and
+    /// the wall ends (`idx` and `ends` left unset), per axis whether its first node
+    /// lies one below its cell (GIMP only), and its 1D weights per axis (for
+    /// [`Ctx::wall_ends`]). Hat functions take the local cell coordinate `xi` the tile
+    /// pass kept (the same `Geom::locate` of the same position, so the same weights),
+    /// GIMP the position and half-width. Particles sorted by cell share their nodes in
+    /// runs: the particle loops look the nodes up once per run ([`Run`]).
     #[inline(always)]
     pub fn weights<const NA: usize, const N: usize>(
         &self,
         x: &Vector<D>,
         half: Option<&[f64; D]>,
-    ) -> (Kern<D, N>, [usize; D]) {
-        let xa: [f64; D] = std::array::from_fn(|a| x[a]);
+        xi: &[f64; D],
+    ) -> (Kern<D, N>, [usize; D], [[f64; 3]; D]) {
         let w = match half {
-            Some(lp) if self.gimp => shape::gimp(self.geom, &xa, lp),
-            _ => shape::linear(self.geom, &xa),
+            Some(lp) if self.gimp => {
+                let xa: [f64; D] = std::array::from_fn(|a| x[a]);
+                shape::gimp(self.geom, &xa, lp)
+            }
+            _ => shape::hat(self.geom, xi),
         };
         let below: [usize; D] = std::array::from_fn(|a| (w.cell[a] - w.base[a]) as usize);
         let mut k = Kern {
@@ -143,7 +153,7 @@ impl<const D: usize> Ctx<'_, D> {
                 Alpha::Constant(c) => c,
             },
             frac: [0.0; D],
-            ends: self.wall_ends::<NA>(&w),
+            ends: [[false; 2]; D],
         };
         if !self.gimp {
             for a in 0..D {
@@ -172,7 +182,31 @@ impl<const D: usize> Ctx<'_, D> {
             }
             k.s[n] = s;
         }
-        (k, below)
+        (k, below, w.w)
+    }
+
+    /// Per axis and node of a run ([`Ctx::node_indices`]'s arguments), whether the
+    /// node lies on the lower (-1) or upper (+1) grid face or neither (0). Only loops
+    /// that need wall ends ([`Ctx::walls`]) ask.
+    #[inline(always)]
+    pub fn node_sides<const NA: usize>(&self, cell_node: u32, below: [usize; D]) -> [[i32; NA]; D] {
+        let mut sides = [[0; NA]; D];
+        if !self.walls {
+            return sides;
+        }
+        let tn = Tiles::<D>::TILE_NODES;
+        let cn = cell_node as usize;
+        let l = self
+            .tiles
+            .local(cn / tn, cn % tn)
+            .expect("a particle's cell corner lies in the local box");
+        for a in 0..D {
+            let first = self.node_lo[a] + l[a] as i64 - below[a] as i64;
+            for (o, side) in sides[a].iter_mut().enumerate() {
+                *side = self.geom.end(a, first + o as i64);
+            }
+        }
+        sides
     }
 
     /// Storage indices of the `N` nodes of a particle whose cell's lower corner is
@@ -239,16 +273,21 @@ impl<const D: usize> Ctx<'_, D> {
     }
 
     /// Per axis, whether the particle gives weight to a node on the lower / upper grid
-    /// face ([`Kern::ends`]). Only the passes that move particles or clip their
-    /// velocities at walls read it: the others skip this per-particle work.
+    /// face ([`Kern::ends`]), from its nodes' `sides` ([`Ctx::node_sides`]) and its 1D
+    /// weights `w`. Only the passes that move particles or clip their velocities at
+    /// walls read it: the others skip this per-particle work.
     #[inline(always)]
-    fn wall_ends<const NA: usize>(&self, w: &shape::Weights1<D>) -> [[bool; 2]; D] {
+    pub fn wall_ends<const NA: usize>(
+        &self,
+        sides: &[[i32; NA]; D],
+        w: &[[f64; 3]; D],
+    ) -> [[bool; 2]; D] {
         let mut ends = [[false; 2]; D];
         if self.walls {
             for a in 0..D {
                 for o in 0..NA {
-                    let side = self.geom.end(a, w.base[a] + o as i64);
-                    if side != 0 && w.w[a][o] > 0.0 {
+                    let side = sides[a][o];
+                    if side != 0 && w[a][o] > 0.0 {
                         ends[a][usize::from(side > 0)] = true;
                     }
                 }
@@ -276,6 +315,9 @@ pub struct Slices<'a, const D: usize> {
     pub dx: &'a mut [Vector<D>],
     /// Storage index of each particle's cell's lower corner node.
     pub tile: &'a [u32],
+    /// Each particle's local coordinate in its cell (`Geom::locate`), kept by the tile
+    /// pass for the hat functions.
+    pub xi: &'a [[f64; D]],
 }
 
 fn split<T>(s: &[T], mid: usize) -> (&[T], &[T]) {
@@ -299,16 +341,19 @@ impl<'a, const D: usize> Slices<'a, D> {
         let (p0, p1) = self.parts.split_at(mid);
         let (d0, d1) = split_mut(self.dx, mid);
         let (k0, k1) = split(self.tile, mid);
+        let (x0, x1) = split(self.xi, mid);
         (
             Slices {
                 parts: p0,
                 dx: d0,
                 tile: k0,
+                xi: x0,
             },
             Slices {
                 parts: p1,
                 dx: d1,
                 tile: k1,
+                xi: x1,
             },
         )
     }
@@ -449,15 +494,54 @@ impl<const D: usize, const N: usize> NodeData<D, N> {
     }
 }
 
-/// The key of a particle's node set: its cell's lower corner in the storage and, per
-/// axis, whether its first node lies below the cell (GIMP). Equal keys, equal nodes.
-#[inline(always)]
-pub(crate) fn run_key<const D: usize>(cell_node: u32, below: [usize; D]) -> u64 {
-    let mut m = 0u64;
-    for (a, &b) in below.iter().enumerate() {
-        m |= (b as u64) << a;
+/// The nodes of the current run of particles: particles sorted by cell share their
+/// nodes, so a particle loop looks up their storage indices and faces (and reads or
+/// flushes their grid data) only when the run changes.
+pub(crate) struct Run<const D: usize, const NA: usize, const N: usize> {
+    /// The node set's key: the cell's lower corner in the storage and, per axis,
+    /// whether the first node lies below the cell (GIMP). Equal keys, equal nodes.
+    key: u64,
+    pub idx: [usize; N],
+    /// [`Ctx::node_sides`] of the run (all 0 unless [`Ctx::walls`]).
+    pub sides: [[i32; NA]; D],
+}
+
+impl<const D: usize, const NA: usize, const N: usize> Run<D, NA, N> {
+    pub fn new() -> Self {
+        Run {
+            key: u64::MAX,
+            idx: [0; N],
+            sides: [[0; NA]; D],
+        }
     }
-    cell_node as u64 | (m << 32)
+
+    /// Whether a run has been entered (its sums may need flushing).
+    pub fn started(&self) -> bool {
+        self.key != u64::MAX
+    }
+
+    #[inline(always)]
+    fn key_of(cell_node: u32, below: [usize; D]) -> u64 {
+        let mut m = 0u64;
+        for (a, &b) in below.iter().enumerate() {
+            m |= (b as u64) << a;
+        }
+        cell_node as u64 | (m << 32)
+    }
+
+    /// Whether a particle of cell node `cell_node` with `below` starts a new run.
+    #[inline(always)]
+    pub fn is_new(&self, cell_node: u32, below: [usize; D]) -> bool {
+        Self::key_of(cell_node, below) != self.key
+    }
+
+    /// Enter the run of such a particle: its nodes' indices and faces.
+    #[inline(always)]
+    pub fn enter(&mut self, ctx: &Ctx<'_, D>, cell_node: u32, below: [usize; D]) {
+        self.key = Self::key_of(cell_node, below);
+        self.idx = ctx.node_indices::<NA, N>(cell_node, below);
+        self.sides = ctx.node_sides::<NA>(cell_node, below);
+    }
 }
 
 /// The velocity two-step schemes move a particle with: the nodal linear
@@ -663,19 +747,19 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
     par(parts, &|mut s: Slices<'_, D>| {
         let mut t = Tally::ZERO;
         let mut nd = NodeData::<D, N>::new();
-        let mut key = u64::MAX;
+        let mut run = Run::<D, NA, N>::new();
         for p in 0..s.len() {
             let half = if ctx.gimp {
                 Some(&s.parts.half[p])
             } else {
                 None
             };
-            let (k, below) = ctx.weights::<NA, N>(&s.parts.x[p], half);
-            let run = run_key(s.tile[p], below);
-            if run != key {
-                key = run;
-                nd.load(&ctx.node_indices::<NA, N>(s.tile[p], below), vel, avg, xpic);
+            let (mut k, below, w) = ctx.weights::<NA, N>(&s.parts.x[p], half, &s.xi[p]);
+            if run.is_new(s.tile[p], below) {
+                run.enter(ctx, s.tile[p], below);
+                nd.load(&run.idx, vel, avg, xpic);
             }
+            k.ends = ctx.wall_ends::<NA>(&run.sides, &w);
             let mut vn = Vector::<D>::zeros();
             let mut dv = Vector::<D>::zeros();
             for n in 0..N {
@@ -752,19 +836,19 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
     par(parts, &|mut s: Slices<'_, D>| {
         let mut t = Tally::ZERO;
         let mut nd = NodeData::<D, N>::new();
-        let mut key = u64::MAX;
+        let mut run = Run::<D, NA, N>::new();
         for p in 0..s.len() {
             let half = if ctx.gimp {
                 Some(&s.parts.half[p])
             } else {
                 None
             };
-            let (k, below) = ctx.weights::<NA, N>(&s.parts.x[p], half);
-            let run = run_key(s.tile[p], below);
-            if run != key {
-                key = run;
-                nd.load(&ctx.node_indices::<NA, N>(s.tile[p], below), vel, avg, None);
+            let (mut k, below, w) = ctx.weights::<NA, N>(&s.parts.x[p], half, &s.xi[p]);
+            if run.is_new(s.tile[p], below) {
+                run.enter(ctx, s.tile[p], below);
+                nd.load(&run.idx, vel, avg, None);
             }
+            k.ends = ctx.wall_ends::<NA>(&run.sides, &w);
             let l = velocity_gradient_at(&k, &nd, m.slot, m.two_step);
             t.ok &= deform(ctx, &mut s, p, &l, m.dt);
             if m.moves {
@@ -802,6 +886,8 @@ pub struct ScatterParts<'a, const D: usize> {
     pub half: &'a [[f64; D]],
     /// Storage index of each particle's cell's lower corner node.
     pub tile: &'a [u32],
+    /// Each particle's local coordinate in its cell (see [`Slices::xi`]).
+    pub xi: &'a [[f64; D]],
     /// A grid field of D numbers per node whose interpolation at the particle replaces
     /// its velocity in the momentum ([`ScatterMode::from_grid`]; XPIC's `S⁺S`).
     pub src: &'a [f64],
@@ -989,20 +1075,18 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
         return;
     }
     let mut acc = ScatterSums::<D, N>::new();
-    let mut key = u64::MAX;
-    let mut idx = [0usize; N];
+    let mut run = Run::<D, NA, N>::new();
     for &p in &slabs.order[slabs.start[first]..slabs.start[first + 1]] {
         let p = p as usize;
         let half = if ctx.gimp { Some(&parts.half[p]) } else { None };
-        let (k, below) = ctx.weights::<NA, N>(&parts.x[p], half);
-        let run = run_key(parts.tile[p], below);
-        if run != key {
-            if key != u64::MAX {
-                acc.flush(ctx, grid, &idx, m);
+        let (k, below, _) = ctx.weights::<NA, N>(&parts.x[p], half, &parts.xi[p]);
+        if run.is_new(parts.tile[p], below) {
+            if run.started() {
+                acc.flush(ctx, grid, &run.idx, m);
             }
-            key = run;
-            idx = ctx.node_indices::<NA, N>(parts.tile[p], below);
+            run.enter(ctx, parts.tile[p], below);
         }
+        let idx = &run.idx;
         let mass = parts.mass[p];
         let mv = if m.from_grid {
             let mut u = Vector::<D>::zeros();
@@ -1059,8 +1143,8 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
             }
         }
     }
-    if key != u64::MAX {
-        acc.flush(ctx, grid, &idx, m);
+    if run.started() {
+        acc.flush(ctx, grid, &run.idx, m);
     }
 }
 

@@ -12,7 +12,7 @@
 //! of the two passes: same formulas, and the momentum summed in the same slab order.
 
 use crate::mpm::kernel::{
-    clip_at_slip_walls, run_key, Ctx, GridPtr, NodeData, SlabOrder, FROM_MOMENTUM, UPDATED,
+    clip_at_slip_walls, Ctx, GridPtr, NodeData, Run, SlabOrder, FROM_MOMENTUM, UPDATED,
 };
 use crate::physics::tensor::Vector;
 
@@ -24,6 +24,8 @@ pub struct RemapParts<'a, const D: usize> {
     pub half: &'a [[f64; D]],
     /// Storage index of each particle's cell's lower corner node.
     pub tile: &'a [u32],
+    /// Each particle's local coordinate in its cell (see `kernel::Slices::xi`).
+    pub xi: &'a [[f64; D]],
 }
 
 /// What the remap does besides the velocity update.
@@ -134,22 +136,20 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
     // read, and their momentum sums added into the grid, once per run.
     let mut nd = NodeData::<D, N>::new();
     let mut sum = [[0.0; N]; D];
-    let mut key = u64::MAX;
-    let mut idx = [0usize; N];
+    let mut run = Run::<D, NA, N>::new();
     for &p in &slabs.order[slabs.start[first]..slabs.start[first + 1]] {
         let p = p as usize;
         assert!(p < pp.len, "slab order names particle {p} of {}", pp.len);
         let half = if ctx.gimp { Some(&parts.half[p]) } else { None };
-        let (k, below) = ctx.weights::<NA, N>(&parts.x[p], half);
-        let run = run_key(parts.tile[p], below);
-        if run != key {
-            if key != u64::MAX {
-                add_momentum(grid, &idx, &mut sum);
+        let (mut k, below, w) = ctx.weights::<NA, N>(&parts.x[p], half, &parts.xi[p]);
+        if run.is_new(parts.tile[p], below) {
+            if run.started() {
+                add_momentum(grid, &run.idx, &mut sum);
             }
-            key = run;
-            idx = ctx.node_indices::<NA, N>(parts.tile[p], below);
-            nd.load(&idx, vel, &[], None);
+            run.enter(ctx, parts.tile[p], below);
+            nd.load(&run.idx, vel, &[], None);
         }
+        k.ends = ctx.wall_ends::<NA>(&run.sides, &w);
         let mut vn = Vector::<D>::zeros();
         let mut dv = Vector::<D>::zeros();
         for n in 0..N {
@@ -180,8 +180,8 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
             }
         }
     }
-    if key != u64::MAX {
-        add_momentum(grid, &idx, &mut sum);
+    if run.started() {
+        add_momentum(grid, &run.idx, &mut sum);
     }
     t
 }

@@ -42,6 +42,7 @@ macro_rules! slices {
             parts: $s.parts.slices(),
             dx: &mut $s.dx,
             tile: &$s.ptile,
+            xi: &$s.pxi,
         }
     };
 }
@@ -149,6 +150,9 @@ pub struct Solver<'c, const D: usize> {
     /// Per particle: storage index of its cell's lower corner node (set by a scatter
     /// of moved particles, valid until they move again).
     ptile: Vec<u32>,
+    /// Per particle: its local coordinate in its cell (`Geom::locate`), set and valid
+    /// with `ptile`; the particle loops' hat functions start from it.
+    pxi: Vec<[f64; D]>,
     /// Scatter records, `sw` numbers per node laid out as [`NodeRecord`] says.
     scat: Vec<f64>,
     sw: usize,
@@ -503,6 +507,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             max_speed: 0.0,
             tiles,
             ptile: Vec::new(),
+            pxi: Vec::new(),
             scat: Vec::new(),
             sw: 0,
             vel: Vec::new(),
@@ -650,6 +655,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         // sorted by cell repeat their cell, which skips most of the work.
         self.tiles.begin();
         self.ptile.clear();
+        self.pxi.clear();
         // The scatter's slab order comes out of the same pass.
         let last = D - 1;
         self.slabs
@@ -658,7 +664,8 @@ impl<'c, const D: usize> Solver<'c, D> {
         let mut node = 0u32;
         let mut tile = (u64::MAX, 0u32);
         for x in &self.parts.x {
-            let (c, _) = self.geom.locate(&std::array::from_fn(|a| x[a]));
+            let (c, xi) = self.geom.locate(&std::array::from_fn(|a| x[a]));
+            self.pxi.push(xi);
             self.slabs.push(c[last]);
             if prev != Some(c) {
                 prev = Some(c);
@@ -724,6 +731,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             x0: &self.parts.x0,
             half: &self.parts.half,
             tile: &self.ptile,
+            xi: &self.pxi,
             src: &self.xpic_term,
         };
         let m = kernel::ScatterMode {
@@ -1193,6 +1201,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             x0: &self.parts.x0,
             half: &self.parts.half,
             tile: &self.ptile,
+            xi: &self.pxi,
         };
         let m = crate::mpm::remap::RemapMode {
             dt,
@@ -1507,6 +1516,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.block = block;
         self.tiles = tiles;
         self.ptile.clear();
+        self.pxi.clear();
         self.size_fields();
         self.rebalances += 1;
         // Arrival order depends on the old owners: sort for the same order as a run

@@ -255,6 +255,17 @@ fn bubble<const D: usize>(xi: &[f64; D]) -> f64 {
 #[inline(always)]
 pub fn linear<const D: usize>(geom: &Geom<D>, x: &[f64; D]) -> Weights1<D> {
     let (c, xi) = geom.locate(x);
+    let mut w = hat(geom, &xi);
+    w.base = c;
+    w.cell = c;
+    w
+}
+
+/// Linear hat functions at local cell coordinate `xi` (as [`Geom::locate`] gives it),
+/// the cell left unset (`base` and `cell` zero): for loops that know the cell.
+#[inline(always)]
+pub fn hat<const D: usize>(geom: &Geom<D>, xi: &[f64; D]) -> Weights1<D> {
+    let xi = *xi;
     let mut w = [[0.0; 3]; D];
     let mut dw = [[0.0; 3]; D];
     for a in 0..D {
@@ -264,8 +275,8 @@ pub fn linear<const D: usize>(geom: &Geom<D>, x: &[f64; D]) -> Weights1<D> {
         dw[a][1] = geom.inv_h[a];
     }
     Weights1 {
-        base: c,
-        cell: c,
+        base: [0; D],
+        cell: [0; D],
         n: 2,
         w,
         dw,
