@@ -5,8 +5,17 @@
 //! Determinism: the scatter visits particles slab by slab (slabs of [`SLAB`] cells
 //! along the last axis, in two colours so that same-coloured slabs never share a node)
 //! and each slab in a fixed order, so every node receives its contributions in the
-//! same order whatever the thread count. Particle-local work splits the particle range
-//! by halving down to [`GRAIN`], independent of the thread count as well.
+//! same order whatever the thread count (summed first per run of particles that share
+//! their nodes, `Run`, then added into the node records run by run). Particle-local
+//! work splits the particle range by halving down to [`GRAIN`], independent of the
+//! thread count as well.
+//!
+//! Speed: particles sorted by cell come in runs that share their nodes (16 in a row in
+//! 2D at 4 × 4 per cell, 8 in 3D at 2 × 2 × 2). A loop looks the run's nodes up once,
+//! copies the grid data it reads into small node-innermost arrays (`NodeData`) and
+//! sums what it writes in such arrays (`ScatterSums`), so the per-particle work is
+//! arithmetic on fixed places. Hat functions start from the local cell coordinate the
+//! tile pass keeps, so no loop locates its particles again.
 
 use crate::input::scene::Face;
 use crate::mpm::particles::{split_mut, ParticleSlices};

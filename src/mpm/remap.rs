@@ -8,8 +8,9 @@
 //! mass and covered volume that equal the first (the positions did not change). Here
 //! one pass evaluates the weights once, updates the velocity and adds `m_p v_p S_i`
 //! into a momentum-only field; mass, cover and domain weights stay those of the
-//! step's scatter. The particle velocities and the nodal momenta are bit for bit those
-//! of the two passes: same formulas, and the momentum summed in the same slab order.
+//! step's scatter. The particle velocities are bit for bit those of the two passes
+//! (same formulas); the nodal momenta are summed per run of particles that share their
+//! nodes, as in `kernel::scatter`, so they equal the two passes' to round-off.
 
 use crate::mpm::kernel::{
     clip_at_slip_walls, Ctx, GridPtr, NodeData, Run, SlabOrder, FROM_MOMENTUM, UPDATED,
@@ -73,7 +74,7 @@ impl RemapTally {
 /// Update the particle velocities `v` from the grid velocities `vel` (FLIP/PIC blend,
 /// clipped at slip walls as in `kernel::gather`), keep `dx` if asked, and add the new
 /// momentum into `mom` (`D` per node, cleared by the caller), in the slab colours of
-/// `kernel::scatter` (same order, so the same sums).
+/// `kernel::scatter` (the same order whatever the thread count, so the same sums).
 #[allow(clippy::too_many_arguments)]
 pub fn remap<const D: usize, const NA: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
