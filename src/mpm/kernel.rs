@@ -115,8 +115,9 @@ pub struct Kern<const D: usize, const N: usize> {
 impl<const D: usize> Ctx<'_, D> {
     /// A particle's interpolation data over its `N` nodes, their storage indices
     /// and wall ends included: [`Ctx::weights`], [`Ctx::node_indices`] and the wall
-    /// ends in one, from the position alone.
-    #[inline(always)]
+    /// ends in one, from the position alone (the solver's tests; the particle loops
+    /// use the parts with [`Run`]).
+    #[cfg(test)]
     pub fn kern<const NA: usize, const N: usize>(
         &self,
         x: &Vector<D>,
@@ -1116,41 +1117,7 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
         } else {
             Vector::<D>::zeros()
         };
-        // Node-innermost loops over fixed arrays: each is a few vector operations.
-        for n in 0..N {
-            acc.mass[n] += mass * k.s[n];
-        }
-        for a in 0..D {
-            for n in 0..N {
-                acc.mom[a][n] += mv[a] * k.s[n];
-            }
-        }
-        if m.two_step {
-            for n in 0..N {
-                acc.cover[n] += vol * k.s[n];
-            }
-        }
-        if m.forces {
-            for a in 0..D {
-                for n in 0..N {
-                    let mut sg = 0.0;
-                    for b in 0..D {
-                        sg += vs[(a, b)] * k.g[b][n];
-                    }
-                    acc.force[a][n] += fe[a] * k.s[n] - k.alpha * sg;
-                }
-            }
-            if m.two_step {
-                let c: [f64; N] = std::array::from_fn(|n| (1.0 - k.alpha) * k.s[n]);
-                for a in 0..D {
-                    for b in 0..D {
-                        for n in 0..N {
-                            acc.stress[a][b][n] += c[n] * vs[(a, b)];
-                        }
-                    }
-                }
-            }
-        }
+        acc.add(&k, mass, &mv, vol, &vs, &fe, m);
     }
     if run.started() {
         acc.flush(ctx, grid, &run.idx, m);
@@ -1179,6 +1146,58 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
             force: [[0.0; N]; D],
             stress: [[[0.0; N]; D]; D],
             cover: [0.0; N],
+        }
+    }
+
+    /// Add one particle's contributions: mass, momentum `mv`, and as `m` asks the
+    /// cover (volume `vol`), the forces (external `fe`, internal from `vs = V σ`) and
+    /// the averaged-stress sum.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn add(
+        &mut self,
+        k: &Kern<D, N>,
+        mass: f64,
+        mv: &Vector<D>,
+        vol: f64,
+        vs: &Mat<D>,
+        fe: &Vector<D>,
+        m: ScatterMode,
+    ) {
+        // Node-innermost loops over fixed arrays: each is a few vector operations.
+        for n in 0..N {
+            self.mass[n] += mass * k.s[n];
+        }
+        for a in 0..D {
+            for n in 0..N {
+                self.mom[a][n] += mv[a] * k.s[n];
+            }
+        }
+        if m.two_step {
+            for n in 0..N {
+                self.cover[n] += vol * k.s[n];
+            }
+        }
+        if m.forces {
+            for a in 0..D {
+                for n in 0..N {
+                    let mut sg = 0.0;
+                    for b in 0..D {
+                        sg += vs[(a, b)] * k.g[b][n];
+                    }
+                    self.force[a][n] += fe[a] * k.s[n] - k.alpha * sg;
+                }
+            }
+            if m.two_step {
+                let c: [f64; N] = std::array::from_fn(|n| (1.0 - k.alpha) * k.s[n]);
+                for a in 0..D {
+                    for b in 0..D {
+                        for n in 0..N {
+                            self.stress[a][b][n] += c[n] * vs[(a, b)];
+                        }
+                    }
+                }
+            }
         }
     }
 
