@@ -336,6 +336,35 @@ fn restart_reads_only_overlapping_writers() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A checkpoint of format version 3 (`tests/data/checkpoint_v3_crossing.h5`, written
+/// by commit 515929c from the crossing disks at 16 cells, step 54 of 117), whose
+/// records hold the neo-Hookean particles' stress, which version 4 forms from `F`:
+/// restarted on 1 and 2 ranks, it ends like this build's uninterrupted run, bit for bit
+/// on 1 rank and within 1e-12 on 2.
+#[test]
+fn version_3_checkpoint_restarts() {
+    let dir = temp_dir("restart-v3");
+    let sc = dir.join("scene.toml");
+    std::fs::write(&sc, crossing_scene(16, 1.2, "every = 0.6")).unwrap();
+    let full = dir.join("full");
+    ok(1, &["run", s(&sc), "--out", s(&full), "--quiet"]);
+    let v3 = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/checkpoint_v3_crossing.h5");
+    for n in [1, 2] {
+        let out = dir.join(format!("r{n}"));
+        ok(
+            n,
+            &["run", "--restart", s(&v3), "--out", s(&out), "--quiet"],
+        );
+        assert_eq!(summary(&out)["restarted_from"]["step"], 54);
+        if n == 1 {
+            assert_identical(&full, &out, "v3 1→1");
+        } else {
+            assert_close(&full, &out, 1e-12, "v3 1→2");
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Plastic particles restart too: the Taylor bar (J2, 3D), cut short at 20 µs with a
 /// checkpoint at 10 µs. 2→2 ends bit for bit like the uninterrupted run (summary,
 /// history with its plastic_work column, snapshot); 2→1 agrees to 1e-12 in positions
@@ -955,7 +984,7 @@ fn unusable_checkpoints_are_rejected() {
     mpmcg::output::checkpoint::seal(&future).unwrap();
     run(
         &future,
-        "checkpoint format version 99, but this mpmcg reads version 3",
+        "checkpoint format version 99, but this mpmcg reads versions 3 to 4",
     );
     // Particle data changed in the middle of the file: the checksum notices.
     let flipped = put("flipped.h5", &bytes);

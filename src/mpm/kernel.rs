@@ -18,7 +18,7 @@
 //! tile pass keeps, so no loop locates its particles again.
 
 use crate::input::scene::Face;
-use crate::mpm::particles::{split_mut, ParticleSlices};
+use crate::mpm::particles::{self, split_mut, ParticleSlices};
 use crate::physics::benchmark::Benchmark;
 use crate::physics::material::{Internal, Material};
 use crate::physics::shape::{self, Alpha, Geom};
@@ -733,6 +733,11 @@ fn deform<const D: usize>(
         damage: s.parts.damage.get_mut(p),
         stress_zz: s.parts.stress_zz.get_mut(p),
     };
+    if s.parts.stress.is_empty() {
+        // The stress follows from F where it is used; for the materials that do this
+        // (neo-Hookean) it is finite where F is and J > 0.
+        return j > 0.0 && s.parts.vol[p].is_finite() && f.iter().all(|x| x.is_finite());
+    }
     mat.update_stress(&mut s.parts.stress[p], l, &f, dt, internal);
     j > 0.0 && s.parts.vol[p].is_finite() && s.parts.stress[p].iter().all(|x| x.is_finite())
 }
@@ -889,7 +894,10 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
 pub struct ScatterParts<'a, const D: usize> {
     pub x: &'a [Vector<D>],
     pub v: &'a [Vector<D>],
+    /// The stress where particles store it, else empty and formed from `def_grad`.
     pub stress: &'a [Mat<D>],
+    pub def_grad: &'a [Mat<D>],
+    pub mat: &'a [u16],
     pub vol: &'a [f64],
     pub mass: &'a [f64],
     pub x0: &'a [Vector<D>],
@@ -1111,7 +1119,13 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
             parts.v[p] * mass
         };
         let vol = parts.vol[p];
-        let vs = parts.stress[p] * vol;
+        // Formed here, where it is used, if the particles do not store it (no store
+        // and reload of D² numbers per particle and step); only forces use it.
+        let vs = if m.forces {
+            particles::stress_of(parts.stress, parts.def_grad, parts.mat, ctx.materials, p) * vol
+        } else {
+            Mat::<D>::zeros()
+        };
         let fe = if m.forces {
             ctx.accel(parts.x0, p) * mass
         } else {

@@ -59,6 +59,9 @@ carries! {
     plastic,
     damage,
     stress_zz,
+    /// The Cauchy stress, for materials whose stress is state of its own
+    /// ([`Material::stress_is_state`]); the others' follows from `F`.
+    stress,
 }
 
 /// How a field's values are named in a checkpoint's `columns`: `name`, `name[a]`, or
@@ -183,9 +186,23 @@ macro_rules! particle_fields {
             }
 
             /// Apply the permutation `perm` (new position k holds old particle `perm[k]`)
-            /// to every array, using `scratch` so no allocation happens once it has grown.
-            pub fn permute(&mut self, perm: &[usize], scratch: &mut Vec<f64>) {
-                $(permute(&mut self.$name, perm, scratch);)*
+            /// to every array in place; `done` (one bit per particle) is reused, so no
+            /// allocation happens once it has grown.
+            pub fn permute(&mut self, perm: &[u32], done: &mut Vec<u64>) {
+                $(permute(&mut self.$name, perm, done);)*
+            }
+
+            /// Release the capacity beyond the particle count (after seeding or a
+            /// restart: growth by pushes leaves up to twice the state allocated).
+            pub fn fit(&mut self) {
+                $(self.$name.shrink_to_fit();)*
+            }
+
+            /// Room for `n` particles in every array `c` carries ([`reserve`]).
+            pub fn reserve_total(&mut self, n: usize, c: Carries) {
+                $(if carried!(c, $carry) {
+                    reserve(&mut self.$name, n);
+                })*
             }
 
             /// Keep the particles whose `keep` flag is set, in order.
@@ -235,7 +252,8 @@ particle_fields! {
     vol: f64, Scalar, always;
     /// Reference volume.
     vol0: f64, Scalar, always;
-    stress: Mat<D>, Matrix, always;
+    /// Cauchy stress, where it is state (see [`Carries::stress`]).
+    stress: Mat<D>, Matrix, stress;
     /// Material index.
     mat: u16, Scalar("material"), always;
     /// Global id, independent of the rank count.
@@ -257,6 +275,33 @@ particle_fields! {
     stress_zz: f64, Scalar, stress_zz = 0.0;
 }
 
+/// The Cauchy stress of particle `p` from its arrays: `stress` if the particles store
+/// it (not empty), else formed from `F` (the particles' materials then all have a
+/// stress that is not state, [`Carries::stress`]).
+#[inline(always)]
+pub fn stress_of<const D: usize>(
+    stress: &[Mat<D>],
+    def_grad: &[Mat<D>],
+    mat: &[u16],
+    materials: &[Material],
+    p: usize,
+) -> Mat<D> {
+    if stress.is_empty() {
+        materials[mat[p] as usize].stress_of_def_grad(&def_grad[p])
+    } else {
+        stress[p]
+    }
+}
+
+/// Room for `n` elements in `v`: where it must grow, to `n` and a sixteenth, not to
+/// twice its capacity as pushes would (particle state is most of a run's memory), so
+/// arrivals rarely reallocate and never double the arrays.
+pub fn reserve<T>(v: &mut Vec<T>, n: usize) {
+    if v.capacity() < n {
+        v.reserve_exact(n + n / 16 - v.len());
+    }
+}
+
 /// Split a (possibly absent, i.e. empty) array at `mid`.
 pub fn split_mut<T>(s: &mut [T], mid: usize) -> (&mut [T], &mut [T]) {
     if s.is_empty() {
@@ -266,18 +311,34 @@ pub fn split_mut<T>(s: &mut [T], mid: usize) -> (&mut [T], &mut [T]) {
     }
 }
 
-/// Reorder a (possibly absent, i.e. empty) array through `scratch`.
-fn permute<T: Record>(v: &mut [T], perm: &[usize], scratch: &mut Vec<f64>) {
+/// Reorder a (possibly absent, i.e. empty) array in place, cycle by cycle: no copy
+/// of the array (a copy of the widest one, `F` or σ, would be 72 bytes per particle
+/// in 3D, held from the first sort on). `done` marks the positions already written.
+fn permute<T: Copy>(v: &mut [T], perm: &[u32], done: &mut Vec<u64>) {
     if v.is_empty() {
         return;
     }
-    let w = T::WIDTH;
-    scratch.clear();
-    for &p in perm {
-        v[p].put(scratch);
-    }
-    for (k, item) in v.iter_mut().enumerate() {
-        *item = T::get(&scratch[k * w..(k + 1) * w]);
+    done.clear();
+    done.resize(v.len().div_ceil(64), 0);
+    for start in 0..v.len() {
+        if done[start / 64] >> (start % 64) & 1 != 0 {
+            continue;
+        }
+        // Along the cycle through `start`, position k takes the value of position
+        // perm[k], which is read before it is itself written; the cycle closes on
+        // the saved value of `start`.
+        let first = v[start];
+        let mut k = start;
+        loop {
+            done[k / 64] |= 1 << (k % 64);
+            let from = perm[k] as usize;
+            if from == start {
+                v[k] = first;
+                break;
+            }
+            v[k] = v[from];
+            k = from;
+        }
     }
 }
 
@@ -314,6 +375,11 @@ impl Carries {
             plastic: laws().any(|l| matches!(l, Law::J2Plastic { .. })),
             damage: laws().any(|l| matches!(l, Law::Brittle { .. })),
             stress_zz: scene.dim == 2 && laws().any(|l| matches!(l, Law::Brittle { .. })),
+            stress: scene
+                .plan
+                .materials
+                .iter()
+                .any(|m| Material::from_plan(m).stress_is_state()),
         }
     }
 }
@@ -327,10 +393,16 @@ impl<const D: usize> Particles<D> {
         self.x.is_empty()
     }
 
+    /// The Cauchy stress of particle `p`: stored, or formed from its `F`.
+    #[inline]
+    pub fn stress_of(&self, p: usize, materials: &[Material]) -> Mat<D> {
+        stress_of(&self.stress, &self.def_grad, &self.mat, materials, p)
+    }
+
     /// The full 3 × 3 Cauchy stress of particle `p` (for output): in 2D with the
     /// plane-strain σ_zz, in 1D only σ_xx (the lateral stresses are not formed).
     pub fn stress3(&self, p: usize, materials: &[Material]) -> Matrix3<f64> {
-        let s = &self.stress[p];
+        let s = &self.stress_of(p, materials);
         let mut m = Matrix3::from_fn(|i, j| if i < D && j < D { s[(i, j)] } else { 0.0 });
         if D == 2 {
             let f = self
@@ -419,16 +491,18 @@ impl<const D: usize> Particles<D> {
         self.mass.push(mat.density() * vol0);
         self.vol0.push(vol0);
         self.vol.push(vol0 * j);
-        let mut st = Mat::<D>::zeros();
-        if mat.needs_def_grad() {
-            let none = crate::physics::material::Internal {
-                plastic: None,
-                damage: None,
-                stress_zz: None,
-            };
-            mat.update_stress(&mut st, &Mat::<D>::zeros(), &f, 0.0, none);
+        if carries.stress {
+            let mut st = Mat::<D>::zeros();
+            if mat.needs_def_grad() {
+                let none = crate::physics::material::Internal {
+                    plastic: None,
+                    damage: None,
+                    stress_zz: None,
+                };
+                mat.update_stress(&mut st, &Mat::<D>::zeros(), &f, 0.0, none);
+            }
+            self.stress.push(st);
         }
-        self.stress.push(st);
         if carries.def_grad {
             self.def_grad.push(f);
         }
@@ -711,6 +785,28 @@ mod tests {
             q.unpack(&rec, c);
         }
         assert_eq!(format!("{p:?}"), format!("{q:?}"));
+    }
+
+    #[test]
+    fn permute_in_place_is_the_gather_by_perm() {
+        // A shuffled permutation (several cycles, fixed points) applied twice to
+        // reuse the marks: each time position k must hold old value perm[k].
+        let n = 1000;
+        let mut perm: Vec<u32> = (0..n as u32).collect();
+        let mut r = 12345u64;
+        for k in (1..n).rev() {
+            r = r
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            perm.swap(k, (r >> 33) as usize % (k + 1));
+        }
+        let mut v: Vec<u64> = (0..n as u64).map(|k| k * 7 + 3).collect();
+        let mut done = Vec::new();
+        for _ in 0..2 {
+            let want: Vec<u64> = perm.iter().map(|&k| v[k as usize]).collect();
+            permute(&mut v, &perm, &mut done);
+            assert_eq!(v, want);
+        }
     }
 
     #[test]

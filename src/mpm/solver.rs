@@ -7,7 +7,7 @@ use crate::input::scene::{Face, Scene, Update};
 use crate::mpm::kernel::{
     self, AvgRecord, NodeRecord, SlabOrder, VelRecord, FROM_MOMENTUM, UPDATED,
 };
-use crate::mpm::particles::{Carries, Particles};
+use crate::mpm::particles::{self, Carries, Particles};
 use crate::mpm::remap::remap;
 use crate::physics::benchmark::Benchmark;
 use crate::physics::material::Material;
@@ -190,7 +190,9 @@ pub struct Solver<'c, const D: usize> {
     keep: Vec<bool>,
     record: Vec<f64>,
     dx: Vec<Vector<D>>,
-    perm: Vec<usize>,
+    /// The sort's permutation and its in-place application's marks.
+    perm: Vec<u32>,
+    permuted: Vec<u64>,
     scratch: Vec<f64>,
 }
 
@@ -462,8 +464,9 @@ impl<'c, const D: usize> Solver<'c, D> {
         scene: &Scene,
         comm: &'c dyn Communicator,
         layout: Layout<D>,
-        parts: Particles<D>,
+        mut parts: Particles<D>,
     ) -> Self {
+        parts.fit();
         let g = &scene.grid;
         let faces: [[Face; 2]; D] =
             std::array::from_fn(|a| [g.boundary.face(a, false), g.boundary.face(a, true)]);
@@ -532,6 +535,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             record: Vec::new(),
             dx: Vec::new(),
             perm: Vec::new(),
+            permuted: Vec::new(),
             scratch: Vec::new(),
         };
         s.resolve_phases();
@@ -656,6 +660,8 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.tiles.begin();
         self.ptile.clear();
         self.pxi.clear();
+        particles::reserve(&mut self.ptile, self.parts.len());
+        particles::reserve(&mut self.pxi, self.parts.len());
         // The scatter's slab order comes out of the same pass.
         let last = D - 1;
         self.slabs
@@ -726,6 +732,8 @@ impl<'c, const D: usize> Solver<'c, D> {
             x: &self.parts.x,
             v: &self.parts.v,
             stress: &self.parts.stress,
+            def_grad: &self.parts.def_grad,
+            mat: &self.parts.mat,
             vol: &self.parts.vol,
             mass: &self.parts.mass,
             x0: &self.parts.x0,
@@ -1385,6 +1393,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         let parts = &mut self.parts;
         match self.migrator.exchange(self.comm) {
             Ok(recs) => {
+                parts.reserve_total(parts.len() + recs.len(), carries);
                 for r in recs.iter() {
                     parts.unpack(r, carries);
                 }
@@ -1504,6 +1513,8 @@ impl<'c, const D: usize> Solver<'c, D> {
         let recs = mig
             .exchange(self.comm)
             .expect("no rank records a routing error in a relayout");
+        self.parts
+            .reserve_total(self.parts.len() + recs.len(), self.carries);
         for r in recs.iter() {
             self.parts.unpack(r, self.carries);
         }
@@ -1517,6 +1528,8 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.tiles = tiles;
         self.ptile.clear();
         self.pxi.clear();
+        particles::reserve(&mut self.ptile, self.parts.len());
+        particles::reserve(&mut self.pxi, self.parts.len());
         self.size_fields();
         self.rebalances += 1;
         // Arrival order depends on the old owners: sort for the same order as a run
@@ -1527,6 +1540,9 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// Reorder particles by cell (then id, for determinism) for cache locality.
     pub fn sort(&mut self) {
         let n = self.parts.len();
+        // A rank's particles fit in u32 indices, as the node indices do (`ptile`):
+        // 4e9 particles would take over a terabyte.
+        let n = u32::try_from(n).expect("fewer than 2^32 particles per rank");
         self.perm.clear();
         self.perm.extend(0..n);
         let geom = &self.geom;
@@ -1539,9 +1555,9 @@ impl<'c, const D: usize> Solver<'c, D> {
             }
             (k, parts.id[p])
         };
-        self.perm.sort_unstable_by_key(|&p| key(p));
+        self.perm.sort_unstable_by_key(|&p| key(p as usize));
         let perm = std::mem::take(&mut self.perm);
-        self.parts.permute(&perm, &mut self.scratch);
+        self.parts.permute(&perm, &mut self.permuted);
         self.perm = perm;
     }
 
@@ -1560,7 +1576,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                 self.parts.def_grad[p]
             };
             sums[2] += mat.strain_energy(
-                &self.parts.stress[p],
+                &self.parts.stress_of(p, &self.materials),
                 &f,
                 self.parts.be.get(p),
                 self.parts.vol[p],
@@ -1643,7 +1659,8 @@ mod adjoint_tests {
     use crate::physics::gradient::tests::Rng;
     use decomposition::{Layout, SerialComm};
 
-    /// A 4 m × 1 m beam against the `x_lower` face, 3 × 3 particles per cell.
+    /// A 4 m × 1 m beam against the `x_lower` face, 3 × 3 particles per cell; linear
+    /// elastic, a material that stores its stress, so the tests can set any stress.
     fn scene_text(gradient: &str, x_lower: &str) -> String {
         format!(
             r#"
@@ -1660,7 +1677,7 @@ cells = [20, 22]
 boundary = {{ x_lower = "{x_lower}", x_upper = "slip", y_lower = "slip", y_upper = "slip" }}
 [[materials]]
 name = "rubber"
-model = "neo_hookean"
+model = "linear_elastic"
 density = 1050.0
 youngs_modulus = 1.0e6
 poisson_ratio = 0.3
@@ -2016,7 +2033,8 @@ velocity_gradient = {{ value = {grad}, about = {c} }}
                 "{what}: particle {p} velocity"
             );
             assert_eq!(
-                tight.parts.stress[p], huge.parts.stress[p],
+                tight.parts.stress_of(p, &tight.materials),
+                huge.parts.stress_of(p, &huge.materials),
                 "{what}: stress"
             );
         }

@@ -9,15 +9,16 @@
 //! crash during a write leaves the previous checkpoints intact. Then the oldest
 //! checkpoints beyond `keep` of this run's [`Lineage`] are deleted.
 //!
-//! # Format (version 3)
+//! # Format (version 4; version 3 is read too)
 //!
-//! Root attributes: `format` = "mpmcg-checkpoint", `version` = 3, `lineage` (the id
+//! Root attributes: `format` = "mpmcg-checkpoint", `version` = 4, `lineage` (the id
 //! of the run and its restarts; pruning deletes only checkpoints of its own lineage),
 //! `dim`, `step`,
 //! `time`, `dt`, `max_speed` (fastest signal speed over all ranks after the step; the
 //! next step size follows from it), `ranks` and `blocks` (the writer's process grid),
 //! `cells`, `particles` (total), `record_width`, `carries_def_grad`, `carries_x0`,
-//! `carries_half`, `carries_plastic`, `carries_damage`, `carries_stress_zz` (0/1), and
+//! `carries_half`, `carries_plastic`, `carries_damage`, `carries_stress_zz`,
+//! `carries_stress` (0/1; absent in version 3, whose records always hold the stress), and
 //! the run loop's diagnostics: `initial_totals` and
 //! `last_totals` (mass, kinetic, strain, external work, plastic work, momentum[dim]),
 //! `initial_particles`, `last_particles`, `energy_scale`, `max_energy_deviation`,
@@ -54,9 +55,14 @@ use std::path::{Path, PathBuf};
 
 /// The `format` attribute of every checkpoint.
 pub const FORMAT: &str = "mpmcg-checkpoint";
-/// The format version this build writes and reads. 3: the record gained `stress_zz`
-/// (2D brittle particles) and the attribute `carries_stress_zz`.
-pub const VERSION: u64 = 3;
+/// The format version this build writes. 3: the record gained `stress_zz` (2D
+/// brittle particles) and the attribute `carries_stress_zz`. 4: the stress columns
+/// only where the stress is state (`carries_stress`; a neo-Hookean particle's follows
+/// from `F`).
+pub const VERSION: u64 = 4;
+/// The oldest version this build reads: a version 3 record always has the stress
+/// columns, which a scene that does not store the stress drops on reading.
+pub const OLDEST: u64 = 3;
 
 /// Rows read at a time when every rank scans the whole file.
 const CHUNK_ROWS: usize = 1 << 16;
@@ -710,9 +716,9 @@ fn open(path: &Path) -> Result<hdf5::File, String> {
         .attr("version")
         .and_then(|a| a.read_scalar::<u64>())
         .map_err(|e| format!("{p}: damaged checkpoint: attribute `version`: {e}"))?;
-    if version != VERSION {
+    if !(OLDEST..=VERSION).contains(&version) {
         return Err(format!(
-            "{p}: checkpoint format version {version}, but this mpmcg reads version {VERSION}"
+            "{p}: checkpoint format version {version}, but this mpmcg reads versions {OLDEST} to {VERSION}"
         ));
     }
     Ok(file)
@@ -922,10 +928,11 @@ pub fn read<const D: usize>(
         ));
     };
     let writers = Writers::read(&f, path, header)?;
-    let check = RowCheck::new(geom, carries, materials);
+    let stored = rows.carries;
+    let check = RowCheck::new(geom, stored, materials);
     let same = header.layout(layout).as_ref() == Some(layout);
-    let (parts, external_work, rows_read) = if same {
-        let (p, w) = rows.own(&writers, rank, layout, &check, carries)?;
+    let (mut parts, external_work, rows_read) = if same {
+        let (p, w) = rows.own(&writers, rank, layout, &check, stored)?;
         let n = p.len() as u64;
         (p, w, n)
     } else {
@@ -935,8 +942,12 @@ pub fn read<const D: usize>(
             let (wlo, whi) = writer.block_cells(w);
             (0..D).all(|a| wlo[a] < hi[a] && lo[a] < whi[a])
         };
-        rows.all(&writers, rank, layout, &check, carries, overlaps)?
+        rows.all(&writers, rank, layout, &check, stored, overlaps)?
     };
+    if !carries.stress {
+        // A version 3 record's stress of a material whose stress follows from `F`.
+        parts.stress = Vec::new();
+    }
     rows.unique_ids(&parts)?;
     let run = read_run_state::<D>(&f, path, rank, header.step)?;
     let dt = attr_f64(&f, path, "dt")?;
@@ -976,6 +987,8 @@ struct Rows<'a> {
     path: &'a Path,
     /// Values per row.
     width: usize,
+    /// The arrays its records hold (more than the scene's for a version 3 file).
+    carries: Carries,
 }
 
 impl<'a> Rows<'a> {
@@ -1006,13 +1019,22 @@ impl<'a> Rows<'a> {
                 layout.cells
             ));
         }
+        let version = attr_u64(f, path, "version")?;
         let flags = Carries::NAMES
             .iter()
-            .map(|name| Ok(attr_u64(f, path, &format!("carries_{name}"))? != 0))
+            .map(|&name| match name {
+                "stress" if version == 3 => Ok(true),
+                _ => Ok(attr_u64(f, path, &format!("carries_{name}"))? != 0),
+            })
             .collect::<Result<Vec<bool>, String>>()?;
         let stored = Carries::from_flags(&flags);
-        let width = Particles::<D>::record_width(carries);
-        if stored != carries || attr_u64(f, path, "record_width")? != width as u64 {
+        let width = Particles::<D>::record_width(stored);
+        // The stored stress of a version 3 file is read and then dropped (`read`).
+        let needed = Carries {
+            stress: carries.stress || version == 3,
+            ..carries
+        };
+        if stored != needed || attr_u64(f, path, "record_width")? != width as u64 {
             return Err(format!(
                 "{p}: damaged checkpoint: its particle arrays ({stored:?}) are not those the stored scene needs ({carries:?})"
             ));
@@ -1038,7 +1060,12 @@ impl<'a> Rows<'a> {
                 ds.shape()
             ));
         }
-        Ok(Self { ds, path, width })
+        Ok(Self {
+            ds,
+            path,
+            width,
+            carries: stored,
+        })
     }
 
     /// Rows `r0..r1`, back to back.
@@ -1427,7 +1454,8 @@ mod tests {
     }
 
     /// The record layout of format 3, as written before the fields were declared in one
-    /// place: a reordered declaration would make old checkpoints unreadable.
+    /// place: a reordered declaration would make old checkpoints unreadable. Format 4
+    /// is the same with the stress columns only where `carries.stress`.
     #[test]
     fn columns_keep_the_format_3_layout() {
         assert_eq!(
@@ -1438,12 +1466,24 @@ mod tests {
              be[1][1] be[2][1] be[0][2] be[1][2] be[2][2] eps_p damage stress_zz"
         );
         assert_eq!(
-            columns::<1>(all(0b10)),
+            columns::<1>(all(0b100_0010)),
             "x[0] v[0] mass vol vol0 stress[0][0] material id x0[0]"
         );
         assert_eq!(
+            columns::<1>(all(0b10)),
+            "x[0] v[0] mass vol vol0 material id x0[0]"
+        );
+        assert_eq!(
             Carries::NAMES,
-            ["def_grad", "x0", "half", "plastic", "damage", "stress_zz"]
+            [
+                "def_grad",
+                "x0",
+                "half",
+                "plastic",
+                "damage",
+                "stress_zz",
+                "stress"
+            ]
         );
     }
 

@@ -92,6 +92,23 @@ impl Material {
         matches!(self, Material::NeoHookean(_))
     }
 
+    /// Whether the Cauchy stress is state of its own (rate or history forms), which
+    /// particles must then store; else it follows from the deformation gradient
+    /// ([`Material::stress_of_def_grad`]) and is formed where it is used.
+    pub fn stress_is_state(&self) -> bool {
+        !matches!(self, Material::NeoHookean(_))
+    }
+
+    /// The Cauchy stress of a material whose stress is not state, from `f`: the same
+    /// function, hence the same numbers, as the one [`Material::update_stress`] applies.
+    #[inline]
+    pub fn stress_of_def_grad<const D: usize>(&self, f: &Mat<D>) -> Mat<D> {
+        match self {
+            Material::NeoHookean(m) => m.stress(f),
+            _ => unreachable!("the particles of stateful-stress materials store σ"),
+        }
+    }
+
     /// New Cauchy stress after a step with velocity gradient `l`, given the updated
     /// deformation gradient `f` (meaningful only if [`Material::needs_def_grad`]) and
     /// the particle's internal variables (present if the model has them).
