@@ -1575,8 +1575,11 @@ impl<'c, const D: usize> Solver<'c, D> {
             } else {
                 self.parts.def_grad[p]
             };
+            // The energy of a material whose stress is not stored is a function of
+            // `F` alone: no need to form its stress.
+            let stress = self.parts.stress.get(p).copied().unwrap_or_else(Mat::<D>::zeros);
             sums[2] += mat.strain_energy(
-                &self.parts.stress_of(p, &self.materials),
+                &stress,
                 &f,
                 self.parts.be.get(p),
                 self.parts.vol[p],
