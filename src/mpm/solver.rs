@@ -1577,7 +1577,12 @@ impl<'c, const D: usize> Solver<'c, D> {
             };
             // The energy of a material whose stress is not stored is a function of
             // `F` alone: no need to form its stress.
-            let stress = self.parts.stress.get(p).copied().unwrap_or_else(Mat::<D>::zeros);
+            let stress = self
+                .parts
+                .stress
+                .get(p)
+                .copied()
+                .unwrap_or_else(Mat::<D>::zeros);
             sums[2] += mat.strain_energy(
                 &stress,
                 &f,
