@@ -793,12 +793,9 @@ mod tests {
         // reuse the marks: each time position k must hold old value perm[k].
         let n = 1000;
         let mut perm: Vec<u32> = (0..n as u32).collect();
-        let mut r = 12345u64;
+        let mut rng = decomposition::splitmix::Rng::new(12345);
         for k in (1..n).rev() {
-            r = r
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            perm.swap(k, (r >> 33) as usize % (k + 1));
+            perm.swap(k, rng.below(k + 1));
         }
         let mut v: Vec<u64> = (0..n as u64).map(|k| k * 7 + 3).collect();
         let mut done = Vec::new();
