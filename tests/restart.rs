@@ -339,8 +339,10 @@ fn restart_reads_only_overlapping_writers() {
 /// A checkpoint of format version 3 (`tests/data/checkpoint_v3_crossing.h5`, written
 /// by commit 515929c from the crossing disks at 16 cells, step 54 of 117), whose
 /// records hold the neo-Hookean particles' stress, which version 4 forms from `F`:
-/// restarted on 1 and 2 ranks, it ends like this build's uninterrupted run, bit for bit
-/// on 1 rank and within 1e-12 on 2.
+/// restarted on 1 and 2 ranks, it ends like this build's uninterrupted run within
+/// 1e-12. (Not bit for bit: its first 54 steps were taken by a build whose scatter
+/// added into the nodes in another order, thinner slabs since, which moves the state
+/// by round-off; a column read wrongly would move it by far more.)
 #[test]
 fn version_3_checkpoint_restarts() {
     let dir = temp_dir("restart-v3");
@@ -356,11 +358,7 @@ fn version_3_checkpoint_restarts() {
             &["run", "--restart", s(&v3), "--out", s(&out), "--quiet"],
         );
         assert_eq!(summary(&out)["restarted_from"]["step"], 54);
-        if n == 1 {
-            assert_identical(&full, &out, "v3 1→1");
-        } else {
-            assert_close(&full, &out, 1e-12, "v3 1→2");
-        }
+        assert_close(&full, &out, 1e-12, &format!("v3 1→{n}"));
     }
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -2,9 +2,9 @@
 //! grid→particle gather and the stress update, monomorphised over the number of nodes
 //! a particle touches (`NA` per axis, `N = NA^D` in all) and run on rayon threads.
 //!
-//! Determinism: the scatter visits particles slab by slab (slabs of [`SLAB`] cells
-//! along the last axis, in two colours so that same-coloured slabs never share a node)
-//! and each slab in a fixed order, so every node receives its contributions in the
+//! Determinism: the scatter visits particles slab by slab (slabs of
+//! [`slab_thickness`] cells along the last axis, in two colours so that same-coloured
+//! slabs never share a node) and each slab in a fixed order, so every node receives its contributions in the
 //! same order whatever the thread count (summed first per run of particles that share
 //! their nodes, `Run`, then added into the node records run by run). Particle-local
 //! work splits the particle range by halving down to [`GRAIN`], independent of the
@@ -25,10 +25,19 @@ use crate::physics::shape::{self, Alpha, Geom};
 use crate::physics::tensor::{det, Mat, Vector};
 use decomposition::tiles::{Tiles, NEIGHBOURS, TILE, TILE_LOG};
 
-/// Slab thickness in cells for the coloured scatter: a GIMP particle writes one node row
-/// beyond its cell on each side, so same-coloured slabs 2·SLAB apart stay disjoint
-/// for SLAB >= 3.
-pub const SLAB: usize = 4;
+/// Slab thickness in cells for the coloured scatter (see [`scatter`] for why
+/// same-coloured slabs never share a node): a particle with hat functions writes the
+/// node rows of its cell's two faces, so one cell will do; a GIMP particle writes one
+/// row beyond them on each side, which needs three. Thin slabs are many, so that two
+/// threads get equal shares of a colour (a 3D block 39 cells tall was 5 slabs of 4 per
+/// colour: 3 for one thread, 2 for the other).
+pub fn slab_thickness(gimp: bool) -> usize {
+    if gimp {
+        3
+    } else {
+        1
+    }
+}
 /// Particles per task below which the particle loops stop splitting.
 const GRAIN: usize = 4096;
 
@@ -911,36 +920,19 @@ pub struct ScatterParts<'a, const D: usize> {
     pub src: &'a [f64],
 }
 
-/// The particle order of the coloured scatter: particle indices grouped by slab.
-#[derive(Default, Debug)]
-pub struct SlabOrder {
-    /// `start[s]..start[s + 1]` indexes `order` for slab `s`.
-    pub start: Vec<usize>,
-    pub order: Vec<u32>,
-    slab_of: Vec<u32>,
-    /// Owned cells along the last axis, `[lo, hi)`.
+/// A particle's slab from its cell along the last axis ([`SlabOrder::slabs_mut`]).
+#[derive(Clone, Copy, Debug)]
+pub struct SlabIndex {
     lo: usize,
     hi: usize,
+    thick: usize,
 }
 
-impl SlabOrder {
-    /// Start grouping particles by slab along the last axis of the owned cells
-    /// `[cell_lo, cell_hi)`: then [`SlabOrder::push`] each particle's cell along that
-    /// axis in array order, and [`SlabOrder::finish`]. Stable: within a slab, particles
-    /// keep their array order.
-    pub fn begin(&mut self, cell_lo: usize, cell_hi: usize) {
-        let nslab = (cell_hi - cell_lo).div_ceil(SLAB).max(1);
-        self.lo = cell_lo;
-        self.hi = cell_hi;
-        self.start.clear();
-        self.start.resize(nslab + 1, 0);
-        self.slab_of.clear();
-    }
-
-    /// The next particle, in cell `c` along the last axis (as `Geom::locate` gives it,
-    /// so that the kern's nodes agree with the slab).
+impl SlabIndex {
+    /// The slab of a particle in cell `c` along the last axis (as `Geom::locate`
+    /// gives it, so that the kern's nodes agree with the slab).
     #[inline]
-    pub fn push(&mut self, c: i64) {
+    pub fn slab(self, c: i64) -> u32 {
         // The scatter's threads rely on this (see `scatter`): a particle outside its
         // block would write outside its slab's rows.
         assert!(
@@ -949,35 +941,199 @@ impl SlabOrder {
             self.lo,
             self.hi
         );
-        let s = (c as usize - self.lo) / SLAB;
-        self.slab_of.push(s as u32);
-        self.start[s + 1] += 1;
+        ((c as usize - self.lo) / self.thick) as u32
+    }
+}
+
+/// The particle order of the coloured scatter: particle indices grouped by slab.
+#[derive(Default, Debug)]
+pub struct SlabOrder {
+    /// `start[s]..start[s + 1]` indexes `order` for slab `s`.
+    pub start: Vec<usize>,
+    pub order: Vec<u32>,
+    slab_of: Vec<u32>,
+    /// Per chunk of [`SlabOrder::CHUNK`] particles, its particles per slab (chunk-major),
+    /// then where its first particle of each slab goes in `order`.
+    counts: Vec<usize>,
+    /// `below[s]`: the particles of the slabs `s − 2, s − 4, …` (same colour, below).
+    below: Vec<usize>,
+    /// Owned cells along the last axis, `[lo, hi)`, in slabs of `thick` cells.
+    lo: usize,
+    hi: usize,
+    thick: usize,
+}
+
+/// Where the chunks of a parallel counting sort write `order`.
+#[derive(Clone, Copy)]
+struct OrderPtr(*mut u32);
+
+// SAFETY: made in `SlabOrder::finish` from `&mut self.order`, held for its whole use.
+// Chunk `c` writes `order[counts[c][s] ..]` for each of its particles in slab `s`, as
+// many as it counted there; the offsets are an exclusive prefix sum over (slab, chunk)
+// of those counts, so the ranges of different (chunk, slab) pairs are disjoint and lie
+// within `order` (whose length is their total, the particle count). No two threads
+// write one element and no element is read while they run.
+unsafe impl Send for OrderPtr {}
+unsafe impl Sync for OrderPtr {}
+
+impl OrderPtr {
+    /// Write `order[k] = p`. Safety: `k` lies in `order` and no other thread reads or
+    /// writes `order[k]` (see the type's safety note).
+    #[inline(always)]
+    unsafe fn write(self, k: usize, p: u32) {
+        // SAFETY: the caller's contract.
+        unsafe { *self.0.add(k) = p };
+    }
+}
+
+impl SlabOrder {
+    /// Particles per chunk of the parallel passes that fill the order (fixed, so the
+    /// order does not depend on the thread count).
+    pub const CHUNK: usize = 4096;
+
+    /// Start grouping `n` particles by slab (of `thick` cells, [`slab_thickness`]) along
+    /// the last axis of the owned cells `[cell_lo, cell_hi)`: then set each particle's slab in [`SlabOrder::slabs_mut`]
+    /// ([`SlabIndex::slab`] of its cell along that axis), in parallel if wished, and
+    /// [`SlabOrder::finish`]. Stable: within a slab, particles keep their array order.
+    pub fn begin(&mut self, cell_lo: usize, cell_hi: usize, thick: usize, n: usize) {
+        let nslab = (cell_hi - cell_lo).div_ceil(thick).max(1);
+        self.lo = cell_lo;
+        self.hi = cell_hi;
+        self.thick = thick;
+        self.start.clear();
+        self.start.resize(nslab + 1, 0);
+        // Every entry is set before `finish`: only new ones need a value.
+        self.slab_of.resize(n, 0);
     }
 
-    /// Order the pushed particles by slab.
+    /// How to find a particle's slab, and every particle's slab, to be set between
+    /// [`SlabOrder::begin`] and [`SlabOrder::finish`].
+    pub fn slabs_mut(&mut self) -> (SlabIndex, &mut [u32]) {
+        (
+            SlabIndex {
+                lo: self.lo,
+                hi: self.hi,
+                thick: self.thick,
+            },
+            &mut self.slab_of,
+        )
+    }
+
+    /// Order the particles by slab: a counting sort, its counting and placing in
+    /// parallel over chunks of particles where the per-chunk counts are few (a slab
+    /// count per chunk, no more numbers than particles), else serially (many slabs,
+    /// as in a huge box, with few particles). The order is the same either way.
     pub fn finish(&mut self) {
         let nslab = self.start.len() - 1;
+        let n = self.slab_of.len();
+        let nchunk = n.div_ceil(Self::CHUNK);
+        if nchunk * nslab <= n {
+            self.count_in_chunks(nchunk);
+        } else {
+            self.start.fill(0);
+            for &s in &self.slab_of {
+                self.start[s as usize + 1] += 1;
+            }
+            for s in 0..nslab {
+                self.start[s + 1] += self.start[s];
+            }
+            self.order.resize(n, 0);
+            let mut at = self.start.clone();
+            for (p, &s) in self.slab_of.iter().enumerate() {
+                self.order[at[s as usize]] = p as u32;
+                at[s as usize] += 1;
+            }
+        }
+        // Per colour, the particles of the slabs below each slab ([`SlabOrder::split`]).
+        self.below.clear();
+        self.below.resize(nslab + 2, 0);
         for s in 0..nslab {
-            self.start[s + 1] += self.start[s];
+            self.below[s + 2] = self.below[s] + self.start[s + 1] - self.start[s];
         }
-        self.order.clear();
+    }
+
+    /// [`SlabOrder::finish`]'s parallel counting sort.
+    fn count_in_chunks(&mut self, nchunk: usize) {
+        use rayon::prelude::*;
+        let nslab = self.start.len() - 1;
+        self.counts.clear();
+        self.counts.resize(nchunk * nslab, 0);
+        self.slab_of
+            .par_chunks(Self::CHUNK)
+            .zip(self.counts.par_chunks_mut(nslab))
+            .for_each(|(slab, count)| {
+                for &s in slab {
+                    count[s as usize] += 1;
+                }
+            });
+        // Offsets: slab by slab, chunk by chunk within a slab (so within a slab the
+        // particles keep their array order).
+        let mut at = 0;
+        for s in 0..nslab {
+            self.start[s] = at;
+            for c in 0..nchunk {
+                let k = &mut self.counts[c * nslab + s];
+                let count = *k;
+                *k = at;
+                at += count;
+            }
+        }
+        self.start[nslab] = at;
+        // Every entry is written below.
         self.order.resize(self.slab_of.len(), 0);
-        // Reuse the tail of `start` as insertion cursors, then restore.
-        let mut cursor = std::mem::take(&mut self.start);
-        for (p, &s) in self.slab_of.iter().enumerate() {
-            self.order[cursor[s as usize]] = p as u32;
-            cursor[s as usize] += 1;
-        }
-        // cursor[s] now equals the old start[s + 1]; shift back.
-        for s in (1..=nslab).rev() {
-            cursor[s] = cursor[s - 1];
-        }
-        cursor[0] = 0;
-        self.start = cursor;
+        let out = OrderPtr(self.order.as_mut_ptr());
+        self.slab_of
+            .par_chunks(Self::CHUNK)
+            .zip(self.counts.par_chunks_mut(nslab))
+            .enumerate()
+            .for_each(|(c, (slab, cursor))| {
+                for (i, &s) in slab.iter().enumerate() {
+                    let k = &mut cursor[s as usize];
+                    // SAFETY: see `OrderPtr`: `*k` stays within this chunk's range for
+                    // slab `s`, which lies in `order` and no other thread writes.
+                    unsafe { out.write(*k, (c * Self::CHUNK + i) as u32) };
+                    *k += 1;
+                }
+            });
     }
 
     pub fn slabs(&self) -> usize {
         self.start.len() - 1
+    }
+
+    /// How the same-coloured slabs `first, first + 2, …` (`count` of them, at least 2)
+    /// split between two tasks: `None` if they hold no particle, else how many go to
+    /// the first task, at least one each, so that its particles come nearest to half
+    /// of theirs; of two such splits, the one nearer the middle slab. Depends on the
+    /// particles, not the threads. The recursion of the coloured loops thus halves
+    /// the particles, or the slabs where a slab holds no particle, or ends at a slab
+    /// that holds more than the rest: it is O(log) deep (a huge box has many empty
+    /// slabs: always splitting off one slab recursed once per slab, and overflowed
+    /// the stack).
+    pub fn split(&self, first: usize, count: usize) -> Option<usize> {
+        // The particles of the first h slabs.
+        let share = |h: usize| self.below[first + 2 * h] - self.below[first];
+        let total = share(count);
+        if total == 0 {
+            return None;
+        }
+        // The first h in 1..count whose share reaches half, by bisection (the shares
+        // grow with h); the best split is it or the one before.
+        let (mut lo, mut hi) = (1, count - 1);
+        while lo < hi {
+            let mid = (lo + hi) / 2;
+            if 2 * share(mid) >= total {
+                hi = mid;
+            } else {
+                lo = mid + 1;
+            }
+        }
+        let key = |h: usize| ((2 * share(h)).abs_diff(total), (2 * h).abs_diff(count));
+        Some(if lo > 1 && key(lo - 1) < key(lo) {
+            lo - 1
+        } else {
+            lo
+        })
     }
 }
 
@@ -1038,11 +1194,13 @@ unsafe impl Sync for GridPtr {}
 /// colours so that no two threads write the same node.
 ///
 /// Why threads never write the same record: slab `s` holds the particles whose cell
-/// lies in cells `[lo + s·SLAB, lo + (s+1)·SLAB)` of the block along the last axis
-/// (`SlabOrder::push` asserts it), and a particle in cell `c` writes nodes `c − 1 ..=
-/// c + 2` along that axis at most (GIMP), so slab `s` writes node rows `lo + s·SLAB − 1
-/// ..= lo + (s+1)·SLAB + 1` and slab `s + 2` starts at row `lo + (s+2)·SLAB − 1`:
-/// disjoint for SLAB >= 3. Same-coloured slabs thus write disjoint node sets, and the
+/// lies in cells `[lo + s·T, lo + (s+1)·T)` of the block along the last axis (`T` the
+/// [`slab_thickness`]; `SlabIndex::slab` asserts it). A particle in cell `c` writes
+/// nodes `c ..= c + 1` along that axis with hat functions, so slab `s` writes node rows
+/// `lo + s·T ..= lo + (s+1)·T` and slab `s + 2` starts at row `lo + (s+2)·T`: disjoint
+/// for T >= 1. A GIMP particle writes `c − 1 ..= c + 2`, so slab `s` writes up to row
+/// `lo + (s+1)·T + 1` and slab `s + 2` from row `lo + (s+2)·T − 1`: disjoint for
+/// T >= 3. Same-coloured slabs thus write disjoint node sets, and the
 /// storage map of [`Tiles`] is injective (a node has one tile, a tile one slot), so
 /// they write disjoint records. The two colours run one after the other.
 pub fn scatter<const D: usize, const NA: usize, const N: usize>(
@@ -1075,7 +1233,9 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
 ) {
     if count > 1 {
         // Same-coloured slabs `first, first + 2, ...`: split them in two runs.
-        let half = count / 2;
+        let Some(half) = slabs.split(first, count) else {
+            return;
+        };
         rayon::join(
             || scatter_slabs::<D, NA, N>(ctx, parts, slabs, grid, first, half, m),
             || {
@@ -1250,5 +1410,136 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
             }
         }
         *self = Self::new();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use decomposition::splitmix::Rng;
+
+    /// The slab order of `cells` (along the last axis, in `[lo, hi)`) on `threads`
+    /// threads, reusing `o` as the solver does.
+    fn order(
+        o: &mut SlabOrder,
+        (lo, hi, thick): (usize, usize, usize),
+        cells: &[i64],
+        threads: usize,
+    ) -> SlabIndex {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("a thread pool");
+        pool.install(|| {
+            o.begin(lo, hi, thick, cells.len());
+            let (ix, slab) = o.slabs_mut();
+            for (s, &c) in slab.iter_mut().zip(cells) {
+                *s = ix.slab(c);
+            }
+            o.finish();
+            ix
+        })
+    }
+
+    /// The parallel counting sort is the stable sort by slab: every particle once,
+    /// slabs in order, array order within a slab, across the chunks it counts in, on
+    /// any number of threads, and when reused for fewer particles.
+    #[test]
+    fn slab_order_is_the_stable_sort_by_slab() {
+        let (lo, hi) = (3usize, 40usize);
+        let mut rng = Rng::new(7);
+        let mut o = SlabOrder::default();
+        // Counted in parallel (many particles per slab), serially (fewer particles
+        // than slabs), none.
+        let sizes = [3 * SlabOrder::CHUNK + 123, SlabOrder::CHUNK / 3, 20, 0];
+        for (n, thick) in sizes.into_iter().zip([1, 3, 1, 1]) {
+            // Runs of one cell, as sorted particles give, and scattered cells.
+            let cells: Vec<i64> = (0..n)
+                .map(|p| {
+                    lo + if p % 3 == 0 {
+                        rng.below(hi - lo)
+                    } else {
+                        (p / 500) % (hi - lo)
+                    }
+                })
+                .map(|c| c as i64)
+                .collect();
+            let slab = |p: u32| (cells[p as usize] as usize - lo) / thick;
+            let mut expect: Vec<u32> = (0..n as u32).collect();
+            expect.sort_by_key(|&p| slab(p));
+            for threads in [1, 2, 3] {
+                let ix = order(&mut o, (lo, hi, thick), &cells, threads);
+                assert_eq!(o.order, expect, "{n} particles, {threads} threads");
+                assert_eq!(o.slabs(), (hi - lo).div_ceil(thick));
+                for s in 0..o.slabs() {
+                    for &p in &o.order[o.start[s]..o.start[s + 1]] {
+                        assert_eq!(ix.slab(cells[p as usize]) as usize, s);
+                    }
+                }
+                assert_eq!(o.start[o.slabs()], n);
+            }
+        }
+    }
+
+    /// A slab order of one-cell slabs holding `sizes[s]` particles each.
+    fn with_sizes(sizes: &[usize]) -> SlabOrder {
+        let cells: Vec<i64> = (0..sizes.len())
+            .flat_map(|s| std::iter::repeat_n(s as i64, sizes[s]))
+            .collect();
+        let mut o = SlabOrder::default();
+        order(&mut o, (0, sizes.len(), 1), &cells, 1);
+        o
+    }
+
+    /// How deep the coloured loops recurse over `count` slabs from `first`.
+    fn depth(o: &SlabOrder, first: usize, count: usize) -> usize {
+        match (count > 1).then(|| o.split(first, count)).flatten() {
+            None => 1,
+            Some(h) => 1 + depth(o, first, h).max(depth(o, first + 2 * h, count - h)),
+        }
+    }
+
+    /// The split of a colour's slabs between two tasks leaves each at least one slab
+    /// and gives the first the share nearest to half that any split could; the
+    /// recursion stays logarithmic, with empty slabs (a huge box) too.
+    #[test]
+    fn slab_split_is_the_most_even_and_shallow() {
+        let mut rng = Rng::new(11);
+        for round in 0..300 {
+            let ns = 2 + rng.below(if round < 200 { 30 } else { 3000 });
+            // Slab sizes, many empty, some few, most many (a body's edge, its bulk).
+            let sizes: Vec<usize> = (0..ns)
+                .map(|_| match rng.below(if round % 2 == 0 { 4 } else { 40 }) {
+                    0 => 100 + rng.below(1000),
+                    1 => rng.below(10),
+                    2 => 100 + rng.below(1000),
+                    _ => 0,
+                })
+                .collect();
+            let o = with_sizes(&sizes);
+            for first in 0..2.min(ns) {
+                let count = (ns - first).div_ceil(2);
+                if count < 2 {
+                    continue;
+                }
+                let share = |h: usize| (0..h).map(|k| sizes[first + 2 * k]).sum::<usize>();
+                let total = share(count);
+                let Some(h) = o.split(first, count) else {
+                    assert_eq!(total, 0);
+                    continue;
+                };
+                assert!((1..count).contains(&h));
+                let best = (1..count).map(|h| (2 * share(h)).abs_diff(total)).min();
+                assert_eq!(Some((2 * share(h)).abs_diff(total)), best, "{sizes:?}");
+                let log = |x: usize| x.max(1).ilog2() as usize + 1;
+                let d = depth(&o, first, count);
+                assert!(d <= log(total) + log(count) + 2, "depth {d}: {sizes:?}");
+            }
+        }
+        // One full slab in a huge box's 65536.
+        let mut sizes = vec![0; 65536];
+        sizes[40000] = 500;
+        let o = with_sizes(&sizes);
+        assert!(depth(&o, 0, 32768) <= 18, "{}", depth(&o, 0, 32768));
     }
 }

@@ -49,7 +49,7 @@ struct ParticlePtr<const D: usize> {
 
 // SAFETY: made in `remap` from `&mut` slices that it holds for its whole run. Each
 // particle index is visited by one thread only: `SlabOrder::finish` puts every particle
-// into `order` exactly once (a counting sort of the pushed particles), slabs are
+// into `order` exactly once (a counting sort of their slabs), slabs are
 // disjoint ranges of `order`, and `remap_slabs` gives every slab to one thread.
 unsafe impl<const D: usize> Send for ParticlePtr<D> {}
 unsafe impl<const D: usize> Sync for ParticlePtr<D> {}
@@ -118,8 +118,14 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
     count: usize,
     m: RemapMode,
 ) -> RemapTally {
+    let mut t = RemapTally {
+        ok: true,
+        work: 0.0,
+    };
     if count > 1 {
-        let half = count / 2;
+        let Some(half) = slabs.split(first, count) else {
+            return t;
+        };
         let (a, b) = rayon::join(
             || remap_slabs::<D, NA, N>(ctx, parts, pp, slabs, vel, grid, first, half, m),
             || {
@@ -129,10 +135,6 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
         );
         return RemapTally::join(a, b);
     }
-    let mut t = RemapTally {
-        ok: true,
-        work: 0.0,
-    };
     // Particles sorted by cell share their nodes in runs: the nodes' velocities are
     // read, and their momentum sums added into the grid, once per run.
     let mut nd = NodeData::<D, N>::new();

@@ -15,6 +15,7 @@ use crate::physics::shape::{Alpha, Geom, GradientScheme};
 use crate::physics::tensor::{vector, Mat, Vector};
 use decomposition::tiles::NEIGHBOURS;
 use decomposition::{Block, Communicator, Layout, Migrator, Tiles, Traffic};
+use rayon::prelude::*;
 
 /// The read-only context of the particle loops, borrowed field by field from a solver.
 macro_rules! ctx {
@@ -188,12 +189,18 @@ pub struct Solver<'c, const D: usize> {
     migrator: Migrator<D>,
     carries: Carries,
     keep: Vec<bool>,
+    /// Per chunk of [`LOCATE_CHUNK`] particles, whether one left the grid or its block
+    /// ([`Solver::wrap_and_flag`]).
+    flagged: Vec<bool>,
     record: Vec<f64>,
     dx: Vec<Vector<D>>,
     /// The sort's permutation and its in-place application's marks.
     perm: Vec<u32>,
     permuted: Vec<u64>,
     scratch: Vec<f64>,
+    /// The tile pass's runs of particles in one cell, per chunk of [`LOCATE_CHUNK`]
+    /// particles: the run's first particle and its cell's lower corner node.
+    cell_runs: Vec<Vec<(u32, u32)>>,
 }
 
 /// One phase of a time step. A step is one of the lists in [`Update::phases`], without
@@ -265,7 +272,6 @@ impl<const D: usize> NodeView<'_, D> {
         width: usize,
         f: impl Fn(usize, [usize; D], &mut [f64], &mut [usize; NEIGHBOURS]) + Sync,
     ) {
-        use rayon::prelude::*;
         let tn = self.tiles.tile_nodes();
         let len = self.tiles.slots() * tn * width;
         let tile = |nb: &mut [usize; NEIGHBOURS], (slot, recs): (usize, &mut [f64])| {
@@ -413,6 +419,42 @@ impl Update {
 
 const SORT_EVERY: u64 = 20;
 
+/// Whether coordinate `x` along axis `a` lies on the grid: always on a periodic axis
+/// (positions are wrapped), within the faces on a bounded one (never if NaN).
+#[inline]
+fn on_grid<const D: usize>(geom: &Geom<D>, a: usize, x: f64) -> bool {
+    geom.periodic[a] || (x >= geom.lower[a] && x <= geom.upper[a])
+}
+
+/// Whether position `x` lies in the cells `[lo, hi)` of a block, by a test that needs
+/// no cell lookup: `s` in `[lo, hi)` is `Geom::locate`'s cell in the block (its floor
+/// of the same `s`, which the clamp at bounded faces leaves in the block). Most
+/// particles stay in their block; the others are looked up.
+#[inline]
+fn in_block<const D: usize>(
+    geom: &Geom<D>,
+    lo: &[usize; D],
+    hi: &[usize; D],
+    x: &Vector<D>,
+) -> bool {
+    (0..D).all(|a| {
+        let s = (x[a] - geom.lower[a]) * geom.inv_h[a];
+        s >= lo[a] as f64 && s < hi[a] as f64
+    })
+}
+
+/// Numbers (or node records) per task of the parallel fills of grid fields.
+const ZERO_CHUNK: usize = 1 << 14;
+
+/// Set a grid field to zero, in parallel.
+fn zero(v: &mut [f64]) {
+    v.par_chunks_mut(ZERO_CHUNK).for_each(|c| c.fill(0.0));
+}
+
+/// Particles per chunk of the tile pass's parallel locate (fixed, so that its runs do
+/// not depend on the thread count).
+const LOCATE_CHUNK: usize = 4096;
+
 /// The smallest CFL step as a share of the time left: below it the run would need more
 /// than 1e12 steps, which no real scene asks for; the signal speed has blown up.
 const MIN_STEP_SHARE: f64 = 1e-12;
@@ -535,6 +577,8 @@ impl<'c, const D: usize> Solver<'c, D> {
             record: Vec::new(),
             dx: Vec::new(),
             perm: Vec::new(),
+            cell_runs: Vec::new(),
+            flagged: Vec::new(),
             permuted: Vec::new(),
             scratch: Vec::new(),
         };
@@ -652,41 +696,10 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// the cell and two above), give each particle its cell's node in the storage,
     /// and group the particles by slab for the scatter.
     fn activate_tiles(&mut self) {
-        let (below, above) = if self.scheme.gimp { (1, 2) } else { (0, 1) };
-        let node_lo = self.block.node_lo;
-        // One pass touches the tiles and looks the cells' nodes up in the current set;
-        // only if the set changed does a second pass look them up again. Particles
-        // sorted by cell repeat their cell, which skips most of the work.
         self.tiles.begin();
-        self.ptile.clear();
-        self.pxi.clear();
-        particles::reserve(&mut self.ptile, self.parts.len());
-        particles::reserve(&mut self.pxi, self.parts.len());
-        // The scatter's slab order comes out of the same pass.
-        let last = D - 1;
-        self.slabs
-            .begin(self.block.cell_lo[last], self.block.cell_hi[last]);
-        let mut prev: Option<[i64; D]> = None;
-        let mut node = 0u32;
-        let mut tile = (u64::MAX, 0u32);
-        for x in &self.parts.x {
-            let (c, xi) = self.geom.locate(&std::array::from_fn(|a| x[a]));
-            self.pxi.push(xi);
-            self.slabs.push(c[last]);
-            if prev != Some(c) {
-                prev = Some(c);
-                let l: [i64; D] = std::array::from_fn(|a| c[a] - node_lo[a]);
-                self.tiles.touch(l.map(|v| v - below), l.map(|v| v + above));
-                let l = l.map(|v| v as usize);
-                let k = self.tiles.key_of(l);
-                if k != tile.0 {
-                    tile = (k, self.tiles.slot_of_key(k));
-                }
-                // A slot of 0 (a new tile) is fixed by the second pass below.
-                node = self.tiles.index_in(tile.1, l) as u32;
-            }
-            self.ptile.push(node);
-        }
+        self.locate_all();
+        // The tiles of the runs' cells, in particle order.
+        self.run_nodes(true);
         self.slabs.finish();
         // The halo nodes any rank's particles come near, stored on every rank that
         // holds them (a neighbour's particles may need nodes this rank's do not).
@@ -694,17 +707,101 @@ impl<'c, const D: usize> Solver<'c, D> {
         let changed = self.tiles.finish();
         self.block.map_active_halo(&self.tiles);
         if changed {
+            // New tiles have new slots: look the runs' nodes up again.
             self.size_fields();
-            let mut prev: Option<[i64; D]> = None;
-            for (x, t) in self.parts.x.iter().zip(self.ptile.iter_mut()) {
-                let (c, _) = self.geom.locate(&std::array::from_fn(|a| x[a]));
-                if prev != Some(c) {
-                    prev = Some(c);
-                    let l = std::array::from_fn(|a| (c[a] - node_lo[a]) as usize);
-                    node = self.tiles.index(l).expect("touched") as u32;
+            self.run_nodes(false);
+        }
+        // Every particle gets its run's node.
+        self.ptile
+            .par_chunks_mut(LOCATE_CHUNK)
+            .zip(self.cell_runs.par_iter())
+            .enumerate()
+            .for_each(|(k, (tile, runs))| {
+                let base = k * LOCATE_CHUNK;
+                for (r, &(first, node)) in runs.iter().enumerate() {
+                    let end = runs
+                        .get(r + 1)
+                        .map_or(tile.len(), |e| (e.0 as usize) - base);
+                    tile[first as usize - base..end].fill(node);
                 }
-                *t = node;
+            });
+    }
+
+    /// The tile pass's parallel part: locate every particle, keep ξ and its slab, and
+    /// list per chunk of particles where a run of particles in one cell starts (the
+    /// chunk's first particle starts one). Chunks are fixed, so the runs do not depend
+    /// on the thread count.
+    fn locate_all(&mut self) {
+        let n = self.parts.len();
+        // Every entry is written below: only new ones need a value (no serial fill).
+        particles::reserve(&mut self.ptile, n);
+        particles::reserve(&mut self.pxi, n);
+        self.ptile.resize(n, 0);
+        self.pxi.resize(n, [0.0; D]);
+        let last = D - 1;
+        let (lo, hi) = (self.block.cell_lo[last], self.block.cell_hi[last]);
+        let thick = kernel::slab_thickness(self.scheme.gimp);
+        self.slabs.begin(lo, hi, thick, n);
+        let chunks = n.div_ceil(LOCATE_CHUNK);
+        if self.cell_runs.len() < chunks {
+            self.cell_runs.resize_with(chunks, Vec::new);
+        }
+        let geom = &self.geom;
+        let (slabs, slab_of) = self.slabs.slabs_mut();
+        self.parts
+            .x
+            .par_chunks(LOCATE_CHUNK)
+            .zip(self.pxi.par_chunks_mut(LOCATE_CHUNK))
+            .zip(slab_of.par_chunks_mut(LOCATE_CHUNK))
+            .zip(self.cell_runs.par_iter_mut())
+            .enumerate()
+            .for_each(|(k, (((x, xi), slab), runs))| {
+                runs.clear();
+                // No particle's cell is this (cells are within the grid or a period).
+                let mut prev = [i64::MIN; D];
+                let each = x.iter().zip(xi.iter_mut()).zip(slab.iter_mut());
+                for (p, ((x, xi), slab)) in each.enumerate() {
+                    let (c, f) = geom.locate(&std::array::from_fn(|a| x[a]));
+                    *xi = f;
+                    *slab = slabs.slab(c[last]);
+                    if c != prev {
+                        prev = c;
+                        runs.push(((k * LOCATE_CHUNK + p) as u32, 0));
+                    }
+                }
+            });
+        self.cell_runs.truncate(chunks);
+    }
+
+    /// The storage index of each run's cell's lower corner node ([`Solver::cell_runs`]),
+    /// in particle order; if `touch`, first touch the tiles its nodes lie in (a slot of
+    /// 0, a tile new to the active set, is fixed by a second call after
+    /// [`Tiles::finish`]).
+    fn run_nodes(&mut self, touch: bool) {
+        let (below, above) = if self.scheme.gimp { (1, 2) } else { (0, 1) };
+        let node_lo = self.block.node_lo;
+        let mut prev: Option<[i64; D]> = None;
+        let mut node = 0u32;
+        let mut tile = (u64::MAX, 0u32);
+        for run in self.cell_runs.iter_mut().flatten() {
+            let x = &self.parts.x[run.0 as usize];
+            let (c, _) = self.geom.locate(&std::array::from_fn(|a| x[a]));
+            // Runs that continue the previous chunk's last cell repeat it.
+            if prev != Some(c) {
+                prev = Some(c);
+                let l: [i64; D] = std::array::from_fn(|a| c[a] - node_lo[a]);
+                if touch {
+                    self.tiles.touch(l.map(|v| v - below), l.map(|v| v + above));
+                }
+                let l = l.map(|v| v as usize);
+                let k = self.tiles.key_of(l);
+                if k != tile.0 {
+                    tile = (k, self.tiles.slot_of_key(k));
+                    assert!(touch || tile.1 != 0, "a particle's cell's tile was touched");
+                }
+                node = self.tiles.index_in(tile.1, l) as u32;
             }
+            run.1 = node;
         }
     }
 
@@ -726,7 +823,7 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// field `xpic_term` interpolated at the particles instead of their velocities.
     fn scatter_pass(&mut self, forces: bool, from_grid: bool) {
         let two = self.scheme.two_step() && !from_grid;
-        self.scat.iter_mut().for_each(|v| *v = 0.0);
+        zero(&mut self.scat);
         let ctx = ctx!(self);
         let parts = kernel::ScatterParts {
             x: &self.parts.x,
@@ -859,10 +956,11 @@ impl<'c, const D: usize> Solver<'c, D> {
         let sw = self.sw;
         let col = NodeRecord::<D>::cover(sw);
         let mut fill = std::mem::take(&mut self.fill);
-        self.for_owned(|n, c| {
-            let g: [i64; D] = std::array::from_fn(|a| self.block.node_lo[a] + c[a] as i64);
-            let support = self.geom.node_volume(g);
-            fill[n] = (self.scat[n * sw + col] / (FULL_FILL * support)).min(1.0);
+        let (nodes, scat) = (self.nodes(), &self.scat);
+        nodes.par_owned(&mut fill, 1, |n, c, fill, _| {
+            let g: [i64; D] = std::array::from_fn(|a| nodes.node_lo[a] + c[a] as i64);
+            let support = nodes.geom.node_volume(g);
+            fill[0] = (scat[n * sw + col] / (FULL_FILL * support)).min(1.0);
         });
         self.block.ghost_copy(self.comm, &mut fill, 1);
         self.fill = fill;
@@ -872,39 +970,45 @@ impl<'c, const D: usize> Solver<'c, D> {
         let dims = self.block.node_dims;
         let tn = self.tiles.tile_nodes();
         let mut cw = std::mem::take(&mut self.cell_w);
-        let mut corners = [0; 8];
-        for slot in 1..self.tiles.slots() {
-            for o in 0..tn {
-                let n = slot * tn + o;
-                let inside = self
-                    .tiles
-                    .local(slot, o)
-                    .is_some_and(|l| (0..D).all(|a| l[a] + 1 < dims[a]));
-                cw[n] = if inside {
-                    self.tiles.octant(n, true, &mut corners);
-                    corners[..1 << D]
-                        .iter()
-                        .map(|&c| self.fill[c])
-                        .fold(1.0, f64::min)
-                } else {
-                    0.0
-                };
-            }
-        }
+        let (tiles, fill) = (&self.tiles, &self.fill);
+        cw[..tiles.slots() * tn]
+            .par_chunks_mut(tn)
+            .enumerate()
+            .skip(1)
+            .with_min_len(4)
+            .for_each(|(slot, cw)| {
+                let mut corners = [0; 8];
+                for (o, w) in cw.iter_mut().enumerate() {
+                    let n = slot * tn + o;
+                    let inside = tiles
+                        .local(slot, o)
+                        .is_some_and(|l| (0..D).all(|a| l[a] + 1 < dims[a]));
+                    *w = if inside {
+                        tiles.octant(n, true, &mut corners);
+                        corners[..1 << D]
+                            .iter()
+                            .map(|&c| fill[c])
+                            .fold(1.0, f64::min)
+                    } else {
+                        0.0
+                    };
+                }
+            });
         self.cell_w = cw;
         let share = self.geom.cell_volume() / (1 << D) as f64;
         let mut vol = std::mem::take(&mut self.node_vol);
-        let mut cells = [0; 8];
-        self.for_owned(|n, c| {
+        let (nodes, cell_w) = (self.nodes(), &self.cell_w);
+        nodes.par_owned(&mut vol, 1, |n, c, vol, _| {
             // The cells around the node (as `cells_around` visits them).
-            self.tiles.octant(n, false, &mut cells);
+            let mut cells = [0; 8];
+            nodes.tiles.octant(n, false, &mut cells);
             let mut v = 0.0;
             for (q, &cell) in cells[..1 << D].iter().enumerate() {
-                if (0..D).all(|a| c[a] >= (q >> a) & 1) && self.cell_w[cell] > 0.0 {
-                    v += self.cell_w[cell];
+                if (0..D).all(|a| c[a] >= (q >> a) & 1) && cell_w[cell] > 0.0 {
+                    v += cell_w[cell];
                 }
             }
-            vol[n] = v * share;
+            vol[0] = v * share;
         });
         self.node_vol = vol;
     }
@@ -917,11 +1021,12 @@ impl<'c, const D: usize> Solver<'c, D> {
         let aw = AvgRecord::<D>::WIDTH;
         // σ̄_j = T_j / V_j on owned nodes, then to the ghosts.
         let mut avg = std::mem::take(&mut self.avg);
-        self.for_owned(|n, _| {
-            let v = self.node_vol[n];
+        let (nodes, scat, node_vol) = (self.nodes(), &self.scat, &self.node_vol);
+        nodes.par_owned(&mut avg, aw, |n, _, rec, _| {
+            let v = node_vol[n];
             for c in 0..dd {
-                avg[n * aw + c] = if v > 0.0 {
-                    self.scat[n * sw + NodeRecord::<D>::stress_sum(0, 0) + c] / v
+                rec[c] = if v > 0.0 {
+                    scat[n * sw + NodeRecord::<D>::stress_sum(0, 0) + c] / v
                 } else {
                     0.0
                 };
@@ -958,16 +1063,17 @@ impl<'c, const D: usize> Solver<'c, D> {
     fn grid_velocity(&mut self, dt: f64) {
         let sw = self.sw;
         let mut vel = std::mem::take(&mut self.vel);
-        self.for_owned(|n, c| {
-            let rec = &self.scat[n * sw..(n + 1) * sw];
+        let (nodes, scat, floor) = (self.nodes(), &self.scat, self.mass_floor);
+        // Both slots of a node's record (`VelRecord`).
+        nodes.par_owned(&mut vel, VelRecord::<D>::WIDTH, |n, c, v, _| {
+            let rec = &scat[n * sw..(n + 1) * sw];
             let m = rec[NodeRecord::<D>::MASS];
-            let v = &mut vel[VelRecord::<D>::at(n, FROM_MOMENTUM)..][..VelRecord::<D>::WIDTH];
-            if m > self.mass_floor {
+            if m > floor {
                 for a in 0..D {
                     v[a] = rec[NodeRecord::<D>::momentum(a)] / m;
                     v[D + a] = v[a] + dt * rec[NodeRecord::<D>::force(a)] / m;
                 }
-                self.apply_bc(c, v);
+                nodes.apply_bc(c, v);
             } else {
                 v.iter_mut().for_each(|x| *x = 0.0);
             }
@@ -1200,7 +1306,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         // stress pass; a two-step scheme's stress pass moves with the reconstruction.
         self.dx
             .resize(if keep_dx { n } else { 0 }, Vector::<D>::zeros());
-        self.mom.iter_mut().for_each(|v| *v = 0.0);
+        zero(&mut self.mom);
         let mut ctx = ctx!(self);
         ctx.walls = self.has_walls();
         let parts = crate::mpm::remap::RemapParts {
@@ -1235,11 +1341,16 @@ impl<'c, const D: usize> Solver<'c, D> {
         );
         self.block.ghost_sum(self.comm, &mut self.mom, D);
         let sw = self.sw;
-        for (rec, p) in self.scat.chunks_exact_mut(sw).zip(self.mom.chunks_exact(D)) {
-            for a in 0..D {
-                rec[NodeRecord::<D>::momentum(a)] = p[a];
-            }
-        }
+        self.scat
+            .par_chunks_mut(sw * ZERO_CHUNK)
+            .zip(self.mom.par_chunks(D * ZERO_CHUNK))
+            .for_each(|(scat, mom)| {
+                for (rec, p) in scat.chunks_exact_mut(sw).zip(mom.chunks_exact(D)) {
+                    for a in 0..D {
+                        rec[NodeRecord::<D>::momentum(a)] = p[a];
+                    }
+                }
+            });
         self.external_work += t.work;
         t.ok
     }
@@ -1320,6 +1431,35 @@ impl<'c, const D: usize> Solver<'c, D> {
         t.ok
     }
 
+    /// In parallel over fixed chunks of particles: wrap periodic coordinates into the
+    /// period, and flag the chunks ([`Solver::flagged`]) that hold a particle outside
+    /// the grid or its block, the only ones [`Solver::relocate`] then visits.
+    fn wrap_and_flag(&mut self) {
+        let chunks = self.parts.len().div_ceil(LOCATE_CHUNK);
+        self.flagged.clear();
+        self.flagged.resize(chunks, false);
+        let (geom, lo, hi) = (&self.geom, &self.block.cell_lo, &self.block.cell_hi);
+        self.parts
+            .x
+            .par_chunks_mut(LOCATE_CHUNK)
+            .zip(self.flagged.par_iter_mut())
+            .for_each(|(xs, flag)| {
+                for x in xs {
+                    for a in 0..D {
+                        let (lo, hi) = (geom.lower[a], geom.upper[a]);
+                        if geom.periodic[a] && (x[a] < lo || x[a] >= hi) {
+                            x[a] = lo + (x[a] - lo).rem_euclid(hi - lo);
+                            if x[a] >= hi {
+                                x[a] = lo; // rem_euclid can round up to the period
+                            }
+                        }
+                    }
+                    let in_grid = (0..D).all(|a| on_grid(geom, a, x[a]));
+                    *flag |= !(in_grid && in_block(geom, lo, hi, x));
+                }
+            });
+    }
+
     /// Wrap periodic coordinates, check bounded ones, and hand particles that left the
     /// block to their new owner.
     fn relocate(&mut self) -> Result<(), Failure> {
@@ -1328,19 +1468,14 @@ impl<'c, const D: usize> Solver<'c, D> {
         let n = self.parts.len();
         self.keep.clear();
         self.keep.resize(n, true);
+        self.wrap_and_flag();
         let mut leaving = 0usize;
-        for p in 0..n {
-            let x = &mut self.parts.x[p];
+        let flagged = self.flagged.iter().enumerate().filter(|f| *f.1);
+        for p in flagged.flat_map(|(k, _)| k * LOCATE_CHUNK..n.min((k + 1) * LOCATE_CHUNK)) {
+            let x = &self.parts.x[p];
             for a in 0..D {
                 let (lo, hi) = (self.geom.lower[a], self.geom.upper[a]);
-                if self.geom.periodic[a] {
-                    if x[a] < lo || x[a] >= hi {
-                        x[a] = lo + (x[a] - lo).rem_euclid(hi - lo);
-                        if x[a] >= hi {
-                            x[a] = lo; // rem_euclid can round up to the period
-                        }
-                    }
-                } else if !(x[a] >= lo && x[a] <= hi) && left.is_none() {
+                if !on_grid(&self.geom, a, x[a]) && left.is_none() {
                     left = Some(format!(
                         "particle {} at {:?} is outside the grid on axis {a} ([{lo}, {hi}]) at t = {:.6e}; \
                          close the face (fixed/slip) or enlarge the grid",
@@ -1353,14 +1488,8 @@ impl<'c, const D: usize> Solver<'c, D> {
             if left.is_some() {
                 continue;
             }
-            // Most particles stay in the block: skip the cell and owner lookup for
-            // them. `s` in [lo, hi) is `Geom::locate`'s cell in the block (its floor
-            // of the same `s`, which the clamp at bounded faces leaves in the block).
             let (lo, hi) = (&self.block.cell_lo, &self.block.cell_hi);
-            if (0..D).all(|a| {
-                let s = (x[a] - self.geom.lower[a]) * self.geom.inv_h[a];
-                s >= lo[a] as f64 && s < hi[a] as f64
-            }) {
+            if in_block(&self.geom, lo, hi, x) {
                 continue;
             }
             let (cell, _) = self.geom.locate(&std::array::from_fn(|a| x[a]));

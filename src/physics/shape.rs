@@ -71,7 +71,9 @@ impl<const D: usize> Geom<D> {
             let s = (x[a] - self.lower[a]) * self.inv_h[a];
             let mut i = floor_i64(s);
             if !self.periodic[a] {
-                i = i.clamp(0, self.cells[a] as i64 - 1);
+                // (`max` then `min`, not `clamp`: the same for cells >= 1, without
+                // `clamp`'s check of its bounds on every call.)
+                i = i.max(0).min(self.cells[a] as i64 - 1);
             }
             c[a] = i;
             xi[a] = s - i as f64;
