@@ -119,3 +119,39 @@ fn thread_count_changes_no_bit() {
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
+
+/// The same for a benchmark scene, whose history carries the error norms against the
+/// exact solution: the axis-aligned MMS at 64² cells (16 384 particles, so the error
+/// sum runs over several fixed chunks), past three sorts (the kept factors of the
+/// reference positions then belong to other particles until refreshed).
+#[test]
+fn thread_count_changes_no_bit_of_the_error_norms() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(root.join("inputs/axis_aligned_mms_2d.toml")).unwrap();
+    let text = text
+        .replace("cells = [16, 16]", "cells = [64, 64]")
+        .replace("end = 0.02 ", "end = 0.0015 ")
+        + "\n[output]\nsnapshots = false\n";
+    assert!(text.contains("cells = [64, 64]") && text.contains("end = 0.0015 "));
+    let dir = temp_dir("threads-mms");
+    let sc = dir.join("scene.toml");
+    std::fs::write(&sc, text).unwrap();
+    let one = run(&sc, &dir.join("t1"), 1);
+    let header = one.lines().next().unwrap();
+    assert!(header.ends_with("displacement_l2,velocity_l2"), "{header}");
+    let steps: u64 = one
+        .lines()
+        .last()
+        .unwrap()
+        .split(',')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(steps > 60, "{steps} steps: fewer than three sorts");
+    for threads in [2, 3] {
+        let other = run(&sc, &dir.join(format!("t{threads}")), threads);
+        assert!(other == one, "MMS: {threads} threads differ from 1");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -19,7 +19,7 @@
 
 use crate::input::scene::Face;
 use crate::mpm::particles::{self, split_mut, ParticleSlices};
-use crate::physics::benchmark::Benchmark;
+use crate::physics::benchmark;
 use crate::physics::material::{Internal, Material};
 use crate::physics::shape::{self, Alpha, Geom};
 use crate::physics::tensor::{det, Mat, Vector};
@@ -51,9 +51,8 @@ pub struct Ctx<'a, const D: usize> {
     pub alpha: Alpha,
     pub materials: &'a [Material],
     pub gravity: Vector<D>,
-    /// The benchmark, if it applies a body force.
-    pub body_force: Option<&'a Benchmark<D>>,
-    pub t: f64,
+    /// The benchmark at the pass's time, if it applies a body force.
+    pub body_force: Option<benchmark::At<'a, D>>,
     /// Boundary condition of the lower and upper face per axis.
     pub faces: [[Face; 2]; D],
     /// Fill [`Kern::ends`] (the passes that move particles or clip their velocities,
@@ -319,8 +318,18 @@ impl<const D: usize> Ctx<'_, D> {
     #[inline(always)]
     pub fn accel(&self, x0: &[Vector<D>], p: usize) -> Vector<D> {
         match self.body_force {
-            Some(b) => self.gravity + b.body_force(&x0[p], self.t),
+            Some(b) => self.gravity + b.body_force_of(x0, p),
             None => self.gravity,
+        }
+    }
+
+    /// [`Ctx::accel`] as the step's scatter kept it in `kept` (where the scene has a
+    /// body force: see [`scatter`]), else formed.
+    #[inline(always)]
+    pub fn accel_kept(&self, kept: &[Vector<D>], x0: &[Vector<D>], p: usize) -> Vector<D> {
+        match kept.get(p) {
+            Some(&a) => a,
+            None => self.accel(x0, p),
         }
     }
 }
@@ -337,6 +346,9 @@ pub struct Slices<'a, const D: usize> {
     /// Each particle's local coordinate in its cell (`Geom::locate`), kept by the tile
     /// pass for the hat functions.
     pub xi: &'a [[f64; D]],
+    /// The external force per unit mass the step's scatter kept, or empty
+    /// ([`Ctx::accel_kept`]).
+    pub accel: &'a [Vector<D>],
 }
 
 fn split<T>(s: &[T], mid: usize) -> (&[T], &[T]) {
@@ -361,18 +373,21 @@ impl<'a, const D: usize> Slices<'a, D> {
         let (d0, d1) = split_mut(self.dx, mid);
         let (k0, k1) = split(self.tile, mid);
         let (x0, x1) = split(self.xi, mid);
+        let (a0, a1) = split(self.accel, mid);
         (
             Slices {
                 parts: p0,
                 dx: d0,
                 tile: k0,
                 xi: x0,
+                accel: a0,
             },
             Slices {
                 parts: p1,
                 dx: d1,
                 tile: k1,
                 xi: x1,
+                accel: a1,
             },
         )
     }
@@ -826,7 +841,8 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
             // clamp until particles left the grid through it (5 and 6 m beams at 3 × 3
             // per cell).
             t.work += clip_at_slip_walls(ctx, &k, &mut new, &vm, s.parts.mass[p]);
-            t.work += m.dt * s.parts.mass[p] * ctx.accel(s.parts.x0, p).dot(&(old + new)) * 0.5;
+            let a = ctx.accel_kept(s.accel, s.parts.x0, p);
+            t.work += m.dt * s.parts.mass[p] * a.dot(&(old + new)) * 0.5;
             s.parts.v[p] = new;
             t.ok &= new.iter().all(|x| x.is_finite());
             if m.stress {
@@ -1190,6 +1206,23 @@ impl GridPtr {
 unsafe impl Send for GridPtr {}
 unsafe impl Sync for GridPtr {}
 
+/// What the scatter's threads write: the node records and the kept accelerations.
+#[derive(Clone, Copy)]
+struct ScatterOut<const D: usize> {
+    grid: GridPtr,
+    accel: *mut Vector<D>,
+    /// `accel` points at one entry per particle (else it is not written).
+    keep: bool,
+}
+
+// SAFETY: made in `scatter` from `&mut` slices that it holds for its whole run. The
+// records: see `GridPtr`. The accelerations: each particle index is visited by one
+// thread only (`SlabOrder::finish` puts every particle into `order` exactly once,
+// slabs are disjoint ranges of `order`, and `scatter_slabs` gives every slab to one
+// thread), and `scatter` checked that `accel` has an entry per particle.
+unsafe impl<const D: usize> Send for ScatterOut<D> {}
+unsafe impl<const D: usize> Sync for ScatterOut<D> {}
+
 /// Particle → grid over all particles into `scat` (cleared by the caller), in slab
 /// colours so that no two threads write the same node.
 ///
@@ -1203,14 +1236,25 @@ unsafe impl Sync for GridPtr {}
 /// T >= 3. Same-coloured slabs thus write disjoint node sets, and the
 /// storage map of [`Tiles`] is injective (a node has one tile, a tile one slot), so
 /// they write disjoint records. The two colours run one after the other.
+///
+/// Where the scene has a body force and the scatter forms forces, it keeps each
+/// particle's external force per unit mass in `accel` (else empty), for the work the
+/// gather or the remap of the same step counts with it: a benchmark's body force costs
+/// sines and a logarithm per particle, formed once a step instead of twice.
 pub fn scatter<const D: usize, const NA: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
     parts: &ScatterParts<'_, D>,
     slabs: &SlabOrder,
     scat: &mut [f64],
+    accel: &mut [Vector<D>],
     m: ScatterMode,
 ) {
-    let grid = GridPtr::new(scat);
+    assert!(accel.is_empty() || accel.len() == parts.x.len());
+    let grid = ScatterOut {
+        grid: GridPtr::new(scat),
+        accel: accel.as_mut_ptr(),
+        keep: !accel.is_empty(),
+    };
     let ns = slabs.slabs();
     for colour in 0..2 {
         let first = colour;
@@ -1226,7 +1270,7 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
     parts: &ScatterParts<'_, D>,
     slabs: &SlabOrder,
-    grid: GridPtr,
+    grid: ScatterOut<D>,
     first: usize,
     count: usize,
     m: ScatterMode,
@@ -1260,7 +1304,7 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
         let (k, below, _) = ctx.weights::<NA, N>(&parts.x[p], half, &parts.xi[p]);
         if run.is_new(parts.tile[p], below) {
             if run.started() {
-                acc.flush(ctx, grid, &run.idx, m);
+                acc.flush(ctx, grid.grid, &run.idx, m);
             }
             run.enter(ctx, parts.tile[p], below);
         }
@@ -1287,14 +1331,20 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
             Mat::<D>::zeros()
         };
         let fe = if m.forces {
-            ctx.accel(parts.x0, p) * mass
+            let a = ctx.accel(parts.x0, p);
+            if grid.keep {
+                // SAFETY: see `ScatterOut`: `p` is a particle index, visited by
+                // this thread only.
+                unsafe { *grid.accel.add(p) = a };
+            }
+            a * mass
         } else {
             Vector::<D>::zeros()
         };
         acc.add(&k, mass, &mv, vol, &vs, &fe, m);
     }
     if run.started() {
-        acc.flush(ctx, grid, &run.idx, m);
+        acc.flush(ctx, grid.grid, &run.idx, m);
     }
 }
 

@@ -27,6 +27,8 @@ pub struct RemapParts<'a, const D: usize> {
     pub tile: &'a [u32],
     /// Each particle's local coordinate in its cell (see `kernel::Slices::xi`).
     pub xi: &'a [[f64; D]],
+    /// The external force per unit mass the step's scatter kept, or empty.
+    pub accel: &'a [Vector<D>],
 }
 
 /// What the remap does besides the velocity update.
@@ -169,7 +171,8 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
         let mass = parts.mass[p];
         let mut new = (old + dv) * m.flip + vn * (1.0 - m.flip);
         t.work += clip_at_slip_walls(ctx, &k, &mut new, &vn, mass);
-        t.work += m.dt * mass * ctx.accel(parts.x0, p).dot(&(old + new)) * 0.5;
+        let a = ctx.accel_kept(parts.accel, parts.x0, p);
+        t.work += m.dt * mass * a.dot(&(old + new)) * 0.5;
         *vp = new;
         t.ok &= new.iter().all(|x| x.is_finite());
         if m.keep_dx {

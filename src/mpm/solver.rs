@@ -9,7 +9,7 @@ use crate::mpm::kernel::{
 };
 use crate::mpm::particles::{self, Carries, Particles};
 use crate::mpm::remap::remap;
-use crate::physics::benchmark::Benchmark;
+use crate::physics::benchmark::{Benchmark, Memo};
 use crate::physics::material::Material;
 use crate::physics::shape::{Alpha, Geom, GradientScheme};
 use crate::physics::tensor::{vector, Mat, Vector};
@@ -28,8 +28,11 @@ macro_rules! ctx {
             alpha: $s.scheme.alpha,
             materials: &$s.materials,
             gravity: $s.gravity,
-            body_force: $s.benchmark.as_ref().filter(|b| b.has_body_force()),
-            t: $s.t,
+            body_force: $s
+                .benchmark
+                .as_ref()
+                .filter(|b| b.has_body_force())
+                .map(|b| b.at($s.t).with_memo(&$s.memo)),
             faces: $s.faces,
             walls: false,
         }
@@ -44,6 +47,7 @@ macro_rules! slices {
             dx: &mut $s.dx,
             tile: &$s.ptile,
             xi: &$s.pxi,
+            accel: &$s.accel,
         }
     };
 }
@@ -198,6 +202,13 @@ pub struct Solver<'c, const D: usize> {
     perm: Vec<u32>,
     permuted: Vec<u64>,
     scratch: Vec<f64>,
+    /// Each particle's external force per unit mass, kept by the step's scatter of
+    /// forces for the work counted after it, where the scene has a body force (else
+    /// empty: gravity is one vector).
+    accel: Vec<Vector<D>>,
+    /// The benchmark's factors of each particle's reference position (benchmarks
+    /// only), refreshed at the start of a step.
+    memo: Memo<D>,
     /// The tile pass's runs of particles in one cell, per chunk of [`LOCATE_CHUNK`]
     /// particles: the run's first particle and its cell's lower corner node.
     cell_runs: Vec<Vec<(u32, u32)>>,
@@ -451,6 +462,24 @@ fn zero(v: &mut [f64]) {
     v.par_chunks_mut(ZERO_CHUNK).for_each(|c| c.fill(0.0));
 }
 
+/// The sum of `f(k)` over `k` in `lo..hi`, in parallel, added in a tree fixed by the
+/// range (halves), so that the result does not depend on the threads.
+fn tree_sum<const N: usize>(
+    lo: usize,
+    hi: usize,
+    f: &(impl Fn(usize) -> [f64; N] + Sync),
+) -> [f64; N] {
+    match hi - lo {
+        0 => [0.0; N],
+        1 => f(lo),
+        n => {
+            let mid = lo + n / 2;
+            let (a, b) = rayon::join(|| tree_sum(lo, mid, f), || tree_sum(mid, hi, f));
+            std::array::from_fn(|i| a[i] + b[i])
+        }
+    }
+}
+
 /// Particles per chunk of the tile pass's parallel locate (fixed, so that its runs do
 /// not depend on the thread count).
 const LOCATE_CHUNK: usize = 4096;
@@ -578,6 +607,8 @@ impl<'c, const D: usize> Solver<'c, D> {
             dx: Vec::new(),
             perm: Vec::new(),
             cell_runs: Vec::new(),
+            accel: Vec::new(),
+            memo: Memo::default(),
             flagged: Vec::new(),
             permuted: Vec::new(),
             scratch: Vec::new(),
@@ -845,6 +876,19 @@ impl<'c, const D: usize> Solver<'c, D> {
             two_step: two,
             from_grid,
         };
+        // The forces' scatter keeps a body force for the gather or remap after it
+        // (every update order has one between them); other scatters leave it.
+        let mut none = [];
+        let accel = if !forces {
+            &mut none[..]
+        } else {
+            let keep = ctx.body_force.is_some();
+            self.accel.resize(
+                if keep { self.parts.len() } else { 0 },
+                Vector::<D>::zeros(),
+            );
+            &mut self.accel[..]
+        };
         by_nodes!(
             self.scheme.gimp,
             scatter,
@@ -852,6 +896,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             &parts,
             &self.slabs,
             &mut self.scat,
+            accel,
             m
         );
         self.block.ghost_sum(self.comm, &mut self.scat, self.sw);
@@ -1250,10 +1295,15 @@ impl<'c, const D: usize> Solver<'c, D> {
         assert!(flags.len() <= 3, "at most three flags per step");
         let dt = self.choose_dt()?;
         self.dt = dt;
+        if let Some(b) = &self.benchmark {
+            self.memo.refresh(b, &self.parts.x0);
+        }
         let mut ok = true;
         for k in 0..self.phases.len() {
             ok &= self.run_phase(self.phases[k], dt);
         }
+        // Valid for this step only (and the particle count may change below).
+        self.accel.clear();
         self.t += dt;
         self.step += 1;
         let mut agree = [0.0; 4];
@@ -1316,6 +1366,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             half: &self.parts.half,
             tile: &self.ptile,
             xi: &self.pxi,
+            accel: &self.accel,
         };
         let m = crate::mpm::remap::RemapMode {
             dt,
@@ -1745,16 +1796,23 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// benchmark's exact solution at the current time (over all ranks).
     pub fn errors(&self) -> Option<(f64, f64)> {
         let b = self.benchmark.as_ref()?;
-        let mut s = [0.0; 3];
-        for p in 0..self.parts.len() {
-            let (u, v) = b.exact(&self.parts.x0[p], self.t);
-            let eu = self.parts.x[p] - self.parts.x0[p] - u;
-            let ev = self.parts.v[p] - v;
-            let w = self.parts.vol[p];
-            s[0] += w * eu.norm_squared();
-            s[1] += w * ev.norm_squared();
-            s[2] += w;
-        }
+        let b = b.at(self.t).with_memo(&self.memo);
+        let parts = &self.parts;
+        // Summed per fixed chunk, then in a fixed tree: the same on any thread count.
+        let chunk = |k: usize| {
+            let mut s = [0.0; 3];
+            for p in k * LOCATE_CHUNK..parts.len().min((k + 1) * LOCATE_CHUNK) {
+                let (u, v) = b.exact_of(&parts.x0, p);
+                let eu = parts.x[p] - parts.x0[p] - u;
+                let ev = parts.v[p] - v;
+                let w = parts.vol[p];
+                s[0] += w * eu.norm_squared();
+                s[1] += w * ev.norm_squared();
+                s[2] += w;
+            }
+            s
+        };
+        let mut s = tree_sum(0, parts.len().div_ceil(LOCATE_CHUNK), &chunk);
         self.comm.sum_f64(&mut s);
         Some(((s[0] / s[2]).sqrt(), (s[1] / s[2]).sqrt()))
     }

@@ -10,6 +10,7 @@ use crate::input::plan::BenchmarkPlan;
 use crate::input::scene::Scene;
 use crate::physics::material::{lame, Material};
 use crate::physics::tensor::{Mat, Vector};
+use rayon::prelude::*;
 use std::f64::consts::PI;
 
 #[derive(Clone, Debug)]
@@ -97,33 +98,62 @@ impl<const D: usize> Benchmark<D> {
 
     /// Exact displacement and velocity at reference position `x0`, time `t`.
     pub fn exact(&self, x0: &Vector<D>, t: f64) -> (Vector<D>, Vector<D>) {
-        let mut u = Vector::<D>::zeros();
-        let mut v = Vector::<D>::zeros();
+        self.at(t).exact(x0)
+    }
+
+    /// The problem at time `t`, its factors that depend on time alone computed once
+    /// (for a pass over the particles: they are sines and cosines).
+    pub fn at(&self, t: f64) -> At<'_, D> {
+        let mut sin = [0.0; 3];
+        let mut cos = [0.0; 3];
+        let mut phase = |i: usize, w: f64| (sin[i], cos[i]) = w.sin_cos();
         match *self {
-            Benchmark::VibratingBar {
-                v0,
-                beta,
-                omega,
-                x0: o,
-            } => {
-                let s = (beta * (x0[0] - o)).sin();
-                u[0] = v0 / omega * (omega * t).sin() * s;
-                v[0] = v0 * (omega * t).cos() * s;
-            }
-            Benchmark::AxisAlignedMms { a, c, .. } => {
-                for i in 0..D {
-                    let s = (PI * x0[i]).sin();
-                    u[i] = a * s * (c * PI * t + PHASE[i]).sin();
-                    v[i] = a * s * c * PI * (c * PI * t + PHASE[i]).cos();
+            Benchmark::VibratingBar { omega, .. } => phase(0, omega * t),
+            Benchmark::AxisAlignedMms { c, .. } => {
+                for (i, ph) in PHASE.iter().enumerate().take(D) {
+                    phase(i, c * PI * t + ph);
                 }
             }
-            Benchmark::GeneralizedVortex { .. } => {
-                let (x, vel) = self.vortex_motion(x0, t);
-                u = x - x0;
-                v = vel;
+            Benchmark::GeneralizedVortex { c, .. } => phase(0, c * PI * t),
+        }
+        At {
+            b: self,
+            sin,
+            cos,
+            memo: &[],
+        }
+    }
+
+    /// What the exact solution and the body force need of a reference position alone:
+    /// sin(πX_i) and cos(πX_i) per axis (axis-aligned MMS), sin(β(X − x0)) (vibrating
+    /// bar), R, Θ and h(R) with its derivatives (vortex). They are transcendental
+    /// functions of a position that never changes, so a run forms them once per
+    /// particle ([`Memo`]) instead of once or twice a step.
+    pub fn factors(&self, x0: &Vector<D>) -> Factors {
+        let mut f = [0.0; 6];
+        match *self {
+            Benchmark::VibratingBar { beta, x0: o, .. } => f[0] = (beta * (x0[0] - o)).sin(),
+            Benchmark::AxisAlignedMms { .. } => {
+                for i in 0..D {
+                    (f[i], f[3 + i]) = (PI * x0[i]).sin_cos();
+                }
+            }
+            Benchmark::GeneralizedVortex { center, .. } => {
+                let dx = x0[0] - center[0];
+                let dy = x0[1] - center[1];
+                let r = dx.hypot(dy);
+                let q = r - 1.0;
+                f = [
+                    r,
+                    dy.atan2(dx),
+                    1.0 - 32.0 * q * q + 256.0 * q.powi(4),
+                    -64.0 * q + 1024.0 * q.powi(3),
+                    -64.0 + 3072.0 * q * q,
+                    0.0,
+                ];
             }
         }
-        (u, v)
+        Factors(f)
     }
 
     /// Exact deformation gradient at `x0`, time `t` (the initial state uses it).
@@ -145,7 +175,7 @@ impl<const D: usize> Benchmark<D> {
             }
             Benchmark::GeneralizedVortex { .. } => {
                 // F = Q(α) (I + R α_R (e_θ ⊗ e_R)) in the reference polar frame.
-                let (r, th, al, _, _, al_r, _) = self.vortex_terms(x0, t);
+                let (r, th, al, _, _, al_r, _) = self.at(t).vortex_terms(&self.factors(x0).0);
                 let (c, s) = (al.cos(), al.sin());
                 let er = [th.cos(), th.sin()];
                 let et = [-th.sin(), th.cos()];
@@ -168,8 +198,138 @@ impl<const D: usize> Benchmark<D> {
 
     /// Body force per unit mass at reference position `x0`, time `t`.
     pub fn body_force(&self, x0: &Vector<D>, t: f64) -> Vector<D> {
+        self.at(t).body_force(x0)
+    }
+}
+
+/// [`Benchmark::factors`] of one reference position.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Factors([f64; 6]);
+
+/// The factors of each particle with the reference position they were formed from:
+/// an entry whose position is not the particle's (bit for bit) is not used, so the
+/// memo needs no upkeep when particles are sorted, leave or arrive, and results are
+/// the same with or without it ([`Memo::refresh`]).
+#[derive(Clone, Debug, Default)]
+pub struct Memo<const D: usize>(Vec<(Vector<D>, Factors)>);
+
+impl<const D: usize> Memo<D> {
+    /// Make the memo hold the factors of every particle of reference positions `x0`,
+    /// forming only those whose entry was made for another position.
+    pub fn refresh(&mut self, b: &Benchmark<D>, x0: &[Vector<D>]) {
+        const CHUNK: usize = 4096;
+        let n = x0.len();
+        if self.0.capacity() < n {
+            // As the particle arrays grow (`particles::reserve`): not to twice the count.
+            self.0.reserve_exact(n + n / 16 - self.0.len());
+        }
+        self.0.resize(
+            x0.len(),
+            (Vector::from_element(f64::NAN), Factors::default()),
+        );
+        self.0
+            .par_chunks_mut(CHUNK)
+            .zip(x0.par_chunks(CHUNK))
+            .for_each(|(m, x0)| {
+                for (m, x) in m.iter_mut().zip(x0) {
+                    if !same(&m.0, x) {
+                        *m = (*x, b.factors(x));
+                    }
+                }
+            });
+    }
+}
+
+/// The same position bit for bit (`==` would take −0 for +0, whose sines differ).
+fn same<const D: usize>(a: &Vector<D>, b: &Vector<D>) -> bool {
+    a.iter()
+        .zip(b.iter())
+        .all(|(x, y)| x.to_bits() == y.to_bits())
+}
+
+/// A [`Benchmark`] at one time ([`Benchmark::at`]).
+#[derive(Clone, Copy, Debug)]
+pub struct At<'a, const D: usize> {
+    b: &'a Benchmark<D>,
+    /// Sine and cosine of the phase per axis: `cπt + φ_i` (axis-aligned MMS), `ωt`
+    /// (vibrating bar, first entry), `cπt` (vortex, first entry).
+    sin: [f64; 3],
+    cos: [f64; 3],
+    /// The particles' factors, where kept ([`At::with_memo`]).
+    memo: &'a [(Vector<D>, Factors)],
+}
+
+impl<'a, const D: usize> At<'a, D> {
+    /// The same, reading the factors of particle `p` from `memo` where it holds them.
+    pub fn with_memo(self, memo: &'a Memo<D>) -> Self {
+        At {
+            memo: &memo.0,
+            ..self
+        }
+    }
+
+    /// The factors of particle `p`, whose reference position is `x0[p]`.
+    #[inline(always)]
+    fn factors_of(&self, x0: &[Vector<D>], p: usize) -> Factors {
+        match self.memo.get(p) {
+            Some((x, f)) if same(x, &x0[p]) => *f,
+            _ => self.b.factors(&x0[p]),
+        }
+    }
+
+    /// Exact displacement and velocity of particle `p`, reference position `x0[p]`.
+    pub fn exact_of(&self, x0: &[Vector<D>], p: usize) -> (Vector<D>, Vector<D>) {
+        self.exact_with(&x0[p], &self.factors_of(x0, p))
+    }
+
+    /// Body force per unit mass on particle `p`, reference position `x0[p]`.
+    #[inline]
+    pub fn body_force_of(&self, x0: &[Vector<D>], p: usize) -> Vector<D> {
+        self.body_force_with(&self.factors_of(x0, p))
+    }
+
+    /// Exact displacement and velocity at reference position `x0`.
+    pub fn exact(&self, x0: &Vector<D>) -> (Vector<D>, Vector<D>) {
+        self.exact_with(x0, &self.b.factors(x0))
+    }
+
+    /// Body force per unit mass at reference position `x0`.
+    pub fn body_force(&self, x0: &Vector<D>) -> Vector<D> {
+        self.body_force_with(&self.b.factors(x0))
+    }
+
+    /// [`At::exact`] from the position's [`Factors`].
+    fn exact_with(&self, x0: &Vector<D>, f: &Factors) -> (Vector<D>, Vector<D>) {
+        let f = &f.0;
+        let mut u = Vector::<D>::zeros();
+        let mut v = Vector::<D>::zeros();
+        match *self.b {
+            Benchmark::VibratingBar { v0, omega, .. } => {
+                let s = f[0];
+                u[0] = v0 / omega * self.sin[0] * s;
+                v[0] = v0 * self.cos[0] * s;
+            }
+            Benchmark::AxisAlignedMms { a, c, .. } => {
+                for i in 0..D {
+                    let s = f[i];
+                    u[i] = a * s * self.sin[i];
+                    v[i] = a * s * c * PI * self.cos[i];
+                }
+            }
+            Benchmark::GeneralizedVortex { .. } => {
+                let (x, vel) = self.vortex_motion(f);
+                u = x - x0;
+                v = vel;
+            }
+        }
+        (u, v)
+    }
+
+    /// [`At::body_force`] from the position's [`Factors`].
+    fn body_force_with(&self, f: &Factors) -> Vector<D> {
+        let f = &f.0;
         let mut b = Vector::<D>::zeros();
-        match *self {
+        match *self.b {
             Benchmark::VibratingBar { .. } => {}
             Benchmark::AxisAlignedMms {
                 a,
@@ -180,13 +340,15 @@ impl<const D: usize> Benchmark<D> {
             } => {
                 let mut u = [0.0; D];
                 let mut fii = [0.0; D];
-                let mut lnj = 0.0;
+                let mut j = 1.0;
                 for i in 0..D {
-                    let ph = c * PI * t + PHASE[i];
-                    u[i] = a * (PI * x0[i]).sin() * ph.sin();
-                    fii[i] = 1.0 + a * PI * (PI * x0[i]).cos() * ph.sin();
-                    lnj += fii[i].ln();
+                    let (s, co) = (f[i], f[3 + i]);
+                    u[i] = a * s * self.sin[i];
+                    fii[i] = 1.0 + a * PI * co * self.sin[i];
+                    j *= fii[i];
                 }
+                // ln J of the diagonal F, one logarithm for all axes.
+                let lnj = j.ln();
                 for i in 0..D {
                     b[i] = PI
                         * PI
@@ -197,33 +359,27 @@ impl<const D: usize> Benchmark<D> {
                 }
             }
             Benchmark::GeneralizedVortex { mu, rho0, .. } => {
-                let (r, th, al, al_t, al_tt, al_r, al_rr) = self.vortex_terms(x0, t);
+                let (r, th, al, al_t, al_tt, al_r, al_rr) = self.vortex_terms(f);
                 let g = mu / rho0;
                 let br = -r * al_t * al_t + g * r * al_r * al_r;
                 let bt = r * al_tt - g * (r * al_rr + 3.0 * al_r);
-                let phi = th + al; // current polar angle
-                b[0] = br * phi.cos() - bt * phi.sin();
-                b[1] = br * phi.sin() + bt * phi.cos();
+                let (sp, cp) = (th + al).sin_cos(); // of the current polar angle
+                b[0] = br * cp - bt * sp;
+                b[1] = br * sp + bt * cp;
             }
         }
         b
     }
 
-    /// (R, Θ, α, α_t, α_tt, α_R, α_RR) of the vortex at a reference point.
-    fn vortex_terms(&self, x0: &Vector<D>, t: f64) -> (f64, f64, f64, f64, f64, f64, f64) {
-        let Benchmark::GeneralizedVortex { a, c, center, .. } = *self else {
+    /// (R, Θ, α, α_t, α_tt, α_R, α_RR) of the vortex at a reference point of factors
+    /// `f` (R, Θ, h, h_R, h_RR).
+    fn vortex_terms(&self, f: &[f64; 6]) -> (f64, f64, f64, f64, f64, f64, f64) {
+        let Benchmark::GeneralizedVortex { a, c, .. } = *self.b else {
             unreachable!()
         };
-        let dx = x0[0] - center[0];
-        let dy = x0[1] - center[1];
-        let r = dx.hypot(dy);
-        let th = dy.atan2(dx);
-        let q = r - 1.0;
-        let h = 1.0 - 32.0 * q * q + 256.0 * q.powi(4);
-        let hr = -64.0 * q + 1024.0 * q.powi(3);
-        let hrr = -64.0 + 3072.0 * q * q;
+        let [r, th, h, hr, hrr, _] = *f;
         let w = c * PI;
-        let (s, co) = (w * t).sin_cos();
+        let (s, co) = (self.sin[0], self.cos[0]);
         (
             r,
             th,
@@ -235,11 +391,11 @@ impl<const D: usize> Benchmark<D> {
         )
     }
 
-    fn vortex_motion(&self, x0: &Vector<D>, t: f64) -> (Vector<D>, Vector<D>) {
-        let Benchmark::GeneralizedVortex { center, .. } = *self else {
+    fn vortex_motion(&self, f: &[f64; 6]) -> (Vector<D>, Vector<D>) {
+        let Benchmark::GeneralizedVortex { center, .. } = *self.b else {
             unreachable!()
         };
-        let (r, th, al, al_t, ..) = self.vortex_terms(x0, t);
+        let (r, th, al, al_t, ..) = self.vortex_terms(f);
         let phi = th + al;
         let mut x = Vector::<D>::zeros();
         let mut v = Vector::<D>::zeros();
@@ -320,12 +476,12 @@ mod tests {
             let r = x.norm();
             let th = x[1].atan2(x[0]);
             let probe = Vector::<2>::new(r, 0.0);
-            let (_, _, al, ..) = bm.vortex_terms(&probe, t);
+            let (_, _, al, ..) = bm.at(t).vortex_terms(&bm.factors(&probe).0);
             let xr = Vector::<2>::new(r * (th - al).cos(), r * (th - al).sin());
             let f = bm.deformation_gradient(&xr, t);
             (f * f.transpose() - Mat::<2>::identity()) * mu
         };
-        let (xc, _) = bm.vortex_motion(&x0, t);
+        let (xc, _) = bm.at(t).vortex_motion(&bm.factors(&x0).0);
         let e = 1e-5;
         let mut div = Vector::<2>::zeros();
         for j in 0..2 {
@@ -442,6 +598,65 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    /// The memo changes no bit: with entries that are current, stale (particles
+    /// reordered since the refresh, as the sort every 20 steps leaves them), missing
+    /// (arrivals) or made for −0 where the particle sits at +0 (whose sines differ in
+    /// sign), `exact_of` and `body_force_of` equal the exact solution and body force
+    /// formed from the position itself, for each kind of benchmark.
+    #[test]
+    fn memo_changes_no_bit() {
+        let (lambda, mu) = lame(1e4, 0.3);
+        let mms = Benchmark::<2>::AxisAlignedMms {
+            a: 0.05,
+            c: 100.0,
+            mu,
+            lambda,
+            rho0: 1.0,
+        };
+        let bar = Benchmark::<2>::VibratingBar {
+            v0: 0.1,
+            beta: 1.3,
+            omega: 2.0,
+            x0: 0.0,
+        };
+        let mut x0: Vec<Vector<2>> = (0..37)
+            .map(|k| {
+                let s = k as f64 / 37.0;
+                Vector::<2>::new(0.9 * s + 0.05, (7.0 * s).fract() * 0.8 + 0.1)
+            })
+            .collect();
+        x0[3] = Vector::<2>::new(-0.0, 0.5);
+        for b in [mms, bar, published_vortex()] {
+            let t = 0.0123;
+            let check = |memo: &Memo<2>, x0: &[Vector<2>]| {
+                let at = b.at(t).with_memo(memo);
+                for p in 0..x0.len() {
+                    let (u, v) = at.exact_of(x0, p);
+                    let (ue, ve) = b.exact(&x0[p], t);
+                    let f = at.body_force_of(x0, p);
+                    let fe = b.body_force(&x0[p], t);
+                    for (x, y) in [(u, ue), (v, ve), (f, fe)] {
+                        assert!(same(&x, &y), "{b:?} particle {p}: {x:?} vs {y:?}");
+                    }
+                }
+            };
+            let mut memo = Memo::default();
+            check(&memo, &x0);
+            memo.refresh(&b, &x0);
+            check(&memo, &x0);
+            let mut moved = x0.clone();
+            moved.reverse();
+            moved[3] = Vector::<2>::new(0.0, 0.5);
+            moved.push(Vector::<2>::new(0.31, 0.77));
+            check(&memo, &moved);
+            memo.refresh(&b, &moved);
+            check(&memo, &moved);
+            moved.truncate(5);
+            memo.refresh(&b, &moved);
+            check(&memo, &moved);
         }
     }
 }
