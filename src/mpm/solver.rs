@@ -1725,17 +1725,29 @@ impl<'c, const D: usize> Solver<'c, D> {
         let n = u32::try_from(n).expect("fewer than 2^32 particles per rank");
         self.perm.clear();
         self.perm.extend(0..n);
+        // Each particle's cell as one number, computed once per particle rather than
+        // twice per comparison. They are kept in `pxi`, whose values are stale once
+        // particles move and rewritten by the next tile pass before any read: no
+        // memory of its own (the bits of an i64 cell number, as f64 bits).
         let geom = &self.geom;
-        let parts = &self.parts;
-        let key = |p: usize| {
-            let (c, _) = geom.locate(&std::array::from_fn(|a| parts.x[p][a]));
-            let mut k = 0i64;
-            for a in (0..D).rev() {
-                k = k * (geom.cells[a] as i64 + 1) + c[a];
-            }
-            (k, parts.id[p])
-        };
-        self.perm.sort_unstable_by_key(|&p| key(p as usize));
+        particles::reserve(&mut self.pxi, n as usize);
+        self.pxi.resize(n as usize, [0.0; D]);
+        self.pxi
+            .par_chunks_mut(LOCATE_CHUNK)
+            .zip(self.parts.x.par_chunks(LOCATE_CHUNK))
+            .for_each(|(keys, x)| {
+                for (k, x) in keys.iter_mut().zip(x) {
+                    let (c, _) = geom.locate(&std::array::from_fn(|a| x[a]));
+                    let mut key = 0i64;
+                    for a in (0..D).rev() {
+                        key = key * (geom.cells[a] as i64 + 1) + c[a];
+                    }
+                    k[0] = f64::from_bits(key as u64);
+                }
+            });
+        let (keys, id) = (&self.pxi, &self.parts.id);
+        let key = |p: u32| (keys[p as usize][0].to_bits() as i64, id[p as usize]);
+        self.perm.sort_unstable_by_key(|&p| key(p));
         let perm = std::mem::take(&mut self.perm);
         self.parts.permute(&perm, &mut self.permuted);
         self.perm = perm;
