@@ -184,6 +184,8 @@ pub struct Solver<'c, const D: usize> {
     cell_k: [[[f64; D]; CORNERS]; CORNERS],
     /// `∫_c S_j S_i dv` over one cell for its corners j and i.
     cell_m: [[f64; CORNERS]; CORNERS],
+    /// `Σ_i ∫_c S_j S_i dv (x_j − x_i)` over one cell for its corner j.
+    cell_md: [[f64; D]; CORNERS],
     /// Offset of each cell corner in the numbering of [`Tiles::neighbourhood`].
     corner_off: [usize; CORNERS],
     /// Node mass below which a node is treated as empty.
@@ -595,6 +597,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             node_vol: Vec::new(),
             cell_k: [[[0.0; D]; CORNERS]; CORNERS],
             cell_m: [[0.0; CORNERS]; CORNERS],
+            cell_md: [[0.0; D]; CORNERS],
             corner_off: std::array::from_fn(|q| {
                 (0..D).map(|a| ((q >> a) & 1) * 3usize.pow(a as u32)).sum()
             }),
@@ -687,6 +690,14 @@ impl<'c, const D: usize> Solver<'c, D> {
                             self.geom.h[a] / if same { 3.0 } else { 6.0 }
                         })
                         .product();
+                }
+            }
+            for q in 0..(1 << D) {
+                for b in 0..D {
+                    let bit = |c: usize| ((c >> b) & 1) as f64;
+                    self.cell_md[q][b] = (0..1 << D)
+                        .map(|r| self.cell_m[q][r] * (bit(q) - bit(r)) * self.geom.h[b])
+                        .sum();
                 }
             }
         }
@@ -1142,11 +1153,10 @@ impl<'c, const D: usize> Solver<'c, D> {
     fn averaged_velocity_gradient(&mut self, slot: usize) {
         let dd = D * D;
         let aw = AvgRecord::<D>::WIDTH;
-        let h = self.geom.h;
         let mut avg = std::mem::take(&mut self.avg);
         let nodes = self.nodes();
         let (grid_vel, node_vol) = (&self.vel, &self.node_vol);
-        let (cell_k, cell_m) = (&self.cell_k, &self.cell_m);
+        let (cell_k, cell_m, cell_md) = (&self.cell_k, &self.cell_m, &self.cell_md);
         nodes.par_owned(&mut avg, aw, |j, cj, rec, nb| {
             let vol = node_vol[j];
             if vol <= 0.0 {
@@ -1154,14 +1164,25 @@ impl<'c, const D: usize> Solver<'c, D> {
                 return;
             }
             let vel = |i: usize| &grid_vel[VelRecord::<D>::at(i, slot)..][..D];
+            // One pass over the cells: with m_ci = w_c ∫_c S_j S_i dv,
+            // Σ m_ci (v_i + L̄ (x_j − x_i)) = Σ m_ci v_i + L̄ Σ m_ci (x_j − x_i), and the
+            // last sum is Σ_c w_c `cell_md` of the node's corner: it needs no velocity,
+            // so v̄ needs no second visit of the cells once L̄ is known.
             let mut l = [0.0; 9];
+            let mut mv = [0.0; 3];
+            let mut md = [0.0; 3];
             nodes.tiles.neighbourhood(j, nb);
             nodes.cells_around(nb, &cj, |q, cell, wc| {
+                for b in 0..D {
+                    md[b] += wc * cell_md[q][b];
+                }
                 for r in 0..(1 << D) {
                     let i = nb[cell + nodes.corner_off[r]];
                     let w = &cell_k[q][r];
+                    let m = wc * cell_m[q][r];
                     let v = vel(i);
                     for a in 0..D {
+                        mv[a] += m * v[a];
                         for b in 0..D {
                             l[a * D + b] += wc * v[a] * w[b];
                         }
@@ -1171,25 +1192,13 @@ impl<'c, const D: usize> Solver<'c, D> {
             for c in 0..dd {
                 l[c] /= vol;
             }
-            let mut u = [0.0; 3];
-            nodes.cells_around(nb, &cj, |q, cell, wc| {
-                for r in 0..(1 << D) {
-                    let i = nb[cell + nodes.corner_off[r]];
-                    let m = wc * cell_m[q][r];
-                    let v = vel(i);
-                    for a in 0..D {
-                        let mut x = v[a];
-                        for b in 0..D {
-                            let d = ((q >> b) & 1) as f64 - ((r >> b) & 1) as f64;
-                            x += l[a * D + b] * d * h[b];
-                        }
-                        u[a] += m * x;
-                    }
-                }
-            });
             let mut vb = [0.0; 6];
             for a in 0..D {
-                vb[a] = u[a] / vol;
+                let mut u = mv[a];
+                for b in 0..D {
+                    u += l[a * D + b] * md[b];
+                }
+                vb[a] = u / vol;
                 vb[D + a] = vb[a];
             }
             nodes.apply_bc(cj, &mut vb[..2 * D]);
