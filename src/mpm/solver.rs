@@ -13,8 +13,8 @@ use crate::physics::benchmark::{Benchmark, Memo};
 use crate::physics::material::Material;
 use crate::physics::shape::{Alpha, Geom, GradientScheme};
 use crate::physics::tensor::{vector, Mat, Vector};
-use decomposition::tiles::NEIGHBOURS;
-use decomposition::{Block, Communicator, Layout, Migrator, Tiles, Traffic};
+use decomposition::tiles::TILE_LOG;
+use decomposition::{Block, Communicator, Layout, Migrator, Tiles, Traffic, TILE};
 use rayon::prelude::*;
 
 /// The read-only context of the particle loops, borrowed field by field from a solver.
@@ -186,8 +186,6 @@ pub struct Solver<'c, const D: usize> {
     cell_m: [[f64; CORNERS]; CORNERS],
     /// `Σ_i ∫_c S_j S_i dv (x_j − x_i)` over one cell for its corner j.
     cell_md: [[f64; D]; CORNERS],
-    /// Offset of each cell corner in the numbering of [`Tiles::neighbourhood`].
-    corner_off: [usize; CORNERS],
     /// Node mass below which a node is treated as empty.
     mass_floor: f64,
     // Scratch reused every step (no allocation in the loop once grown).
@@ -260,6 +258,27 @@ pub enum Phase {
     XpicField,
 }
 
+/// Nodes per axis of a tile with the layer one node wide around it ([`NodeView::par_tiles`]).
+const PAD: usize = TILE + 2;
+
+/// `$nodes.$f::<NP>(args)` with `NP = PAD^D`, the padded tile's node count (array
+/// lengths cannot be computed from a const generic on stable Rust).
+macro_rules! by_pad {
+    ($d:expr, $nodes:expr, $f:ident, $($arg:expr),* $(,)?) => {
+        match $d {
+            1 => $nodes.$f::<6>($($arg),*),
+            2 => $nodes.$f::<36>($($arg),*),
+            _ => $nodes.$f::<216>($($arg),*),
+        }
+    };
+}
+
+/// Padded index offset of corner `r` of a cell from its lower corner.
+#[inline(always)]
+fn pad_off<const D: usize>(r: usize) -> usize {
+    (0..D).map(|a| ((r >> a) & 1) * PAD.pow(a as u32)).sum()
+}
+
 /// The grid fields a node pass reads, borrowed from the solver so that the pass can run
 /// on several threads (the solver itself holds a communicator, which is not `Sync`).
 struct NodeView<'a, const D: usize> {
@@ -270,37 +289,40 @@ struct NodeView<'a, const D: usize> {
     node_lo: [i64; D],
     faces: [[Face; 2]; D],
     cell_w: &'a [f64],
-    corner_off: [usize; CORNERS],
+    /// The cell integrals of [`Solver::cell_k`], [`Solver::cell_m`], [`Solver::cell_md`].
+    cell_k: &'a [[[f64; D]; CORNERS]; CORNERS],
+    cell_m: &'a [[f64; CORNERS]; CORNERS],
+    cell_md: &'a [[f64; D]; CORNERS],
 }
 
 impl<const D: usize> NodeView<'_, D> {
-    /// `f(n, c, record, nb)` for every owned node of the active tiles, with its record
-    /// of `width` numbers in `out` (storage order) and a neighbourhood buffer for
-    /// [`Tiles::neighbourhood`], in parallel over tiles. For the passes
+    /// `f(n, c, record)` for every owned node of the active tiles, with its record of
+    /// `width` numbers in `out` (storage order), in parallel over tiles. For the passes
     /// that write their own node's record only: each node's result depends only on what
     /// it reads, so it is the same on any number of threads.
     fn par_owned(
         &self,
         out: &mut [f64],
         width: usize,
-        f: impl Fn(usize, [usize; D], &mut [f64], &mut [usize; NEIGHBOURS]) + Sync,
+        f: impl Fn(usize, [usize; D], &mut [f64]) + Sync,
     ) {
         let tn = self.tiles.tile_nodes();
         let len = self.tiles.slots() * tn * width;
-        let tile = |nb: &mut [usize; NEIGHBOURS], (slot, recs): (usize, &mut [f64])| {
+        let tile = |(slot, recs): (usize, &mut [f64])| {
             for (o, rec) in recs.chunks_exact_mut(width).enumerate() {
                 if let Some(c) = self.tiles.local(slot, o) {
                     if (0..D).all(|a| c[a] >= self.own_lo[a] && c[a] < self.own_hi[a]) {
-                        f(slot * tn + o, c, rec, nb);
+                        f(slot * tn + o, c, rec);
                     }
                 }
             }
         };
         if rayon::current_num_threads() == 1 {
-            let mut nb = [0; NEIGHBOURS];
-            for slot_recs in out[..len].chunks_mut(tn * width).enumerate().skip(1) {
-                tile(&mut nb, slot_recs);
-            }
+            out[..len]
+                .chunks_mut(tn * width)
+                .enumerate()
+                .skip(1)
+                .for_each(tile);
             return;
         }
         out[..len]
@@ -308,31 +330,205 @@ impl<const D: usize> NodeView<'_, D> {
             .enumerate()
             .skip(1)
             .with_min_len(4)
-            .for_each_init(|| [0; NEIGHBOURS], tile);
+            .for_each(tile);
     }
 
-    /// Visit the cells of non-zero weight around local node `c` whose neighbourhood
-    /// (storage indices, [`Tiles::neighbourhood`]) is `nb`: for each, the node's corner
-    /// number in the cell, the cell's lower corner as a position in `nb`, and its
-    /// weight `w_c`. The cell's corner `r` is then `nb[cell + corner_off[r]]`.
-    #[inline]
-    fn cells_around(
+    /// `f(slot, pad, recs)` for every active tile, in parallel over tiles, with the
+    /// tile's records of `width` numbers in `recs` and in `pad[k]` the storage index
+    /// of the node at padded tile coordinates `p` (`k = Σ_a p_a PAD^a`, `p_a` in
+    /// `0..PAD`): the tile's nodes and the layer one node wide around them, node
+    /// `p − 1` of the tile, in the zero tile where that tile is not active. A node
+    /// stencil reads what it needs of its neighbours into tile-local arrays once per
+    /// tile instead of looking every neighbour up for every node ([`NodeView::pad_nodes`],
+    /// [`NodeView::pad_cells`]). Each node's result depends only on what it reads, so
+    /// it is the same on any number of threads.
+    fn par_tiles<const NP: usize>(
         &self,
-        nb: &[usize; NEIGHBOURS],
+        out: &mut [f64],
+        width: usize,
+        f: impl Fn(usize, &[usize; NP], &mut [f64]) + Sync,
+    ) {
+        debug_assert_eq!(NP, PAD.pow(D as u32));
+        let tn = self.tiles.tile_nodes();
+        let len = self.tiles.slots() * tn * width;
+        let tile = |(slot, recs): (usize, &mut [f64])| {
+            let nbr = self.tiles.neighbours(slot);
+            let pad: [usize; NP] = std::array::from_fn(|k| {
+                // Per axis: the neighbouring tile (0 below, 1 this, 2 above) and the
+                // node within it.
+                let (mut t, mut within, mut rest, mut pow) = (0, 0, k, 1);
+                for a in 0..D {
+                    let pa = rest % PAD;
+                    rest /= PAD;
+                    t += (usize::from(pa > 0) + usize::from(pa > TILE)) * pow;
+                    within |= ((pa + TILE - 1) & (TILE - 1)) << (TILE_LOG * a as u32);
+                    pow *= 3;
+                }
+                nbr[t] + within
+            });
+            f(slot, &pad, recs);
+        };
+        if rayon::current_num_threads() == 1 {
+            out[..len]
+                .chunks_mut(tn * width)
+                .enumerate()
+                .skip(1)
+                .for_each(tile);
+            return;
+        }
+        out[..len]
+            .par_chunks_mut(tn * width)
+            .enumerate()
+            .skip(1)
+            .with_min_len(4)
+            .for_each(tile);
+    }
+
+    /// `f(n, c, p, record)` for every owned node of tile `slot` (as [`NodeView::par_owned`]
+    /// visits them), with `p` its index in the tile's padded arrays ([`NodeView::par_tiles`]).
+    #[inline]
+    fn pad_nodes(
+        &self,
+        slot: usize,
+        recs: &mut [f64],
+        width: usize,
+        mut f: impl FnMut(usize, [usize; D], usize, &mut [f64]),
+    ) {
+        let tn = self.tiles.tile_nodes();
+        for (o, rec) in recs.chunks_exact_mut(width).enumerate() {
+            if let Some(c) = self.tiles.local(slot, o) {
+                if (0..D).all(|a| c[a] >= self.own_lo[a] && c[a] < self.own_hi[a]) {
+                    let p = (0..D)
+                        .map(|a| {
+                            (((o >> (TILE_LOG * a as u32)) & (TILE - 1)) + 1) * PAD.pow(a as u32)
+                        })
+                        .sum();
+                    f(slot * tn + o, c, p, rec);
+                }
+            }
+        }
+    }
+
+    /// [`NodeView::cells_around`] in a tile's padded arrays: for the node at padded
+    /// index `p` (local node `c`), each cell of non-zero weight in `cw` (cell weights
+    /// by the padded index of the cell's lower corner) with the node's corner number,
+    /// the padded index of the cell's lower corner and `w_c`, in the same order. The
+    /// cell's corner `r` is at `cell + pad_off::<D>(r)`.
+    #[inline]
+    fn pad_cells<const NP: usize>(
+        &self,
+        cw: &[f64; NP],
         c: &[usize; D],
+        p: usize,
         mut f: impl FnMut(usize, usize, f64),
     ) {
-        let centre = (3usize.pow(D as u32) - 1) / 2;
         for q in 0..(1 << D) {
             if (0..D).any(|a| c[a] < (q >> a) & 1) {
                 continue; // no cell there: bounded grid face
             }
-            let cell = centre - self.corner_off[q];
-            let w = self.cell_w[nb[cell]];
+            let cell = p - pad_off::<D>(q);
+            let w = cw[cell];
             if w > 0.0 {
                 f(q, cell, w);
             }
         }
+    }
+
+    /// The node → node force of [`Solver::averaged_force`] on every owned node, from
+    /// `sigma` (σ̄ per node, [`AvgRecord`]) into the force slots of `scat`.
+    fn force_tiles<const NP: usize>(&self, scat: &mut [f64], sw: usize, sigma: &[f64]) {
+        let (dd, aw) = (D * D, AvgRecord::<D>::WIDTH);
+        let cell_k = self.cell_k;
+        self.par_tiles::<NP>(scat, sw, |slot, pad, recs| {
+            let sp: [[f64; 9]; NP] = std::array::from_fn(|k| {
+                let mut s = [0.0; 9];
+                s[..dd].copy_from_slice(&sigma[pad[k] * aw..pad[k] * aw + dd]);
+                s
+            });
+            let cw: [f64; NP] = std::array::from_fn(|k| self.cell_w[pad[k]]);
+            self.pad_nodes(slot, recs, sw, |_, ci, pi, rec| {
+                let mut f = [0.0; D];
+                self.pad_cells(&cw, &ci, pi, |q, cell, wc| {
+                    for r in 0..(1 << D) {
+                        let s = &sp[cell + pad_off::<D>(r)];
+                        let w = &cell_k[r][q];
+                        for a in 0..D {
+                            for b in 0..D {
+                                f[a] += wc * s[a * D + b] * w[b];
+                            }
+                        }
+                    }
+                });
+                for a in 0..D {
+                    rec[NodeRecord::<D>::force(a)] -= f[a];
+                }
+            });
+        });
+    }
+
+    /// `L̄_j` and `v̄_j` of [`Solver::averaged_velocity_gradient`] on every owned node
+    /// into `avg`, from velocity slot `slot` of `grid_vel`.
+    fn gradient_tiles<const NP: usize>(
+        &self,
+        avg: &mut [f64],
+        grid_vel: &[f64],
+        slot: usize,
+        node_vol: &[f64],
+    ) {
+        let (dd, aw) = (D * D, AvgRecord::<D>::WIDTH);
+        let (cell_k, cell_m, cell_md) = (self.cell_k, self.cell_m, self.cell_md);
+        self.par_tiles::<NP>(avg, aw, |tile, pad, recs| {
+            let vp: [[f64; D]; NP] = std::array::from_fn(|k| {
+                let at = VelRecord::<D>::at(pad[k], slot);
+                std::array::from_fn(|a| grid_vel[at + a])
+            });
+            let cw: [f64; NP] = std::array::from_fn(|k| self.cell_w[pad[k]]);
+            self.pad_nodes(tile, recs, aw, |j, cj, pj, rec| {
+                let vol = node_vol[j];
+                if vol <= 0.0 {
+                    rec.iter_mut().for_each(|x| *x = 0.0);
+                    return;
+                }
+                // One visit of the cells: with m_ji = w_c ∫_c S_j S_i dv,
+                // Σ m_ji (v_i + L̄ (x_j − x_i)) = Σ m_ji v_i + L̄ Σ m_ji (x_j − x_i), and
+                // the last sum is Σ_c w_c `cell_md` of the node's corner: it needs no
+                // velocity, so v̄ needs no second visit once L̄ is known.
+                let mut l = [0.0; 9];
+                let mut mv = [0.0; 3];
+                let mut md = [0.0; 3];
+                self.pad_cells(&cw, &cj, pj, |q, cell, wc| {
+                    for b in 0..D {
+                        md[b] += wc * cell_md[q][b];
+                    }
+                    for r in 0..(1 << D) {
+                        let w = &cell_k[q][r];
+                        let m = wc * cell_m[q][r];
+                        let v = &vp[cell + pad_off::<D>(r)];
+                        for a in 0..D {
+                            mv[a] += m * v[a];
+                            for b in 0..D {
+                                l[a * D + b] += wc * v[a] * w[b];
+                            }
+                        }
+                    }
+                });
+                for c in 0..dd {
+                    l[c] /= vol;
+                }
+                let mut vb = [0.0; 6];
+                for a in 0..D {
+                    let mut u = mv[a];
+                    for b in 0..D {
+                        u += l[a * D + b] * md[b];
+                    }
+                    vb[a] = u / vol;
+                    vb[D + a] = vb[a];
+                }
+                self.apply_bc(cj, &mut vb[..2 * D]);
+                rec[..dd].copy_from_slice(&l[..dd]);
+                rec[dd..].copy_from_slice(&vb[..D]);
+            });
+        });
     }
 
     /// Fixed and slip faces on both velocity slots of a node.
@@ -598,9 +794,6 @@ impl<'c, const D: usize> Solver<'c, D> {
             cell_k: [[[0.0; D]; CORNERS]; CORNERS],
             cell_m: [[0.0; CORNERS]; CORNERS],
             cell_md: [[0.0; D]; CORNERS],
-            corner_off: std::array::from_fn(|q| {
-                (0..D).map(|a| ((q >> a) & 1) * 3usize.pow(a as u32)).sum()
-            }),
             mass_floor: 0.0,
             slabs: SlabOrder::default(),
             migrator,
@@ -990,7 +1183,9 @@ impl<'c, const D: usize> Solver<'c, D> {
             node_lo: self.block.node_lo,
             faces: self.faces,
             cell_w: &self.cell_w,
-            corner_off: self.corner_off,
+            cell_k: &self.cell_k,
+            cell_m: &self.cell_m,
+            cell_md: &self.cell_md,
         }
     }
 
@@ -1013,7 +1208,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         let col = NodeRecord::<D>::cover(sw);
         let mut fill = std::mem::take(&mut self.fill);
         let (nodes, scat) = (self.nodes(), &self.scat);
-        nodes.par_owned(&mut fill, 1, |n, c, fill, _| {
+        nodes.par_owned(&mut fill, 1, |n, c, fill| {
             let g: [i64; D] = std::array::from_fn(|a| nodes.node_lo[a] + c[a] as i64);
             let support = nodes.geom.node_volume(g);
             fill[0] = (scat[n * sw + col] / (FULL_FILL * support)).min(1.0);
@@ -1054,7 +1249,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         let share = self.geom.cell_volume() / (1 << D) as f64;
         let mut vol = std::mem::take(&mut self.node_vol);
         let (nodes, cell_w) = (self.nodes(), &self.cell_w);
-        nodes.par_owned(&mut vol, 1, |n, c, vol, _| {
+        nodes.par_owned(&mut vol, 1, |n, c, vol| {
             // The cells around the node (as `cells_around` visits them).
             let mut cells = [0; 8];
             nodes.tiles.octant(n, false, &mut cells);
@@ -1078,7 +1273,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         // σ̄_j = T_j / V_j on owned nodes, then to the ghosts.
         let mut avg = std::mem::take(&mut self.avg);
         let (nodes, scat, node_vol) = (self.nodes(), &self.scat, &self.node_vol);
-        nodes.par_owned(&mut avg, aw, |n, _, rec, _| {
+        nodes.par_owned(&mut avg, aw, |n, _, rec| {
             let v = node_vol[n];
             for c in 0..dd {
                 rec[c] = if v > 0.0 {
@@ -1090,26 +1285,8 @@ impl<'c, const D: usize> Solver<'c, D> {
         });
         self.block.ghost_copy(self.comm, &mut avg, aw);
         let mut scat = std::mem::take(&mut self.scat);
-        let (nodes, cell_k, sigma) = (self.nodes(), &self.cell_k, &avg);
-        nodes.par_owned(&mut scat, sw, |i, ci, rec, nb| {
-            let mut f = [0.0; D];
-            nodes.tiles.neighbourhood(i, nb);
-            nodes.cells_around(nb, &ci, |q, cell, wc| {
-                for r in 0..(1 << D) {
-                    let j = nb[cell + nodes.corner_off[r]];
-                    let w = &cell_k[r][q];
-                    let s = &sigma[j * aw..j * aw + dd];
-                    for a in 0..D {
-                        for b in 0..D {
-                            f[a] += wc * s[a * D + b] * w[b];
-                        }
-                    }
-                }
-            });
-            for a in 0..D {
-                rec[NodeRecord::<D>::force(a)] -= f[a];
-            }
-        });
+        let nodes = self.nodes();
+        by_pad!(D, nodes, force_tiles, &mut scat, sw, &avg);
         self.scat = scat;
         self.avg = avg;
     }
@@ -1121,7 +1298,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         let mut vel = std::mem::take(&mut self.vel);
         let (nodes, scat, floor) = (self.nodes(), &self.scat, self.mass_floor);
         // Both slots of a node's record (`VelRecord`).
-        nodes.par_owned(&mut vel, VelRecord::<D>::WIDTH, |n, c, v, _| {
+        nodes.par_owned(&mut vel, VelRecord::<D>::WIDTH, |n, c, v| {
             let rec = &scat[n * sw..(n + 1) * sw];
             let m = rec[NodeRecord::<D>::MASS];
             if m > floor {
@@ -1151,61 +1328,19 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// the ghosts in `avg` ([`AvgRecord`]). The particles' velocity gradient and the
     /// velocity they move with ([`kernel::moving_velocity`]) are built from these.
     fn averaged_velocity_gradient(&mut self, slot: usize) {
-        let dd = D * D;
-        let aw = AvgRecord::<D>::WIDTH;
         let mut avg = std::mem::take(&mut self.avg);
         let nodes = self.nodes();
-        let (grid_vel, node_vol) = (&self.vel, &self.node_vol);
-        let (cell_k, cell_m, cell_md) = (&self.cell_k, &self.cell_m, &self.cell_md);
-        nodes.par_owned(&mut avg, aw, |j, cj, rec, nb| {
-            let vol = node_vol[j];
-            if vol <= 0.0 {
-                rec.iter_mut().for_each(|x| *x = 0.0);
-                return;
-            }
-            let vel = |i: usize| &grid_vel[VelRecord::<D>::at(i, slot)..][..D];
-            // One pass over the cells: with m_ci = w_c ∫_c S_j S_i dv,
-            // Σ m_ci (v_i + L̄ (x_j − x_i)) = Σ m_ci v_i + L̄ Σ m_ci (x_j − x_i), and the
-            // last sum is Σ_c w_c `cell_md` of the node's corner: it needs no velocity,
-            // so v̄ needs no second visit of the cells once L̄ is known.
-            let mut l = [0.0; 9];
-            let mut mv = [0.0; 3];
-            let mut md = [0.0; 3];
-            nodes.tiles.neighbourhood(j, nb);
-            nodes.cells_around(nb, &cj, |q, cell, wc| {
-                for b in 0..D {
-                    md[b] += wc * cell_md[q][b];
-                }
-                for r in 0..(1 << D) {
-                    let i = nb[cell + nodes.corner_off[r]];
-                    let w = &cell_k[q][r];
-                    let m = wc * cell_m[q][r];
-                    let v = vel(i);
-                    for a in 0..D {
-                        mv[a] += m * v[a];
-                        for b in 0..D {
-                            l[a * D + b] += wc * v[a] * w[b];
-                        }
-                    }
-                }
-            });
-            for c in 0..dd {
-                l[c] /= vol;
-            }
-            let mut vb = [0.0; 6];
-            for a in 0..D {
-                let mut u = mv[a];
-                for b in 0..D {
-                    u += l[a * D + b] * md[b];
-                }
-                vb[a] = u / vol;
-                vb[D + a] = vb[a];
-            }
-            nodes.apply_bc(cj, &mut vb[..2 * D]);
-            rec[..dd].copy_from_slice(&l[..dd]);
-            rec[dd..].copy_from_slice(&vb[..D]);
-        });
-        self.block.ghost_copy(self.comm, &mut avg, aw);
+        by_pad!(
+            D,
+            nodes,
+            gradient_tiles,
+            &mut avg,
+            &self.vel,
+            slot,
+            &self.node_vol
+        );
+        self.block
+            .ghost_copy(self.comm, &mut avg, AvgRecord::<D>::WIDTH);
         self.avg = avg;
     }
 
