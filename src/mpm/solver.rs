@@ -306,17 +306,17 @@ impl<const D: usize> NodeView<'_, D> {
         width: usize,
         f: impl Fn(usize, [usize; D], &mut [f64]) + Sync,
     ) {
+        self.each_tile(out, width, |slot, recs| {
+            self.pad_nodes(slot, recs, width, |n, c, _, rec| f(n, c, rec));
+        });
+    }
+
+    /// `f(slot, recs)` for every active tile with its records of `width` numbers in
+    /// `out`, on rayon threads (in order on one).
+    fn each_tile(&self, out: &mut [f64], width: usize, f: impl Fn(usize, &mut [f64]) + Sync) {
         let tn = self.tiles.tile_nodes();
         let len = self.tiles.slots() * tn * width;
-        let tile = |(slot, recs): (usize, &mut [f64])| {
-            for (o, rec) in recs.chunks_exact_mut(width).enumerate() {
-                if let Some(c) = self.tiles.local(slot, o) {
-                    if (0..D).all(|a| c[a] >= self.own_lo[a] && c[a] < self.own_hi[a]) {
-                        f(slot * tn + o, c, rec);
-                    }
-                }
-            }
-        };
+        let tile = |(slot, recs): (usize, &mut [f64])| f(slot, recs);
         if rayon::current_num_threads() == 1 {
             out[..len]
                 .chunks_mut(tn * width)
@@ -349,9 +349,7 @@ impl<const D: usize> NodeView<'_, D> {
         f: impl Fn(usize, &[usize; NP], &mut [f64]) + Sync,
     ) {
         debug_assert_eq!(NP, PAD.pow(D as u32));
-        let tn = self.tiles.tile_nodes();
-        let len = self.tiles.slots() * tn * width;
-        let tile = |(slot, recs): (usize, &mut [f64])| {
+        self.each_tile(out, width, |slot, recs| {
             let nbr = self.tiles.neighbours(slot);
             let pad: [usize; NP] = std::array::from_fn(|k| {
                 // Per axis: the neighbouring tile (0 below, 1 this, 2 above) and the
@@ -367,25 +365,11 @@ impl<const D: usize> NodeView<'_, D> {
                 nbr[t] + within
             });
             f(slot, &pad, recs);
-        };
-        if rayon::current_num_threads() == 1 {
-            out[..len]
-                .chunks_mut(tn * width)
-                .enumerate()
-                .skip(1)
-                .for_each(tile);
-            return;
-        }
-        out[..len]
-            .par_chunks_mut(tn * width)
-            .enumerate()
-            .skip(1)
-            .with_min_len(4)
-            .for_each(tile);
+        });
     }
 
-    /// `f(n, c, p, record)` for every owned node of tile `slot` (as [`NodeView::par_owned`]
-    /// visits them), with `p` its index in the tile's padded arrays ([`NodeView::par_tiles`]).
+    /// `f(n, c, p, record)` for every owned node of tile `slot`, with `p` its index in
+    /// the tile's padded arrays ([`NodeView::par_tiles`]).
     #[inline]
     fn pad_nodes(
         &self,
