@@ -106,7 +106,12 @@ def run_mpmcg(a, tmp, dim, cells, ppc, gradient, update, steps):
     path = os.path.join(tmp, f"{dim}d_{gradient}_{update}_{steps}.toml")
     with open(path, "w") as f:
         f.write(scene(dim, cells, ppc, gradient, update, end))
-    out = os.path.join(tmp, "out")
+    return run_scene(a, path, os.path.join(tmp, "out"))
+
+
+def run_scene(a, path, out):
+    """`mpmcg run` of the scene file `path` on one thread, pinned to `a.cpu`, output in
+    `out`; exits unless it completed. Returns (particles, steps, wall seconds)."""
     cmd = pinned([a.mpmcg, "run", path, "--out", out, "--quiet", "--threads", "1"], a.cpu)
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
@@ -114,7 +119,7 @@ def run_mpmcg(a, tmp, dim, cells, ppc, gradient, update, steps):
     with open(os.path.join(out, "summary.json")) as f:
         s = json.load(f)
     if s["status"] != "completed":
-        sys.exit(f"mpmcg: {s['status']}: {s.get('message')}")
+        sys.exit(f"{path}: {s['status']}: {s.get('message')}")
     return s["particles"], s["steps"], s["wall_seconds"]
 
 

@@ -22,12 +22,10 @@ gives medians with ranges, and the ratio is the median of the per-round ratios.
 """
 
 import argparse
-import json
 import math
 import os
 import re
 import statistics
-import subprocess
 import sys
 import tempfile
 
@@ -71,16 +69,7 @@ def run(a, tmp, name, text):
     path = os.path.join(tmp, name + ".toml")
     with open(path, "w") as f:
         f.write(text)
-    out = os.path.join(tmp, "out")
-    cmd = peers.pinned([a.mpmcg, "run", path, "--out", out, "--quiet", "--threads", "1"], a.cpu)
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    if r.returncode != 0:
-        sys.exit(f"mpmcg failed ({r.returncode}): {' '.join(cmd)}\n{r.stderr}")
-    with open(os.path.join(out, "summary.json")) as f:
-        s = json.load(f)
-    if s["status"] != "completed":
-        sys.exit(f"{name}: {s['status']}: {s.get('message')}")
-    return s["particles"], s["steps"], s["wall_seconds"]
+    return peers.run_scene(a, path, os.path.join(tmp, "out"))
 
 
 def pups(runs):
