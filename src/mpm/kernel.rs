@@ -538,6 +538,9 @@ pub(crate) struct Run<const D: usize, const NA: usize, const N: usize> {
     pub idx: [usize; N],
     /// [`Ctx::node_sides`] of the run (all 0 unless [`Ctx::walls`]).
     pub sides: [[i32; NA]; D],
+    /// Whether any of the run's nodes lies on a grid face: if not, no particle of the
+    /// run has wall ends, and [`Run::ends`] skips the per-particle test.
+    at_wall: bool,
 }
 
 impl<const D: usize, const NA: usize, const N: usize> Run<D, NA, N> {
@@ -546,6 +549,7 @@ impl<const D: usize, const NA: usize, const N: usize> Run<D, NA, N> {
             key: u64::MAX,
             idx: [0; N],
             sides: [[0; NA]; D],
+            at_wall: false,
         }
     }
 
@@ -575,6 +579,18 @@ impl<const D: usize, const NA: usize, const N: usize> Run<D, NA, N> {
         self.key = Self::key_of(cell_node, below);
         self.idx = ctx.node_indices::<NA, N>(cell_node, below);
         self.sides = ctx.node_sides::<NA>(cell_node, below);
+        self.at_wall = self.sides.iter().flatten().any(|&s| s != 0);
+    }
+
+    /// [`Ctx::wall_ends`] of a particle of this run with 1D weights `w`: none where
+    /// the run's nodes are all inside the grid, as most are.
+    #[inline(always)]
+    pub fn ends(&self, ctx: &Ctx<'_, D>, w: &[[f64; 3]; D]) -> [[bool; 2]; D] {
+        if self.at_wall {
+            ctx.wall_ends::<NA>(&self.sides, w)
+        } else {
+            [[false; 2]; D]
+        }
     }
 }
 
@@ -614,7 +630,7 @@ pub(crate) fn moving_velocity<const D: usize, const N: usize>(
             u[a] += k.s[n] * x;
         }
     }
-    if ctx.walls {
+    if ctx.walls && k.ends.iter().flatten().any(|&e| e) {
         // The share of the particle's shape weight on wall nodes: on fixed faces (all
         // components) and on slip faces normal to each axis (that component).
         let mut keep_fixed = 1.0;
@@ -798,7 +814,7 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
                 run.enter(ctx, s.tile[p], below);
                 nd.load(&run.idx, vel, avg, xpic);
             }
-            k.ends = ctx.wall_ends::<NA>(&run.sides, &w);
+            k.ends = run.ends(ctx, &w);
             let mut vn = Vector::<D>::zeros();
             let mut dv = Vector::<D>::zeros();
             for n in 0..N {
@@ -888,7 +904,7 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
                 run.enter(ctx, s.tile[p], below);
                 nd.load(&run.idx, vel, avg, None);
             }
-            k.ends = ctx.wall_ends::<NA>(&run.sides, &w);
+            k.ends = run.ends(ctx, &w);
             let l = velocity_gradient_at(&k, &nd, m.slot, m.two_step);
             t.ok &= deform(ctx, &mut s, p, &l, m.dt);
             if m.moves {

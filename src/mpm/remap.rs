@@ -154,7 +154,7 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
             run.enter(ctx, parts.tile[p], below);
             nd.load(&run.idx, vel, &[], None);
         }
-        k.ends = ctx.wall_ends::<NA>(&run.sides, &w);
+        k.ends = run.ends(ctx, &w);
         let mut vn = Vector::<D>::zeros();
         let mut dv = Vector::<D>::zeros();
         for n in 0..N {
