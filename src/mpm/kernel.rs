@@ -107,7 +107,6 @@ impl<const D: usize> VelRecord<D> {
 
 /// Interpolation data of one particle over its `N` nodes.
 pub struct Kern<const D: usize, const N: usize> {
-    pub idx: [usize; N],
     pub s: [f64; N],
     /// Shape-function gradients, `g[d][n]` along axis `d` at node `n` (nodes innermost,
     /// so that a loop over the nodes runs over adjacent numbers).
@@ -121,8 +120,8 @@ pub struct Kern<const D: usize, const N: usize> {
 }
 
 impl<const D: usize> Ctx<'_, D> {
-    /// A particle's interpolation data over its `N` nodes, their storage indices
-    /// and wall ends included: [`Ctx::weights`], [`Ctx::node_indices`] and the wall
+    /// A particle's interpolation data over its `N` nodes with its wall ends, and the
+    /// nodes' storage indices: [`Ctx::weights`], [`Ctx::node_indices`] and the wall
     /// ends in one, from the position alone (the solver's tests; the particle loops
     /// use the parts with [`Run`]).
     #[cfg(test)]
@@ -131,17 +130,16 @@ impl<const D: usize> Ctx<'_, D> {
         x: &Vector<D>,
         half: Option<&[f64; D]>,
         cell_node: u32,
-    ) -> Kern<D, N> {
+    ) -> (Kern<D, N>, [usize; N]) {
         let xa: [f64; D] = std::array::from_fn(|a| x[a]);
         let xi = self.geom.locate(&xa).1;
         let (mut k, below, w) = self.weights::<NA, N>(x, half, &xi);
-        k.idx = self.node_indices::<NA, N>(cell_node, below);
         k.ends = self.wall_ends::<NA>(&self.node_sides::<NA>(cell_node, below), &w);
-        k
+        (k, self.node_indices::<NA, N>(cell_node, below))
     }
 
-    /// A particle's weights, gradients and α, without the nodes' storage indices and
-    /// the wall ends (`idx` and `ends` left unset), per axis whether its first node
+    /// A particle's weights, gradients and α, without the wall ends (`ends` left
+    /// unset; the nodes' storage indices are the run's), per axis whether its first node
     /// lies one below its cell (GIMP only), and its 1D weights per axis (for
     /// [`Ctx::wall_ends`]). Hat functions take the local cell coordinate `xi` the tile
     /// pass kept (the same `Geom::locate` of the same position, so the same weights),
@@ -163,7 +161,6 @@ impl<const D: usize> Ctx<'_, D> {
         };
         let below: [usize; D] = std::array::from_fn(|a| (w.cell[a] - w.base[a]) as usize);
         let mut k = Kern {
-            idx: [0; N],
             s: [0.0; N],
             g: [[0.0; N]; D],
             alpha: match self.alpha {
@@ -706,13 +703,14 @@ pub(crate) fn clip_at_slip_walls<const D: usize, const N: usize>(
 #[cfg(test)]
 pub(crate) fn velocity_gradient<const D: usize, const N: usize>(
     k: &Kern<D, N>,
+    idx: &[usize; N],
     vel: &[f64],
     avg: &[f64],
     slot: usize,
     two: bool,
 ) -> Mat<D> {
     let mut nd = NodeData::<D, N>::new();
-    nd.load(&k.idx, vel, if two { avg } else { &[] }, None);
+    nd.load(idx, vel, if two { avg } else { &[] }, None);
     velocity_gradient_at(k, &nd, slot, two)
 }
 

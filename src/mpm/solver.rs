@@ -2068,8 +2068,8 @@ particles_per_cell = 3
         let ctx = ctx!(s);
         let mut work = 0.0;
         for p in 0..s.parts.len() {
-            let k = ctx.kern::<2, 4>(&s.parts.x[p], None, s.ptile[p]);
-            let l = kernel::velocity_gradient(&k, &s.vel, &s.avg, 1, s.scheme.two_step());
+            let (k, idx) = ctx.kern::<2, 4>(&s.parts.x[p], None, s.ptile[p]);
+            let l = kernel::velocity_gradient(&k, &idx, &s.vel, &s.avg, 1, s.scheme.two_step());
             work -= s.parts.vol[p] * s.parts.stress[p].component_mul(&l).sum();
         }
         (fv, work)
@@ -2127,8 +2127,9 @@ particles_per_cell = 3
                 let ctx = ctx!(s);
                 let mut worst = 0.0f64;
                 for p in 0..s.parts.len() {
-                    let k = ctx.kern::<2, 4>(&s.parts.x[p], None, s.ptile[p]);
-                    let l = kernel::velocity_gradient(&k, &s.vel, &s.avg, 1, s.scheme.two_step());
+                    let (k, idx) = ctx.kern::<2, 4>(&s.parts.x[p], None, s.ptile[p]);
+                    let l =
+                        kernel::velocity_gradient(&k, &idx, &s.vel, &s.avg, 1, s.scheme.two_step());
                     for a in 0..2 {
                         for b in 0..2 {
                             worst = worst.max((l[(a, b)] - w[a][b]).abs());
