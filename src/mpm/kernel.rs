@@ -591,6 +591,45 @@ impl<const D: usize, const NA: usize, const N: usize> Run<D, NA, N> {
     }
 }
 
+/// The nodal `L̄` of a two-step scheme interpolated at a particle, shared by its
+/// velocity gradient and the velocity it moves with: `all = Σ_n S_n L̄_n`, and per
+/// column `b` the part of that sum from the nodes on the upper side of the cell along
+/// axis `b`, `upper[a][b] = Σ_{n: o_b(n) = 1} S_n L̄_n[a][b]`. Zero for one-step schemes.
+pub(crate) struct LbarAt<const D: usize> {
+    pub all: [[f64; D]; D],
+    pub upper: [[f64; D]; D],
+}
+
+/// [`LbarAt`] of a particle with weights `k` over its nodes' data `nd`.
+#[inline(always)]
+pub(crate) fn lbar_at<const D: usize, const N: usize>(
+    k: &Kern<D, N>,
+    nd: &NodeData<D, N>,
+    two: bool,
+) -> LbarAt<D> {
+    let mut lb = LbarAt {
+        all: [[0.0; D]; D],
+        upper: [[0.0; D]; D],
+    };
+    if two {
+        for a in 0..D {
+            for b in 0..D {
+                let (mut all, mut upper) = (0.0, 0.0);
+                for n in 0..N {
+                    let t = k.s[n] * nd.lb[a][b][n];
+                    all += t;
+                    if (n >> b) & 1 == 1 {
+                        upper += t;
+                    }
+                }
+                lb.all[a][b] = all;
+                lb.upper[a][b] = upper;
+            }
+        }
+    }
+    lb
+}
+
 /// The velocity two-step schemes move a particle with: the nodal linear
 /// reconstructions `v̄_j + L̄_j (x − x_j)` blended by the shape functions,
 /// `u(x) = Σ_j S_j(x) (v̄_j + L̄_j (x − x_j))`. Exact for linear velocity fields, like
@@ -610,22 +649,23 @@ pub(crate) fn moving_velocity<const D: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
     k: &Kern<D, N>,
     nd: &NodeData<D, N>,
+    lb: &LbarAt<D>,
     slot: usize,
 ) -> Vector<D> {
+    // Node n's offset from the particle is (ξ − o_n) h, so
+    // Σ_n S_n L̄_n (ξ − o_n) h = (Σ_n S_n L̄_n) ξ h − Σ_{n: o_b(n) = 1} S_n L̄_n h_b:
+    // the interpolated L̄ the velocity gradient needs anyway, and half its terms again.
     let h = &ctx.geom.h;
     let mut u = Vector::<D>::zeros();
-    for n in 0..N {
-        let mut d = [0.0; D];
-        for a in 0..D {
-            d[a] = (k.frac[a] - ((n >> a) & 1) as f64) * h[a];
+    for a in 0..D {
+        let mut x = 0.0;
+        for n in 0..N {
+            x += k.s[n] * nd.vb[a][n];
         }
-        for a in 0..D {
-            let mut x = nd.vb[a][n];
-            for b in 0..D {
-                x += nd.lb[a][b][n] * d[b];
-            }
-            u[a] += k.s[n] * x;
+        for b in 0..D {
+            x += (lb.all[a][b] * k.frac[b] - lb.upper[a][b]) * h[b];
         }
+        u[a] = x;
     }
     if ctx.walls && k.ends.iter().flatten().any(|&e| e) {
         // The share of the particle's shape weight on wall nodes: on fixed faces (all
@@ -711,7 +751,7 @@ pub(crate) fn velocity_gradient<const D: usize, const N: usize>(
 ) -> Mat<D> {
     let mut nd = NodeData::<D, N>::new();
     nd.load(idx, vel, if two { avg } else { &[] }, None);
-    velocity_gradient_at(k, &nd, slot, two)
+    velocity_gradient_at(k, &nd, &lbar_at(k, &nd, two), slot, two)
 }
 
 /// Velocity gradient at a particle from velocity slot `slot` and, for two-step
@@ -720,25 +760,27 @@ pub(crate) fn velocity_gradient<const D: usize, const N: usize>(
 pub(crate) fn velocity_gradient_at<const D: usize, const N: usize>(
     k: &Kern<D, N>,
     nd: &NodeData<D, N>,
+    lb: &LbarAt<D>,
     slot: usize,
     two: bool,
 ) -> Mat<D> {
     let mut l = Mat::<D>::zeros();
-    for n in 0..N {
-        if k.alpha != 0.0 {
+    if k.alpha != 0.0 {
+        for a in 0..D {
             for b in 0..D {
-                let g = k.alpha * k.g[b][n];
-                for a in 0..D {
-                    l[(a, b)] += nd.v[slot][a][n] * g;
+                let mut x = 0.0;
+                for n in 0..N {
+                    x += nd.v[slot][a][n] * k.g[b][n];
                 }
+                l[(a, b)] = k.alpha * x;
             }
         }
-        if two && k.alpha != 1.0 {
-            let c = (1.0 - k.alpha) * k.s[n];
-            for a in 0..D {
-                for b in 0..D {
-                    l[(a, b)] += c * nd.lb[a][b][n];
-                }
+    }
+    if two && k.alpha != 1.0 {
+        let c = 1.0 - k.alpha;
+        for a in 0..D {
+            for b in 0..D {
+                l[(a, b)] += c * lb.all[a][b];
             }
         }
     }
@@ -838,8 +880,9 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
             };
             // The velocity the particle moves with: the grid's, or for a two-step
             // scheme whose L̄ and v̄ of slot 1 are at hand, their reconstruction.
+            let lb = lbar_at(&k, &nd, m.two_step && (m.recon || m.stress));
             let vm = if m.recon {
-                moving_velocity(ctx, &k, &nd, UPDATED)
+                moving_velocity(ctx, &k, &nd, &lb, UPDATED)
             } else {
                 vn
             };
@@ -860,7 +903,7 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
             s.parts.v[p] = new;
             t.ok &= new.iter().all(|x| x.is_finite());
             if m.stress {
-                let l = velocity_gradient_at(&k, &nd, UPDATED, m.two_step);
+                let l = velocity_gradient_at(&k, &nd, &lb, UPDATED, m.two_step);
                 t.ok &= deform(ctx, &mut s, p, &l, m.dt);
             }
             if m.move_now {
@@ -903,13 +946,14 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
                 nd.load(&run.idx, vel, avg, None);
             }
             k.ends = run.ends(ctx, &w);
-            let l = velocity_gradient_at(&k, &nd, m.slot, m.two_step);
+            let lb = lbar_at(&k, &nd, m.two_step);
+            let l = velocity_gradient_at(&k, &nd, &lb, m.slot, m.two_step);
             t.ok &= deform(ctx, &mut s, p, &l, m.dt);
             if m.moves {
                 // MUSL, two-step scheme: the particle moves with the reconstruction of
                 // the remapped velocity (and its velocity into a slip wall is clipped to
                 // that, as in the gather).
-                let vm = moving_velocity(ctx, &k, &nd, m.slot);
+                let vm = moving_velocity(ctx, &k, &nd, &lb, m.slot);
                 // Only particles touching a wall's nodes can be clipped: the others'
                 // velocities are neither read nor written here.
                 if k.ends.iter().flatten().any(|&e| e) {
