@@ -433,14 +433,24 @@ impl<const D: usize> NodeView<'_, D> {
             self.pad_nodes(slot, recs, sw, |_, ci, pi, rec| {
                 let mut f = [0.0; D];
                 self.pad_cells(&cw, &ci, pi, |q, cell, wc| {
-                    for r in 0..(1 << D) {
-                        let s = &sp[cell + pad_off::<D>(r)];
-                        let w = &cell_k[r][q];
-                        for a in 0..D {
-                            for b in 0..D {
-                                f[a] += wc * s[a * D + b] * w[b];
+                    // `∫_c S_r ∂_b S_q` does not depend on `r_b` (a hat's derivative
+                    // along b is constant across the cell): the corners r and r + e_b
+                    // share it, so their stresses are added first, half the products.
+                    let mut t = [0.0; D];
+                    for b in 0..D {
+                        for i in 0..(1 << (D - 1)) {
+                            // The i-th corner with r_b = 0: i with a 0 bit put in at b.
+                            let r = ((i >> b) << (b + 1)) | (i & ((1 << b) - 1));
+                            let k = cell_k[r][q][b];
+                            let s0 = &sp[cell + pad_off::<D>(r)];
+                            let s1 = &sp[cell + pad_off::<D>(r | 1 << b)];
+                            for a in 0..D {
+                                t[a] += k * (s0[a * D + b] + s1[a * D + b]);
                             }
                         }
+                    }
+                    for a in 0..D {
+                        f[a] += wc * t[a];
                     }
                 });
                 for a in 0..D {
@@ -481,18 +491,33 @@ impl<const D: usize> NodeView<'_, D> {
                 let mut mv = [0.0; 3];
                 let mut md = [0.0; 3];
                 self.pad_cells(&cw, &cj, pj, |q, cell, wc| {
-                    for b in 0..D {
-                        md[b] += wc * cell_md[q][b];
-                    }
+                    let mut mc = [0.0; D];
                     for r in 0..(1 << D) {
-                        let w = &cell_k[q][r];
-                        let m = wc * cell_m[q][r];
-                        let v = &vp[cell + pad_off::<D>(r)];
+                        let (m, v) = (cell_m[q][r], &vp[cell + pad_off::<D>(r)]);
                         for a in 0..D {
-                            mv[a] += m * v[a];
-                            for b in 0..D {
-                                l[a * D + b] += wc * v[a] * w[b];
+                            mc[a] += m * v[a];
+                        }
+                    }
+                    // `∫_c S_q ∂_b S_r` changes only its sign with `r_b`: the corners
+                    // r and r + e_b enter as the velocity's difference along b.
+                    let mut lc = [0.0; 9];
+                    for b in 0..D {
+                        for i in 0..(1 << (D - 1)) {
+                            // The i-th corner with r_b = 0: i with a 0 bit put in at b.
+                            let r = ((i >> b) << (b + 1)) | (i & ((1 << b) - 1));
+                            let k = cell_k[q][r | 1 << b][b];
+                            let v0 = &vp[cell + pad_off::<D>(r)];
+                            let v1 = &vp[cell + pad_off::<D>(r | 1 << b)];
+                            for a in 0..D {
+                                lc[a * D + b] += k * (v1[a] - v0[a]);
                             }
+                        }
+                    }
+                    for a in 0..D {
+                        mv[a] += wc * mc[a];
+                        md[a] += wc * cell_md[q][a];
+                        for b in 0..D {
+                            l[a * D + b] += wc * lc[a * D + b];
                         }
                     }
                 });
