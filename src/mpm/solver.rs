@@ -641,7 +641,7 @@ const SORT_EVERY: u64 = 20;
 /// (positions are wrapped), within the faces on a bounded one (never if NaN).
 #[inline]
 fn on_grid<const D: usize>(geom: &Geom<D>, a: usize, x: f64) -> bool {
-    geom.periodic[a] || (x >= geom.lower[a] && x <= geom.upper[a])
+    geom.periodic[a] | ((x >= geom.lower[a]) & (x <= geom.upper[a]))
 }
 
 /// Whether position `x` lies in the cells `[lo, hi)` of a block, by a test that needs
@@ -655,10 +655,13 @@ fn in_block<const D: usize>(
     hi: &[usize; D],
     x: &Vector<D>,
 ) -> bool {
-    (0..D).all(|a| {
+    // `&`, not `&&` or `all`: no branch per axis in the per-particle check.
+    let mut inside = true;
+    for a in 0..D {
         let s = (x[a] - geom.lower[a]) * geom.inv_h[a];
-        s >= lo[a] as f64 && s < hi[a] as f64
-    })
+        inside &= (s >= lo[a] as f64) & (s < hi[a] as f64);
+    }
+    inside
 }
 
 /// Numbers (or node records) per task of the parallel fills of grid fields.
@@ -1658,8 +1661,11 @@ impl<'c, const D: usize> Solver<'c, D> {
                             }
                         }
                     }
-                    let in_grid = (0..D).all(|a| on_grid(geom, a, x[a]));
-                    *flag |= !(in_grid && in_block(geom, lo, hi, x));
+                    let mut in_grid = true;
+                    for a in 0..D {
+                        in_grid &= on_grid(geom, a, x[a]);
+                    }
+                    *flag |= !(in_grid & in_block(geom, lo, hi, x));
                 }
             });
     }
