@@ -62,14 +62,18 @@ pub struct Ctx<'a, const D: usize> {
 
 /// Layout of a node's scatter record, `width(two_step)` numbers per node: the mass, the
 /// momentum (D), the force (D), and for two-step schemes the averaged-stress sum
-/// `Σ_p (1 − α_p) v_p σ_p S_j(x_p)` (D × D, row-major) and the cover `Σ_p v_p S_j(x_p)`
-/// last. The records are summed over ranks as plain numbers (the ghost sum).
+/// `Σ_p (1 − α_p) v_p σ_p S_j(x_p)` (its upper triangle, [`NodeRecord::SYM`] numbers:
+/// the stress is symmetric, so the lower one is the same sum) and the cover
+/// `Σ_p v_p S_j(x_p)` last. The records are summed over ranks as plain numbers (the
+/// ghost sum).
 pub struct NodeRecord<const D: usize>;
 
 impl<const D: usize> NodeRecord<D> {
     pub const MASS: usize = 0;
+    /// Entries of a symmetric D × D tensor's upper triangle.
+    pub const SYM: usize = D * (D + 1) / 2;
     pub const fn width(two_step: bool) -> usize {
-        1 + 2 * D + if two_step { D * D + 1 } else { 0 }
+        1 + 2 * D + if two_step { Self::SYM + 1 } else { 0 }
     }
     pub const fn momentum(a: usize) -> usize {
         1 + a
@@ -77,13 +81,21 @@ impl<const D: usize> NodeRecord<D> {
     pub const fn force(a: usize) -> usize {
         1 + D + a
     }
+    /// Entry `(a, b)` of the averaged-stress sum, either triangle.
     pub const fn stress_sum(a: usize, b: usize) -> usize {
-        1 + 2 * D + a * D + b
+        1 + 2 * D + sym_index::<D>(a, b)
     }
     /// The cover, last in a record of `width`.
     pub const fn cover(width: usize) -> usize {
         width - 1
     }
+}
+
+/// Place of entry `(a, b)` (either triangle) of a symmetric D × D tensor stored as its
+/// upper triangle row by row: `(0,0), (0,1), …, (0,D−1), (1,1), …`.
+pub const fn sym_index<const D: usize>(a: usize, b: usize) -> usize {
+    let (a, b) = if a <= b { (a, b) } else { (b, a) };
+    a * D - a * a.saturating_sub(1) / 2 + (b - a)
 }
 
 /// Velocity slot: the grid velocity `p / m`, before this step's forces (with walls).
@@ -1416,7 +1428,8 @@ struct ScatterSums<const D: usize, const N: usize> {
     mass: [f64; N],
     mom: [[f64; N]; D],
     force: [[f64; N]; D],
-    stress: [[[f64; N]; D]; D],
+    /// The upper triangle ([`sym_index`]); 6 is the 3D count.
+    stress: [[f64; N]; 6],
     cover: [f64; N],
 }
 
@@ -1426,7 +1439,7 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
             mass: [0.0; N],
             mom: [[0.0; N]; D],
             force: [[0.0; N]; D],
-            stress: [[[0.0; N]; D]; D],
+            stress: [[0.0; N]; 6],
             cover: [0.0; N],
         }
     }
@@ -1473,9 +1486,10 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
             if m.two_step {
                 let c: [f64; N] = std::array::from_fn(|n| (1.0 - k.alpha) * k.s[n]);
                 for a in 0..D {
-                    for b in 0..D {
+                    for b in a..D {
+                        let t = &mut self.stress[sym_index::<D>(a, b)];
                         for n in 0..N {
-                            self.stress[a][b][n] += c[n] * vs[(a, b)];
+                            t[n] += c[n] * vs[(a, b)];
                         }
                     }
                 }
@@ -1509,10 +1523,8 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
                     rec[R::<D>::force(a)] += self.force[a][n];
                 }
                 if m.two_step {
-                    for a in 0..D {
-                        for b in 0..D {
-                            rec[R::<D>::stress_sum(a, b)] += self.stress[a][b][n];
-                        }
+                    for k in 0..R::<D>::SYM {
+                        rec[R::<D>::stress_sum(0, 0) + k] += self.stress[k][n];
                     }
                 }
             }
@@ -1547,6 +1559,29 @@ mod tests {
             o.finish();
             ix
         })
+    }
+
+    /// The stored upper triangle: row by row, each place once, and `(b, a)` at the
+    /// place of `(a, b)`.
+    fn sym_layout<const D: usize>() {
+        let mut k = 0;
+        for a in 0..D {
+            for b in 0..D {
+                assert_eq!(sym_index::<D>(a, b), sym_index::<D>(b, a), "D {D}");
+                if b >= a {
+                    assert_eq!(sym_index::<D>(a, b), k, "D {D}, ({a}, {b})");
+                    k += 1;
+                }
+            }
+        }
+        assert_eq!(k, NodeRecord::<D>::SYM);
+    }
+
+    #[test]
+    fn symmetric_tensor_places_cover_the_upper_triangle_once() {
+        sym_layout::<1>();
+        sym_layout::<2>();
+        sym_layout::<3>();
     }
 
     /// The parallel counting sort is the stable sort by slab: every particle once,

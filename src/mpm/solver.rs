@@ -1280,19 +1280,20 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// assembled cell by cell over the weighted cells around each owned node.
     fn averaged_force(&mut self) {
         let sw = self.sw;
-        let dd = D * D;
         let aw = AvgRecord::<D>::WIDTH;
         // σ̄_j = T_j / V_j on owned nodes, then to the ghosts.
         let mut avg = std::mem::take(&mut self.avg);
         let (nodes, scat, node_vol) = (self.nodes(), &self.scat, &self.node_vol);
         nodes.par_owned(&mut avg, aw, |n, _, rec| {
             let v = node_vol[n];
-            for c in 0..dd {
-                rec[c] = if v > 0.0 {
-                    scat[n * sw + NodeRecord::<D>::stress_sum(0, 0) + c] / v
-                } else {
-                    0.0
-                };
+            for a in 0..D {
+                for b in 0..D {
+                    rec[a * D + b] = if v > 0.0 {
+                        scat[n * sw + NodeRecord::<D>::stress_sum(a, b)] / v
+                    } else {
+                        0.0
+                    };
+                }
             }
         });
         self.block.ghost_copy(self.comm, &mut avg, aw);
