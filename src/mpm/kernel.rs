@@ -164,8 +164,11 @@ impl<const D: usize> Ctx<'_, D> {
         half: Option<&[f64; D]>,
         xi: &[f64; D],
     ) -> (Kern<D, N>, [usize; D], [[f64; 3]; D]) {
+        // Three nodes per axis is GIMP, two hat functions (`by_nodes!`): decided at
+        // compile time, so a hat loop carries no GIMP code.
+        debug_assert_eq!(NA == 3, self.gimp);
         let w = match half {
-            Some(lp) if self.gimp => {
+            Some(lp) if NA == 3 => {
                 let xa: [f64; D] = std::array::from_fn(|a| x[a]);
                 shape::gimp(self.geom, &xa, lp)
             }
@@ -182,7 +185,7 @@ impl<const D: usize> Ctx<'_, D> {
             frac: [0.0; D],
             ends: [[false; 2]; D],
         };
-        if !self.gimp {
+        if NA == 2 {
             for a in 0..D {
                 k.frac[a] = w.w[a][1];
             }
