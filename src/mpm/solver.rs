@@ -349,21 +349,26 @@ impl<const D: usize> NodeView<'_, D> {
         f: impl Fn(usize, &[usize; NP], &mut [f64]) + Sync,
     ) {
         debug_assert_eq!(NP, PAD.pow(D as u32));
+        // Per padded position, the same for every tile: the neighbouring tile (per
+        // axis 0 below, 1 this, 2 above) and the node's offset within it.
+        let mut map = [(0usize, 0usize); NP];
+        for (k, m) in map.iter_mut().enumerate() {
+            let (mut t, mut within, mut rest, mut pow) = (0, 0, k, 1);
+            for a in 0..D {
+                let pa = rest % PAD;
+                rest /= PAD;
+                t += (usize::from(pa > 0) + usize::from(pa > TILE)) * pow;
+                within |= ((pa + TILE - 1) & (TILE - 1)) << (TILE_LOG * a as u32);
+                pow *= 3;
+            }
+            *m = (t, within);
+        }
         self.each_tile(out, width, |slot, recs| {
             let nbr = self.tiles.neighbours(slot);
-            let pad: [usize; NP] = std::array::from_fn(|k| {
-                // Per axis: the neighbouring tile (0 below, 1 this, 2 above) and the
-                // node within it.
-                let (mut t, mut within, mut rest, mut pow) = (0, 0, k, 1);
-                for a in 0..D {
-                    let pa = rest % PAD;
-                    rest /= PAD;
-                    t += (usize::from(pa > 0) + usize::from(pa > TILE)) * pow;
-                    within |= ((pa + TILE - 1) & (TILE - 1)) << (TILE_LOG * a as u32);
-                    pow *= 3;
-                }
-                nbr[t] + within
-            });
+            let mut pad = [0; NP];
+            for (p, &(t, within)) in pad.iter_mut().zip(&map) {
+                *p = nbr[t] + within;
+            }
             f(slot, &pad, recs);
         });
     }
