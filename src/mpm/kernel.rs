@@ -497,6 +497,24 @@ pub(crate) struct NodeData<const D: usize, const N: usize> {
     pub vb: [[f64; N]; D],
     /// XPIC's field per node (`D` numbers a node), if any.
     pub x: [[f64; N]; D],
+    /// Hat functions ([`hats`]): the velocity differences across the cell of the slot
+    /// [`NodeData::load_differences`] was given, `dv[a][b][m] = v_a(upper) − v_a(lower)`
+    /// over the `m`-th pair of nodes along axis `b` ([`pair`]); `m < N / 2`.
+    pub dv: [[[f64; N]; D]; D],
+}
+
+/// Whether `N` nodes are the `2^D` corners of a cell (hat functions), not GIMP's `3^D`.
+#[inline(always)]
+pub const fn hats<const D: usize, const N: usize>() -> bool {
+    N == 1 << D
+}
+
+/// The `m`-th pair of cell corners along axis `b` (`m < 2^(D−1)`): the lower corner
+/// (bit `b` clear; `m` with a zero bit put in at `b`) and the upper one.
+#[inline(always)]
+pub const fn pair(b: usize, m: usize) -> (usize, usize) {
+    let lower = ((m >> b) << (b + 1)) | (m & ((1 << b) - 1));
+    (lower, lower | 1 << b)
 }
 
 impl<const D: usize, const N: usize> NodeData<D, N> {
@@ -506,6 +524,25 @@ impl<const D: usize, const N: usize> NodeData<D, N> {
             lb: [[[0.0; N]; D]; D],
             vb: [[0.0; N]; D],
             x: [[0.0; N]; D],
+            dv: [[[0.0; N]; D]; D],
+        }
+    }
+
+    /// With hat functions, [`NodeData::dv`] of velocity slot `slot` (after
+    /// [`NodeData::load`]): once per run, where each particle's velocity gradient
+    /// then needs half the products ([`velocity_gradient_at`]).
+    #[inline(always)]
+    pub fn load_differences(&mut self, slot: usize) {
+        if !hats::<D, N>() {
+            return;
+        }
+        for a in 0..D {
+            for b in 0..D {
+                for m in 0..N / 2 {
+                    let (lo, hi) = pair(b, m);
+                    self.dv[a][b][m] = self.v[slot][a][hi] - self.v[slot][a][lo];
+                }
+            }
         }
     }
 
@@ -766,6 +803,7 @@ pub(crate) fn velocity_gradient<const D: usize, const N: usize>(
 ) -> Mat<D> {
     let mut nd = NodeData::<D, N>::new();
     nd.load(idx, vel, if two { avg } else { &[] }, None);
+    nd.load_differences(slot);
     velocity_gradient_at(k, &nd, &lbar_at(k, &nd, two), slot, two)
 }
 
@@ -784,8 +822,18 @@ pub(crate) fn velocity_gradient_at<const D: usize, const N: usize>(
         for a in 0..D {
             for b in 0..D {
                 let mut x = 0.0;
-                for n in 0..N {
-                    x += nd.v[slot][a][n] * k.g[b][n];
+                if hats::<D, N>() {
+                    // A hat's derivative along b at the lower node of a pair is minus
+                    // the upper one's (exactly: the same product with −1/h for 1/h),
+                    // so the pair enters as its velocity difference (`nd.dv`, of
+                    // `slot`).
+                    for m in 0..N / 2 {
+                        x += nd.dv[a][b][m] * k.g[b][pair(b, m).1];
+                    }
+                } else {
+                    for n in 0..N {
+                        x += nd.v[slot][a][n] * k.g[b][n];
+                    }
                 }
                 l[(a, b)] = k.alpha * x;
             }
@@ -868,6 +916,9 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
             if run.is_new(s.tile[p], below) {
                 run.enter(ctx, s.tile[p], below);
                 nd.load(&run.idx, vel, avg, xpic);
+                if m.stress {
+                    nd.load_differences(UPDATED);
+                }
             }
             k.ends = run.ends(ctx, &w);
             let mut vn = Vector::<D>::zeros();
@@ -959,6 +1010,7 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
             if run.is_new(s.tile[p], below) {
                 run.enter(ctx, s.tile[p], below);
                 nd.load(&run.idx, vel, avg, None);
+                nd.load_differences(m.slot);
             }
             k.ends = run.ends(ctx, &w);
             let lb = lbar_at(&k, &nd, m.two_step);
