@@ -1483,6 +1483,10 @@ struct ScatterSums<const D: usize, const N: usize> {
     mass: [f64; N],
     mom: [[f64; N]; D],
     force: [[f64; N]; D],
+    /// Hat functions: the internal force's sums per pair of nodes along each axis,
+    /// `pairs[a][b][m] = Σ_p α_p V_p σ_p[a][b] ∂_b S_upper(x_p)` over the `m`-th pair
+    /// ([`pair`]); the upper node gets minus it, the lower one it, at the flush.
+    pairs: [[[f64; N]; D]; D],
     /// The upper triangle ([`sym_index`]); 6 is the 3D count.
     stress: [[f64; N]; 6],
     cover: [f64; N],
@@ -1494,6 +1498,7 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
             mass: [0.0; N],
             mom: [[0.0; N]; D],
             force: [[0.0; N]; D],
+            pairs: [[[0.0; N]; D]; D],
             stress: [[0.0; N]; 6],
             cover: [0.0; N],
         }
@@ -1528,7 +1533,21 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
                 self.cover[n] += vol * k.s[n];
             }
         }
-        if m.forces {
+        if m.forces && hats::<D, N>() {
+            // A hat's derivative along b at the lower node of a pair is exactly minus
+            // the upper one's: one product per pair, not per node.
+            for a in 0..D {
+                for n in 0..N {
+                    self.force[a][n] += fe[a] * k.s[n];
+                }
+                for b in 0..D {
+                    let avs = k.alpha * vs[(a, b)];
+                    for m in 0..N / 2 {
+                        self.pairs[a][b][m] += avs * k.g[b][pair(b, m).1];
+                    }
+                }
+            }
+        } else if m.forces {
             for a in 0..D {
                 for n in 0..N {
                     let mut sg = 0.0;
@@ -1538,14 +1557,14 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
                     self.force[a][n] += fe[a] * k.s[n] - k.alpha * sg;
                 }
             }
-            if m.two_step {
-                let c: [f64; N] = std::array::from_fn(|n| (1.0 - k.alpha) * k.s[n]);
-                for a in 0..D {
-                    for b in a..D {
-                        let t = &mut self.stress[sym_index::<D>(a, b)];
-                        for n in 0..N {
-                            t[n] += c[n] * vs[(a, b)];
-                        }
+        }
+        if m.forces && m.two_step {
+            let c: [f64; N] = std::array::from_fn(|n| (1.0 - k.alpha) * k.s[n]);
+            for a in 0..D {
+                for b in a..D {
+                    let t = &mut self.stress[sym_index::<D>(a, b)];
+                    for n in 0..N {
+                        t[n] += c[n] * vs[(a, b)];
                     }
                 }
             }
@@ -1557,6 +1576,17 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
     fn flush(&mut self, ctx: &Ctx<'_, D>, grid: GridPtr, idx: &[usize; N], m: ScatterMode) {
         type R<const D: usize> = NodeRecord<D>;
         let sw = m.sw;
+        if m.forces && hats::<D, N>() {
+            for a in 0..D {
+                for b in 0..D {
+                    for m in 0..N / 2 {
+                        let (lo, hi) = pair(b, m);
+                        self.force[a][lo] += self.pairs[a][b][m];
+                        self.force[a][hi] -= self.pairs[a][b][m];
+                    }
+                }
+            }
+        }
         for n in 0..N {
             debug_assert!(
                 idx[n] >= ctx.tiles.tile_nodes(),
