@@ -666,15 +666,17 @@ pub(crate) fn lbar_at<const D: usize, const N: usize>(
     if two {
         for a in 0..D {
             for b in 0..D {
-                let (mut all, mut upper) = (0.0, 0.0);
+                // The lower and the upper side's sums, two independent chains.
+                let (mut lower, mut upper) = (0.0, 0.0);
                 for n in 0..N {
                     let t = k.s[n] * nd.lb[a][b][n];
-                    all += t;
                     if (n >> b) & 1 == 1 {
                         upper += t;
+                    } else {
+                        lower += t;
                     }
                 }
-                lb.all[a][b] = all;
+                lb.all[a][b] = lower + upper;
                 lb.upper[a][b] = upper;
             }
         }
