@@ -1931,42 +1931,41 @@ impl<'c, const D: usize> Solver<'c, D> {
 
     /// Totals over all ranks.
     pub fn totals(&self) -> Totals {
-        let mut sums = vec![0.0; 5 + D];
-        for p in 0..self.parts.len() {
-            let m = self.parts.mass[p];
-            let v = self.parts.v[p];
-            sums[0] += m;
-            sums[1] += 0.5 * m * v.norm_squared();
-            let mat = &self.materials[self.parts.mat[p] as usize];
-            let f = if self.parts.def_grad.is_empty() {
-                Mat::<D>::identity()
-            } else {
-                self.parts.def_grad[p]
-            };
-            // The energy of a material whose stress is not stored is a function of
-            // `F` alone: no need to form its stress.
-            let stress = self
-                .parts
-                .stress
-                .get(p)
-                .copied()
-                .unwrap_or_else(Mat::<D>::zeros);
-            sums[2] += mat.strain_energy(
-                &stress,
-                &f,
-                self.parts.be.get(p),
-                self.parts.vol[p],
-                self.parts.vol0[p],
-            );
-            if let Some(&e) = self.parts.eps_p.get(p) {
-                sums[4] += mat.plastic_work(e, self.parts.vol0[p]);
+        let (parts, materials) = (&self.parts, &self.materials);
+        // Summed per fixed chunk, then in a fixed tree (as `errors`): on threads, and
+        // the same on any thread count. Slots: mass, kinetic, strain, (external work),
+        // plastic work, momentum per axis.
+        let chunk = |k: usize| {
+            let mut sums = [0.0; 8];
+            for p in k * LOCATE_CHUNK..parts.len().min((k + 1) * LOCATE_CHUNK) {
+                let m = parts.mass[p];
+                let v = parts.v[p];
+                sums[0] += m;
+                sums[1] += 0.5 * m * v.norm_squared();
+                let mat = &materials[parts.mat[p] as usize];
+                let f = if parts.def_grad.is_empty() {
+                    Mat::<D>::identity()
+                } else {
+                    parts.def_grad[p]
+                };
+                // The energy of a material whose stress is not stored is a function of
+                // `F` alone: no need to form its stress.
+                let stress = parts.stress.get(p).copied().unwrap_or_else(Mat::<D>::zeros);
+                sums[2] +=
+                    mat.strain_energy(&stress, &f, parts.be.get(p), parts.vol[p], parts.vol0[p]);
+                if let Some(&e) = parts.eps_p.get(p) {
+                    sums[4] += mat.plastic_work(e, parts.vol0[p]);
+                }
+                for a in 0..D {
+                    sums[5 + a] += m * v[a];
+                }
             }
-            for a in 0..D {
-                sums[5 + a] += m * v[a];
-            }
-        }
+            sums
+        };
+        let mut all = tree_sum(0, parts.len().div_ceil(LOCATE_CHUNK), &chunk);
+        let sums = &mut all[..5 + D];
         sums[3] = self.external_work;
-        self.comm.sum_f64(&mut sums);
+        self.comm.sum_f64(sums);
         let mut n = [self.parts.len() as u64];
         self.comm.sum_u64(&mut n);
         Totals {
