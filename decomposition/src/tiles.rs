@@ -188,6 +188,48 @@ impl<const D: usize> Tiles<D> {
         }
     }
 
+    /// The keys of the tiles holding the local nodes `lo..=hi` (per axis, clamped to
+    /// the box) into `keys`, their count returned: what [`Tiles::touch`] touches, for
+    /// callers that gather keys on several threads and touch them after
+    /// ([`Tiles::touch_key`]). For boxes at most one node wider than a tile along each
+    /// axis (a particle's nodes), which lie in at most `2^D` tiles.
+    #[inline]
+    pub fn keys_of_nodes(&self, lo: [i64; D], hi: [i64; D], keys: &mut [u64; 8]) -> usize {
+        let mut t0 = [0usize; D];
+        let mut t1 = [0usize; D];
+        for a in 0..D {
+            let l = lo[a].max(0) as usize;
+            let h = (hi[a].max(0) as usize).min(self.dims[a] - 1);
+            if l > h {
+                return 0;
+            }
+            t0[a] = (l + self.shift[a]) >> TILE_LOG;
+            t1[a] = (h + self.shift[a]) >> TILE_LOG;
+            assert!(
+                t1[a] <= t0[a] + 1,
+                "a node box wider than a tile and a node"
+            );
+        }
+        let mut n = 0;
+        let mut t = t0;
+        loop {
+            keys[n] = self.key(t);
+            n += 1;
+            let mut a = 0;
+            loop {
+                if a == D {
+                    return n;
+                }
+                t[a] += 1;
+                if t[a] <= t1[a] {
+                    break;
+                }
+                t[a] = t0[a];
+                a += 1;
+            }
+        }
+    }
+
     /// Touch the tile with key `k` (a key of [`Tiles::key_of`]).
     #[inline]
     pub fn touch_key(&mut self, k: u64) {
@@ -416,6 +458,34 @@ impl<const D: usize> Tiles<D> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `keys_of_nodes` names the tiles `touch` touches, for every box of a particle's
+    /// nodes (2 or 4 per axis) over a box with a shift, edges and clamping included.
+    #[test]
+    fn keys_of_nodes_are_what_touch_touches() {
+        let dims = [13usize, 11, 6];
+        for width in [1i64, 3] {
+            for lo in 0..9i64 {
+                let c = [lo - 1, 2 * lo - 3, lo - 2];
+                let (l, h) = (c, c.map(|v| v + width));
+                let mut by_touch = Tiles::<3>::new(dims, [2, 0, 1]);
+                by_touch.begin();
+                by_touch.touch(l, h);
+                let mut by_keys = Tiles::<3>::new(dims, [2, 0, 1]);
+                by_keys.begin();
+                let mut keys = [0; 8];
+                let n = by_keys.keys_of_nodes(l, h, &mut keys);
+                for &k in &keys[..n] {
+                    by_keys.touch_key(k);
+                }
+                assert_eq!(
+                    by_touch.touched_sorted(),
+                    by_keys.touched_sorted(),
+                    "{l:?}..={h:?}"
+                );
+            }
+        }
+    }
 
     /// Every node of the touched tiles gets a distinct storage index, missing ones
     /// none, and the neighbourhood of a node (and its octants) agrees with indexing its

@@ -212,6 +212,9 @@ pub struct Solver<'c, const D: usize> {
     /// The tile pass's runs of particles in one cell, per chunk of [`LOCATE_CHUNK`]
     /// particles: the run's first particle and its cell's lower corner node.
     cell_runs: Vec<Vec<(u32, u32)>>,
+    /// Per chunk of [`Solver::cell_runs`], the keys of the tiles its runs' nodes lie
+    /// in (each once per chunk, mostly), gathered on threads and touched after.
+    run_keys: Vec<Vec<u64>>,
 }
 
 /// One phase of a time step. A step is one of the lists in [`Update::phases`], without
@@ -831,6 +834,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             dx: Vec::new(),
             perm: Vec::new(),
             cell_runs: Vec::new(),
+            run_keys: Vec::new(),
             accel: Vec::new(),
             memo: Memo::default(),
             flagged: Vec::new(),
@@ -961,8 +965,8 @@ impl<'c, const D: usize> Solver<'c, D> {
     fn activate_tiles(&mut self) {
         self.tiles.begin();
         self.locate_all();
-        // The tiles of the runs' cells, in particle order.
-        self.run_nodes(true);
+        // The tiles of the runs' cells.
+        self.touch_runs();
         self.slabs.finish();
         // The halo nodes any rank's particles come near, stored on every rank that
         // holds them (a neighbour's particles may need nodes this rank's do not).
@@ -970,10 +974,10 @@ impl<'c, const D: usize> Solver<'c, D> {
         let changed = self.tiles.finish();
         self.block.map_active_halo(&self.tiles);
         if changed {
-            // New tiles have new slots: look the runs' nodes up again.
+            // New tiles have new slots.
             self.size_fields();
-            self.run_nodes(false);
         }
+        self.run_nodes();
         // Every particle gets its run's node.
         self.ptile
             .par_chunks_mut(LOCATE_CHUNK)
@@ -1036,36 +1040,67 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.cell_runs.truncate(chunks);
     }
 
-    /// The storage index of each run's cell's lower corner node ([`Solver::cell_runs`]),
-    /// in particle order; if `touch`, first touch the tiles its nodes lie in (a slot of
-    /// 0, a tile new to the active set, is fixed by a second call after
-    /// [`Tiles::finish`]).
-    fn run_nodes(&mut self, touch: bool) {
+    /// The local cell of the first particle of a run (as the tile pass located it).
+    #[inline]
+    fn run_cell(geom: &Geom<D>, node_lo: &[i64; D], x: &Vector<D>) -> [i64; D] {
+        let (c, _) = geom.locate(&std::array::from_fn(|a| x[a]));
+        std::array::from_fn(|a| c[a] - node_lo[a])
+    }
+
+    /// Touch the tiles every run's nodes lie in: their keys gathered per chunk on
+    /// threads (consecutive runs mostly share their tiles, so a small cache keeps the
+    /// lists short), then touched in chunk order.
+    fn touch_runs(&mut self) {
         let (below, above) = if self.scheme.gimp { (1, 2) } else { (0, 1) };
-        let node_lo = self.block.node_lo;
-        let mut prev: Option<[i64; D]> = None;
-        let mut node = 0u32;
-        let mut tile = (u64::MAX, 0u32);
-        for run in self.cell_runs.iter_mut().flatten() {
-            let x = &self.parts.x[run.0 as usize];
-            let (c, _) = self.geom.locate(&std::array::from_fn(|a| x[a]));
-            // Runs that continue the previous chunk's last cell repeat it.
-            if prev != Some(c) {
-                prev = Some(c);
-                let l: [i64; D] = std::array::from_fn(|a| c[a] - node_lo[a]);
-                if touch {
-                    self.tiles.touch(l.map(|v| v - below), l.map(|v| v + above));
-                }
-                let l = l.map(|v| v as usize);
-                let k = self.tiles.key_of(l);
-                if k != tile.0 {
-                    tile = (k, self.tiles.slot_of_key(k));
-                    assert!(touch || tile.1 != 0, "a particle's cell's tile was touched");
-                }
-                node = self.tiles.index_in(tile.1, l) as u32;
-            }
-            run.1 = node;
+        let chunks = self.cell_runs.len();
+        if self.run_keys.len() < chunks {
+            self.run_keys.resize_with(chunks, Vec::new);
         }
+        let (geom, tiles, x) = (&self.geom, &self.tiles, &self.parts.x);
+        let node_lo = &self.block.node_lo;
+        self.cell_runs
+            .par_iter()
+            .zip(self.run_keys.par_iter_mut())
+            .for_each(|(runs, keys)| {
+                keys.clear();
+                let mut recent = [u64::MAX; 16];
+                let mut buf = [0u64; 8];
+                for &(first, _) in runs {
+                    let l = Self::run_cell(geom, node_lo, &x[first as usize]);
+                    let n =
+                        tiles.keys_of_nodes(l.map(|v| v - below), l.map(|v| v + above), &mut buf);
+                    for &k in &buf[..n] {
+                        let r = &mut recent[k as usize % recent.len()];
+                        if *r != k {
+                            *r = k;
+                            keys.push(k);
+                        }
+                    }
+                }
+            });
+        for &k in self.run_keys[..chunks].iter().flatten() {
+            self.tiles.touch_key(k);
+        }
+    }
+
+    /// The storage index of each run's cell's lower corner node ([`Solver::cell_runs`]),
+    /// on threads, once the active set holds every run's tile ([`Solver::touch_runs`],
+    /// [`Tiles::finish`]).
+    fn run_nodes(&mut self) {
+        let (geom, tiles, x) = (&self.geom, &self.tiles, &self.parts.x);
+        let node_lo = &self.block.node_lo;
+        self.cell_runs.par_iter_mut().for_each(|runs| {
+            let mut tile = (u64::MAX, 0u32);
+            for run in runs.iter_mut() {
+                let l = Self::run_cell(geom, node_lo, &x[run.0 as usize]).map(|v| v as usize);
+                let k = tiles.key_of(l);
+                if k != tile.0 {
+                    tile = (k, tiles.slot_of_key(k));
+                    assert!(tile.1 != 0, "a particle's cell's tile was touched");
+                }
+                run.1 = tiles.index_in(tile.1, l) as u32;
+            }
+        });
     }
 
     /// Particle → grid: mass, momentum and, if `forces`, external and internal forces.
