@@ -1210,18 +1210,34 @@ impl SlabOrder {
                 }
             });
         // Offsets: slab by slab, chunk by chunk within a slab (so within a slab the
-        // particles keep their array order).
-        let mut at = 0;
-        for s in 0..nslab {
-            self.start[s] = at;
-            for c in 0..nchunk {
-                let k = &mut self.counts[c * nslab + s];
-                let count = *k;
-                *k = at;
-                at += count;
+        // particles keep their array order). Walked chunk by chunk (the counts' own
+        // order, not a stride of a slab count per step): first each slab's total, whose
+        // prefix sums start the slabs, then each chunk's place after the chunks before.
+        self.start.fill(0);
+        for count in self.counts.chunks_exact(nslab) {
+            for (t, &c) in self.start[1..].iter_mut().zip(count) {
+                *t += c;
             }
         }
-        self.start[nslab] = at;
+        for s in 0..nslab {
+            self.start[s + 1] += self.start[s];
+        }
+        for c in 0..nchunk {
+            let (next, row) = (
+                &mut self.start[..nslab],
+                &mut self.counts[c * nslab..][..nslab],
+            );
+            for (k, at) in row.iter_mut().zip(next.iter_mut()) {
+                let count = *k;
+                *k = *at;
+                *at += count;
+            }
+        }
+        // `start` was advanced past each slab: back to the slabs' starts.
+        for s in (1..=nslab).rev() {
+            self.start[s] = self.start[s - 1];
+        }
+        self.start[0] = 0;
         // Every entry is written below.
         self.order.resize(self.slab_of.len(), 0);
         let out = OrderPtr(self.order.as_mut_ptr());
