@@ -1,0 +1,93 @@
+#!/usr/bin/env python3
+"""Steady-state speed-up of 2 threads and of 2 ranks over one thread on the block drop
+of `scripts/bench_peers.py` (issue 14: 2 threads >= 1.85x, 2 ranks >= 1.9x).
+
+Usage (after `cargo build --release`):
+    /usr/bin/python3 scripts/bench_parallel.py [--mpmcg target/release/mpmcg]
+        [--dims 2,3] [--rounds 3] [--gradient mpmcg] [--update musl]
+
+Per dimension (2D 256^2 cells x 4^2 per cell, 3D 64^3 x 2^3, MUSL, MPMCG) and round,
+three configurations run in turn: 1 thread pinned to core 0 (`taskset -c 0`), 1 rank
+with `--threads 2`, and `mpirun -n 2` with one thread each. Each runs the scene to two
+step counts (10 and 110 in 2D, 5 and 45 in 3D) and the particle updates per second
+are particles x (difference of steps) / (difference of whole-process wall seconds),
+so seeding and start-up drop out. Prints each round and the medians; the speed-ups are
+the median pups over the median one-thread pups, with the per-round ratios. About 5
+minutes for both dimensions and 3 rounds on a 2-core machine; run it on an idle one.
+"""
+
+import argparse
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import bench_peers  # noqa: E402
+
+SIZES = {2: (256, 4, 10, 110), 3: (64, 2, 5, 45)}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--mpmcg", default="target/release/mpmcg")
+    ap.add_argument("--dims", default="2,3")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--gradient", default="mpmcg")
+    ap.add_argument("--update", default="musl")
+    a = ap.parse_args()
+    binary = os.path.abspath(a.mpmcg)
+    mpirun = shutil.which("mpirun")
+    if mpirun is None:
+        sys.exit("mpirun not found (scripts/setup.sh installs Open MPI)")
+    root = ["--allow-run-as-root"] if os.geteuid() == 0 else []
+    configs = {
+        "1 thread": (["taskset", "-c", "0", binary], ["--threads", "1"]),
+        "2 threads": ([binary], ["--threads", "2"]),
+        "2 ranks": ([mpirun, *root, "--oversubscribe", "-n", "2", binary], ["--threads", "1"]),
+    }
+    with tempfile.TemporaryDirectory() as tmp:
+
+        def run(pre, post, scene, out):
+            t = time.perf_counter()
+            r = subprocess.run(pre + ["run", scene, "--out", out, "--quiet"] + post, capture_output=True, text=True)
+            wall = time.perf_counter() - t
+            if r.returncode != 0:
+                sys.exit(f"mpmcg failed ({r.returncode}): {scene}\n{r.stderr}")
+            with open(os.path.join(out, "summary.json")) as f:
+                s = json.load(f)
+            return s["particles"], s["steps"], wall
+
+        for d in (int(x) for x in a.dims.split(",")):
+            cells, ppc, short, long = SIZES[d]
+            scenes = []
+            for steps in (short, long):
+                path = os.path.join(tmp, f"block_{d}d_{steps}.toml")
+                end = (steps - 0.5) * bench_peers.wave_dt(cells)
+                with open(path, "w") as f:
+                    f.write(bench_peers.scene(d, cells, ppc, a.gradient, a.update, end))
+                scenes.append(path)
+            pups = {k: [] for k in configs}
+            for r in range(a.rounds):
+                for k, (pre, post) in configs.items():
+                    n0, s0, w0 = run(pre, post, scenes[0], os.path.join(tmp, f"o{d}a"))
+                    n1, s1, w1 = run(pre, post, scenes[1], os.path.join(tmp, f"o{d}b"))
+                    assert n0 == n1
+                    pups[k].append(n1 * (s1 - s0) / (w1 - w0))
+                    print(f"{d}D round {r + 1} {k}: {pups[k][-1]:.3e} pups", file=sys.stderr)
+            one = statistics.median(pups["1 thread"])
+            print(f"{d}D {a.gradient} {a.update}, {cells}^{d} cells, {ppc}^{d} per cell, median of {a.rounds}:")
+            for k, v in pups.items():
+                line = f"  {k}: {statistics.median(v):.3e} pups"
+                if k != "1 thread":
+                    per = " ".join(f"{x / y:.2f}" for x, y in zip(v, pups["1 thread"]))
+                    line += f", {statistics.median(v) / one:.2f}x one thread (per round {per})"
+                print(line)
+
+
+if __name__ == "__main__":
+    main()
