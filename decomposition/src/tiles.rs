@@ -154,36 +154,14 @@ impl<const D: usize> Tiles<D> {
     /// Touch the tiles of the local nodes `lo..=hi` (per axis, clamped to the box).
     #[inline]
     pub fn touch(&mut self, lo: [i64; D], hi: [i64; D]) {
-        let mut t0 = [0usize; D];
-        let mut t1 = [0usize; D];
-        for a in 0..D {
-            let l = lo[a].max(0) as usize;
-            let h = (hi[a].max(0) as usize).min(self.dims[a] - 1);
-            if l > h {
-                return;
-            }
-            t0[a] = (l + self.shift[a]) >> TILE_LOG;
-            t1[a] = (h + self.shift[a]) >> TILE_LOG;
-        }
+        let Some((t0, t1)) = self.tile_box(lo, hi) else {
+            return;
+        };
         let mut t = t0;
         loop {
-            let k = self.key(t);
-            let r = &mut self.recent[k as usize & (RECENT - 1)];
-            if *r != k {
-                *r = k;
-                self.touched.push(k);
-            }
-            let mut a = 0;
-            loop {
-                if a == D {
-                    return;
-                }
-                t[a] += 1;
-                if t[a] <= t1[a] {
-                    break;
-                }
-                t[a] = t0[a];
-                a += 1;
+            self.touch_key(self.key(t));
+            if !next_tile(&mut t, &t0, &t1) {
+                return;
             }
         }
     }
@@ -195,39 +173,40 @@ impl<const D: usize> Tiles<D> {
     /// axis (a particle's nodes), which lie in at most `2^D` tiles.
     #[inline]
     pub fn keys_of_nodes(&self, lo: [i64; D], hi: [i64; D], keys: &mut [u64; 8]) -> usize {
+        let Some((t0, t1)) = self.tile_box(lo, hi) else {
+            return 0;
+        };
+        assert!(
+            (0..D).all(|a| t1[a] <= t0[a] + 1),
+            "a node box wider than a tile and a node"
+        );
+        let mut n = 0;
+        let mut t = t0;
+        loop {
+            keys[n] = self.key(t);
+            n += 1;
+            if !next_tile(&mut t, &t0, &t1) {
+                return n;
+            }
+        }
+    }
+
+    /// The first and last tile (per axis) of the local nodes `lo..=hi` clamped to the
+    /// box, `None` if none of them is in it.
+    #[inline]
+    fn tile_box(&self, lo: [i64; D], hi: [i64; D]) -> Option<([usize; D], [usize; D])> {
         let mut t0 = [0usize; D];
         let mut t1 = [0usize; D];
         for a in 0..D {
             let l = lo[a].max(0) as usize;
             let h = (hi[a].max(0) as usize).min(self.dims[a] - 1);
             if l > h {
-                return 0;
+                return None;
             }
             t0[a] = (l + self.shift[a]) >> TILE_LOG;
             t1[a] = (h + self.shift[a]) >> TILE_LOG;
-            assert!(
-                t1[a] <= t0[a] + 1,
-                "a node box wider than a tile and a node"
-            );
         }
-        let mut n = 0;
-        let mut t = t0;
-        loop {
-            keys[n] = self.key(t);
-            n += 1;
-            let mut a = 0;
-            loop {
-                if a == D {
-                    return n;
-                }
-                t[a] += 1;
-                if t[a] <= t1[a] {
-                    break;
-                }
-                t[a] = t0[a];
-                a += 1;
-            }
-        }
+        Some((t0, t1))
     }
 
     /// Touch the tile with key `k` (a key of [`Tiles::key_of`]).
@@ -453,6 +432,20 @@ impl<const D: usize> Tiles<D> {
             *o = nb[t & (NEIGHBOURS - 1)] + within;
         }
     }
+}
+
+/// Step `t` to the next tile of the box `t0..=t1` (first axis fastest); false after
+/// the last.
+#[inline]
+fn next_tile<const D: usize>(t: &mut [usize; D], t0: &[usize; D], t1: &[usize; D]) -> bool {
+    for a in 0..D {
+        t[a] += 1;
+        if t[a] <= t1[a] {
+            return true;
+        }
+        t[a] = t0[a];
+    }
+    false
 }
 
 #[cfg(test)]
