@@ -1529,6 +1529,10 @@ impl<'c, const D: usize> Solver<'c, D> {
         if self.step.is_multiple_of(SORT_EVERY) {
             self.sort();
         }
+        if let Some(b) = &self.benchmark {
+            // For the error norms now and the next step's body force, both at `t`.
+            self.memo.keep_phase(&b.at(self.t), &self.parts.x0);
+        }
         Ok(())
     }
 

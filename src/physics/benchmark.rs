@@ -118,6 +118,7 @@ impl<const D: usize> Benchmark<D> {
         }
         At {
             b: self,
+            t,
             sin,
             cos,
             memo: &[],
@@ -211,7 +212,12 @@ pub struct Factors([f64; 6]);
 /// memo needs no upkeep when particles are sorted, leave or arrive, and results are
 /// the same with or without it ([`Memo::refresh`]).
 #[derive(Clone, Debug, Default)]
-pub struct Memo<const D: usize>(Vec<(Vector<D>, Factors)>);
+pub struct Memo<const D: usize>(Vec<MemoEntry<D>>);
+
+/// One particle's [`Memo`] entry: the reference position it was made for, its
+/// factors, and for the vortex the sine and cosine of its current polar angle at the
+/// time `phase[0]` (NaN: none), kept by [`Memo::keep_phase`].
+type MemoEntry<const D: usize> = (Vector<D>, Factors, [f64; 3]);
 
 impl<const D: usize> Memo<D> {
     /// Make the memo hold the factors of every particle of reference positions `x0`,
@@ -225,7 +231,11 @@ impl<const D: usize> Memo<D> {
         }
         self.0.resize(
             x0.len(),
-            (Vector::from_element(f64::NAN), Factors::default()),
+            (
+                Vector::from_element(f64::NAN),
+                Factors::default(),
+                [f64::NAN; 3],
+            ),
         );
         self.0
             .par_chunks_mut(CHUNK)
@@ -233,10 +243,27 @@ impl<const D: usize> Memo<D> {
             .for_each(|(m, x0)| {
                 for (m, x) in m.iter_mut().zip(x0) {
                     if !same(&m.0, x) {
-                        *m = (*x, b.factors(x));
+                        *m = (*x, b.factors(x), [f64::NAN; 3]);
                     }
                 }
             });
+    }
+
+    /// [`Memo::refresh`], and for the vortex each particle's sine and cosine of its
+    /// current polar angle at the time of `at`: the error norms at the end of a step
+    /// and the body force of the next step are at that same time, and share them
+    /// (one `sincos` per particle and step instead of two; the same numbers).
+    pub fn keep_phase(&mut self, at: &At<'_, D>, x0: &[Vector<D>]) {
+        if !matches!(at.b, Benchmark::GeneralizedVortex { .. }) {
+            return;
+        }
+        self.refresh(at.b, x0);
+        self.0.par_chunks_mut(4096).for_each(|m| {
+            for (_, f, phase) in m.iter_mut() {
+                let (s, c) = at.vortex_angle(&f.0);
+                *phase = [at.t, s, c];
+            }
+        });
     }
 }
 
@@ -251,12 +278,14 @@ fn same<const D: usize>(a: &Vector<D>, b: &Vector<D>) -> bool {
 #[derive(Clone, Copy, Debug)]
 pub struct At<'a, const D: usize> {
     b: &'a Benchmark<D>,
+    /// The time.
+    t: f64,
     /// Sine and cosine of the phase per axis: `cπt + φ_i` (axis-aligned MMS), `ωt`
     /// (vibrating bar, first entry), `cπt` (vortex, first entry).
     sin: [f64; 3],
     cos: [f64; 3],
     /// The particles' factors, where kept ([`At::with_memo`]).
-    memo: &'a [(Vector<D>, Factors)],
+    memo: &'a [MemoEntry<D>],
 }
 
 impl<'a, const D: usize> At<'a, D> {
@@ -268,38 +297,50 @@ impl<'a, const D: usize> At<'a, D> {
         }
     }
 
-    /// The factors of particle `p`, whose reference position is `x0[p]`.
+    /// The factors of particle `p`, whose reference position is `x0[p]`, and the
+    /// sine and cosine of its vortex angle at this time where the memo keeps them.
     #[inline(always)]
-    fn factors_of(&self, x0: &[Vector<D>], p: usize) -> Factors {
+    fn factors_of(&self, x0: &[Vector<D>], p: usize) -> (Factors, Option<[f64; 2]>) {
         match self.memo.get(p) {
-            Some((x, f)) if same(x, &x0[p]) => *f,
-            _ => self.b.factors(&x0[p]),
+            Some((x, f, ph)) if same(x, &x0[p]) => {
+                let kept = ph[0].to_bits() == self.t.to_bits();
+                (*f, kept.then_some([ph[1], ph[2]]))
+            }
+            _ => (self.b.factors(&x0[p]), None),
         }
     }
 
     /// Exact displacement and velocity of particle `p`, reference position `x0[p]`.
     pub fn exact_of(&self, x0: &[Vector<D>], p: usize) -> (Vector<D>, Vector<D>) {
-        self.exact_with(&x0[p], &self.factors_of(x0, p))
+        let (f, angle) = self.factors_of(x0, p);
+        self.exact_with(&x0[p], &f, angle)
     }
 
     /// Body force per unit mass on particle `p`, reference position `x0[p]`.
     #[inline]
     pub fn body_force_of(&self, x0: &[Vector<D>], p: usize) -> Vector<D> {
-        self.body_force_with(&self.factors_of(x0, p))
+        let (f, angle) = self.factors_of(x0, p);
+        self.body_force_with(&f, angle)
     }
 
     /// Exact displacement and velocity at reference position `x0`.
     pub fn exact(&self, x0: &Vector<D>) -> (Vector<D>, Vector<D>) {
-        self.exact_with(x0, &self.b.factors(x0))
+        self.exact_with(x0, &self.b.factors(x0), None)
     }
 
     /// Body force per unit mass at reference position `x0`.
     pub fn body_force(&self, x0: &Vector<D>) -> Vector<D> {
-        self.body_force_with(&self.b.factors(x0))
+        self.body_force_with(&self.b.factors(x0), None)
     }
 
-    /// [`At::exact`] from the position's [`Factors`].
-    fn exact_with(&self, x0: &Vector<D>, f: &Factors) -> (Vector<D>, Vector<D>) {
+    /// [`At::exact`] from the position's [`Factors`] (and the vortex angle's sine and
+    /// cosine, if known).
+    fn exact_with(
+        &self,
+        x0: &Vector<D>,
+        f: &Factors,
+        angle: Option<[f64; 2]>,
+    ) -> (Vector<D>, Vector<D>) {
         let f = &f.0;
         let mut u = Vector::<D>::zeros();
         let mut v = Vector::<D>::zeros();
@@ -317,7 +358,7 @@ impl<'a, const D: usize> At<'a, D> {
                 }
             }
             Benchmark::GeneralizedVortex { .. } => {
-                let (x, vel) = self.vortex_motion(f);
+                let (x, vel) = self.vortex_motion(f, angle);
                 u = x - x0;
                 v = vel;
             }
@@ -325,8 +366,9 @@ impl<'a, const D: usize> At<'a, D> {
         (u, v)
     }
 
-    /// [`At::body_force`] from the position's [`Factors`].
-    fn body_force_with(&self, f: &Factors) -> Vector<D> {
+    /// [`At::body_force`] from the position's [`Factors`] (and the vortex angle's sine
+    /// and cosine, if known).
+    fn body_force_with(&self, f: &Factors, angle: Option<[f64; 2]>) -> Vector<D> {
         let f = &f.0;
         let mut b = Vector::<D>::zeros();
         match *self.b {
@@ -363,7 +405,11 @@ impl<'a, const D: usize> At<'a, D> {
                 let g = mu / rho0;
                 let br = -r * al_t * al_t + g * r * al_r * al_r;
                 let bt = r * al_tt - g * (r * al_rr + 3.0 * al_r);
-                let (sp, cp) = (th + al).sin_cos(); // of the current polar angle
+                // Of the current polar angle Θ + α.
+                let [sp, cp] = angle.unwrap_or_else(|| {
+                    let (s, c) = (th + al).sin_cos();
+                    [s, c]
+                });
                 b[0] = br * cp - bt * sp;
                 b[1] = br * sp + bt * cp;
             }
@@ -391,18 +437,28 @@ impl<'a, const D: usize> At<'a, D> {
         )
     }
 
-    fn vortex_motion(&self, f: &[f64; 6]) -> (Vector<D>, Vector<D>) {
+    /// Sine and cosine of the vortex's current polar angle Θ + α at a reference point
+    /// of factors `f`.
+    fn vortex_angle(&self, f: &[f64; 6]) -> (f64, f64) {
+        let (_, th, al, ..) = self.vortex_terms(f);
+        (th + al).sin_cos()
+    }
+
+    fn vortex_motion(&self, f: &[f64; 6], angle: Option<[f64; 2]>) -> (Vector<D>, Vector<D>) {
         let Benchmark::GeneralizedVortex { center, .. } = *self.b else {
             unreachable!()
         };
-        let (r, th, al, al_t, ..) = self.vortex_terms(f);
-        let phi = th + al;
+        let (r, _, _, al_t, ..) = self.vortex_terms(f);
+        let (sp, cp) = match angle {
+            Some([s, c]) => (s, c),
+            None => self.vortex_angle(f),
+        };
         let mut x = Vector::<D>::zeros();
         let mut v = Vector::<D>::zeros();
-        x[0] = center[0] + r * phi.cos();
-        x[1] = center[1] + r * phi.sin();
-        v[0] = -al_t * r * phi.sin();
-        v[1] = al_t * r * phi.cos();
+        x[0] = center[0] + r * cp;
+        x[1] = center[1] + r * sp;
+        v[0] = -al_t * r * sp;
+        v[1] = al_t * r * cp;
         (x, v)
     }
 }
@@ -481,7 +537,7 @@ mod tests {
             let f = bm.deformation_gradient(&xr, t);
             (f * f.transpose() - Mat::<2>::identity()) * mu
         };
-        let (xc, _) = bm.at(t).vortex_motion(&bm.factors(&x0).0);
+        let (xc, _) = bm.at(t).vortex_motion(&bm.factors(&x0).0, None);
         let e = 1e-5;
         let mut div = Vector::<2>::zeros();
         for j in 0..2 {
@@ -604,8 +660,9 @@ mod tests {
     /// The memo changes no bit: with entries that are current, stale (particles
     /// reordered since the refresh, as the sort every 20 steps leaves them), missing
     /// (arrivals) or made for −0 where the particle sits at +0 (whose sines differ in
-    /// sign), `exact_of` and `body_force_of` equal the exact solution and body force
-    /// formed from the position itself, for each kind of benchmark.
+    /// sign), and with the vortex angle kept for this time or another,
+    /// `exact_of` and `body_force_of` equal the exact solution and body force formed
+    /// from the position itself, for each kind of benchmark.
     #[test]
     fn memo_changes_no_bit() {
         let (lambda, mu) = lame(1e4, 0.3);
@@ -656,6 +713,15 @@ mod tests {
             check(&memo, &moved);
             moved.truncate(5);
             memo.refresh(&b, &moved);
+            check(&memo, &moved);
+            // The vortex angle kept for this time, for another time (not to be used),
+            // and with the particles reordered since.
+            memo.keep_phase(&b.at(t), &moved);
+            check(&memo, &moved);
+            memo.keep_phase(&b.at(0.5 * t), &moved);
+            check(&memo, &moved);
+            memo.keep_phase(&b.at(t), &moved);
+            moved.reverse();
             check(&memo, &moved);
         }
     }
