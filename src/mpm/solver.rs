@@ -453,11 +453,10 @@ impl<const D: usize> NodeView<'_, D> {
                     let mut t = [0.0; D];
                     for b in 0..D {
                         for i in 0..(1 << (D - 1)) {
-                            // The i-th corner with r_b = 0: i with a 0 bit put in at b.
-                            let r = ((i >> b) << (b + 1)) | (i & ((1 << b) - 1));
+                            let (r, r1) = kernel::pair(b, i);
                             let k = cell_k[r][q][b];
                             let s0 = &sp[cell + pad_off::<D>(r)];
-                            let s1 = &sp[cell + pad_off::<D>(r | 1 << b)];
+                            let s1 = &sp[cell + pad_off::<D>(r1)];
                             for a in 0..D {
                                 t[a] += k * (s0[a * D + b] + s1[a * D + b]);
                             }
@@ -522,11 +521,10 @@ impl<const D: usize> NodeView<'_, D> {
                     let mut lc = [0.0; 9];
                     for b in 0..D {
                         for i in 0..(1 << (D - 1)) {
-                            // The i-th corner with r_b = 0: i with a 0 bit put in at b.
-                            let r = ((i >> b) << (b + 1)) | (i & ((1 << b) - 1));
-                            let k = cell_k[q][r | 1 << b][b];
+                            let (r, r1) = kernel::pair(b, i);
+                            let k = cell_k[q][r1][b];
                             let v0 = &vp[cell + pad_off::<D>(r)];
-                            let v1 = &vp[cell + pad_off::<D>(r | 1 << b)];
+                            let v1 = &vp[cell + pad_off::<D>(r1)];
                             for a in 0..D {
                                 lc[a * D + b] += k * (v1[a] - v0[a]);
                             }

@@ -406,10 +406,7 @@ impl<'a, const D: usize> At<'a, D> {
                 let br = -r * al_t * al_t + g * r * al_r * al_r;
                 let bt = r * al_tt - g * (r * al_rr + 3.0 * al_r);
                 // Of the current polar angle Θ + α.
-                let [sp, cp] = angle.unwrap_or_else(|| {
-                    let (s, c) = (th + al).sin_cos();
-                    [s, c]
-                });
+                let (sp, cp) = angle.map_or_else(|| (th + al).sin_cos(), |[s, c]| (s, c));
                 b[0] = br * cp - bt * sp;
                 b[1] = br * sp + bt * cp;
             }
@@ -448,11 +445,10 @@ impl<'a, const D: usize> At<'a, D> {
         let Benchmark::GeneralizedVortex { center, .. } = *self.b else {
             unreachable!()
         };
-        let (r, _, _, al_t, ..) = self.vortex_terms(f);
-        let (sp, cp) = match angle {
-            Some([s, c]) => (s, c),
-            None => self.vortex_angle(f),
-        };
+        // (Without a kept angle, from the terms at hand: `vortex_angle` would form
+        // them again.)
+        let (r, th, al, al_t, ..) = self.vortex_terms(f);
+        let (sp, cp) = angle.map_or_else(|| (th + al).sin_cos(), |[s, c]| (s, c));
         let mut x = Vector::<D>::zeros();
         let mut v = Vector::<D>::zeros();
         x[0] = center[0] + r * cp;
