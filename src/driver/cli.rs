@@ -233,7 +233,9 @@ fn run_main(
         },
         Some(_) => None,
     };
-    let Some(universe) = mpi::initialize() else {
+    // Rayon's threads run beside MPI, which only the main thread calls: FUNNELED.
+    let Some((universe, provided)) = mpi::initialize_with_threading(mpi::Threading::Funneled)
+    else {
         eprintln!("error: MPI could not be initialised");
         return ExitCode::from(1);
     };
@@ -256,6 +258,11 @@ fn run_main(
         Ok(t) => t,
         Err(code) => return code,
     };
+    if threads > 1 && provided == mpi::Threading::Single && root {
+        eprintln!(
+            "warning: this MPI library does not support threads beside it (MPI_THREAD_SINGLE); running {threads} threads per rank anyway, --threads 1 is the safe choice"
+        );
+    }
     if let Err(m) = signals::install() {
         if root {
             eprintln!(
