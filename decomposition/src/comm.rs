@@ -87,6 +87,23 @@ pub struct MpiComm {
     world: mpi::topology::SimpleCommunicator,
 }
 
+/// `x` reduced over all ranks by `op`, in place. The send copy of a short `x` (every
+/// step's reductions: a few numbers) is on the stack, so a step allocates nothing.
+fn reduce<T>(world: &mpi::topology::SimpleCommunicator, x: &mut [T], op: SystemOperation)
+where
+    T: Copy + Default + mpi::datatype::Equivalence,
+{
+    const SHORT: usize = 16;
+    if x.len() <= SHORT {
+        let mut send = [T::default(); SHORT];
+        send[..x.len()].copy_from_slice(x);
+        world.all_reduce_into(&send[..x.len()], x, op);
+    } else {
+        let send = x.to_vec();
+        world.all_reduce_into(&send[..], x, op);
+    }
+}
+
 impl MpiComm {
     /// Wrap a world communicator.
     pub fn new(world: mpi::topology::SimpleCommunicator) -> Self {
@@ -110,24 +127,16 @@ impl Communicator for MpiComm {
         self.world.size() as usize
     }
     fn sum_f64(&self, x: &mut [f64]) {
-        let send = x.to_vec();
-        self.world
-            .all_reduce_into(&send[..], x, SystemOperation::sum());
+        reduce(&self.world, x, SystemOperation::sum());
     }
     fn max_f64(&self, x: &mut [f64]) {
-        let send = x.to_vec();
-        self.world
-            .all_reduce_into(&send[..], x, SystemOperation::max());
+        reduce(&self.world, x, SystemOperation::max());
     }
     fn min_f64(&self, x: &mut [f64]) {
-        let send = x.to_vec();
-        self.world
-            .all_reduce_into(&send[..], x, SystemOperation::min());
+        reduce(&self.world, x, SystemOperation::min());
     }
     fn sum_u64(&self, x: &mut [u64]) {
-        let send = x.to_vec();
-        self.world
-            .all_reduce_into(&send[..], x, SystemOperation::sum());
+        reduce(&self.world, x, SystemOperation::sum());
     }
     fn exclusive_scan_u64(&self, x: u64) -> u64 {
         let mut out = 0u64;
