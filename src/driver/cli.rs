@@ -95,7 +95,7 @@ fn scene_error(e: &SceneError) -> ExitCode {
 /// the environment of Open MPI, MPICH/Intel MPI, PMIx and Slurm): errors found before
 /// MPI starts (usage, scene) are then left to rank 0, so that `mpirun -n 3` prints
 /// them once, not three times.
-fn launched_as_other_rank() -> bool {
+pub fn launched_as_other_rank() -> bool {
     [
         "OMPI_COMM_WORLD_RANK",
         "PMIX_RANK",

@@ -2,6 +2,7 @@
 //! checkpoints, rebalancing, signals, progress) and the speed-against-error sweep.
 
 pub mod cli;
+pub mod cpu;
 pub mod progress;
 pub mod run;
 pub mod signals;
