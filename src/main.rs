@@ -18,7 +18,8 @@ fn main() -> ExitCode {
             let _ = e.write_all(b"error: this mpmcg was built for a CPU with `");
             let _ = e.write_all(missing.as_bytes());
             let _ = e.write_all(
-                b"`, which this CPU lacks; rebuild it on this machine (`cargo build --release`) \
+                b"`, which this CPU lacks; rebuild it on this machine (`cargo clean && cargo build --release`: \
+                  cargo does not see that the CPU changed) \
                   or for the oldest CPU it must run on \
                   (`RUSTFLAGS=\"-C target-cpu=x86-64-v3\" cargo build --release`; README, On a cluster)\n",
             );

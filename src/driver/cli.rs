@@ -384,7 +384,10 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
         Ok(g) => g,
         Err(m) => return input(m),
     };
-    if let Some(t) = a.threads.filter(|&t| t > 0 && a.ranks <= 1) {
+    // In-process runs (one rank) use this process's pool, the main thread one of its
+    // threads as in `run`; 0 threads is rayon's default count.
+    if a.ranks <= 1 {
+        let t = a.threads.unwrap_or(0);
         if let Err(e) = rayon::ThreadPoolBuilder::new()
             .num_threads(t)
             .use_current_thread()

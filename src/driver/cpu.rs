@@ -33,7 +33,8 @@ const EDX: usize = 3;
 #[cfg(target_arch = "x86_64")]
 macro_rules! feature_table {
     ($(($name:tt, $leaf:expr, $reg:expr, $bit:expr)),* $(,)?) => {
-        /// The first instruction set the build uses that this CPU does not report.
+        /// The first instruction set the build uses that this CPU does not report, or
+        /// whose registers the OS does not save (then so named).
         #[inline(never)]
         pub fn missing_feature() -> Option<&'static str> {
             $(
@@ -41,6 +42,14 @@ macro_rules! feature_table {
                     return Some($name);
                 }
             )*
+            // The AVX sets also need the OS to save their registers on a context switch
+            // (XCR0: SSE and AVX state; AVX-512 adds the mask and upper-register state).
+            if cfg!(target_feature = "avx") && !os_saves(0b110) {
+                return Some("avx (the OS does not enable its registers)");
+            }
+            if cfg!(target_feature = "avx512f") && !os_saves(0b1110_0110) {
+                return Some("avx512f (the OS does not enable its registers)");
+            }
             None
         }
 
@@ -93,9 +102,17 @@ feature_table! {
     ("avx512vpopcntdq", L7, ECX, 14),
     ("avx512vp2intersect", L7, EDX, 8),
     ("avx512fp16", L7, EDX, 23),
+    ("sha512", L71, EAX, 0),
+    ("sm3", L71, EAX, 1),
+    ("sm4", L71, EAX, 2),
     ("avxvnni", L71, EAX, 4),
     ("avx512bf16", L71, EAX, 5),
+    ("avxifma", L71, EAX, 23),
+    ("avxvnniint8", L71, EDX, 4),
+    ("avxneconvert", L71, EDX, 5),
+    ("avxvnniint16", L71, EDX, 10),
     ("lzcnt", EXT, ECX, 5),
+    ("sse4a", EXT, ECX, 6),
 }
 
 /// Register `r` of CPUID leaf `leaf` (0 for a leaf the CPU lacks: a leaf above the
@@ -119,6 +136,19 @@ fn reg(leaf: usize, r: usize) -> u32 {
     }
 }
 
+/// Whether the OS has enabled every register state of `mask` in XCR0.
+#[cfg(target_arch = "x86_64")]
+fn os_saves(mask: u64) -> bool {
+    // OSXSAVE: the OS manages the register states with XSAVE, and XGETBV may be used.
+    if (reg(L1, ECX) >> 27) & 1 == 0 {
+        return false;
+    }
+    // SAFETY: XGETBV executes when CPUID.1:ECX.OSXSAVE is set (checked above); register
+    // 0 (XCR0) exists wherever XGETBV does.
+    let xcr0 = unsafe { std::arch::x86_64::_xgetbv(0) };
+    xcr0 & mask == mask
+}
+
 /// Not x86-64: the build's target has no optional sets this checks.
 #[cfg(not(target_arch = "x86_64"))]
 pub fn missing_feature() -> Option<&'static str> {
@@ -137,9 +167,10 @@ mod tests {
 
     /// Where the build does not use a set, `is_x86_feature_detected!` asks the CPU at
     /// run time: the table's leaf and bit must agree with it. std also asks the OS,
-    /// which may disable the AVX sets (their registers need its support): there std may
-    /// say no where CPUID says yes, never the other way. (With the native build few
-    /// sets are left to ask; a build for `x86-64` asks all but SSE2's.)
+    /// which may disable the AVX sets (their registers need its support), and denies
+    /// BMI1 and BMI2 on Intel CPUs without AVX (an erratum): there std may say no where
+    /// CPUID says yes, never the other way. (With the native build few sets are left to
+    /// ask; a build for `x86-64` asks all but SSE2's.)
     #[test]
     fn cpuid_bits_agree_with_std_where_std_asks_the_cpu() {
         let mut asked = 0;
@@ -153,7 +184,7 @@ mod tests {
                 !std || here,
                 "{name}: std detects it, its CPUID bit is clear"
             );
-            if !name.starts_with("avx") && !matches!(name, "fma" | "f16c") {
+            if !name.starts_with("avx") && !matches!(name, "fma" | "f16c" | "bmi1" | "bmi2") {
                 assert_eq!(std, here, "{name}: std and its CPUID bit disagree");
             }
         }
