@@ -8,7 +8,8 @@ use std::process::ExitCode;
 fn main() -> ExitCode {
     // Before the library runs: a build for another CPU would die of SIGILL in it. The
     // message is written from fixed pieces, without formatting, whose code could
-    // itself use the vector instructions in question.
+    // itself use the vector instructions in question (`tests/cpu_check.rs` reads the
+    // binary: no AVX-512 instruction in `main` or the check).
     if let Some(missing) = mpmcg::driver::cpu::missing_feature() {
         // Once under mpirun, from rank 0.
         if !mpmcg::driver::cli::launched_as_other_rank() {
