@@ -5,7 +5,7 @@
 # Extra Debian packages may be named as arguments (scripts/gallery.sh adds its Python).
 set -euo pipefail
 
-packages=(gcc libc6-dev pkg-config libclang-dev libopenmpi-dev openmpi-bin
+packages=(gcc binutils libc6-dev pkg-config libclang-dev libopenmpi-dev openmpi-bin
           libhdf5-openmpi-dev hdf5-tools "$@")
 missing=()
 for p in "${packages[@]}"; do

@@ -17,7 +17,7 @@ fn the_cpu_check_needs_no_avx512() {
         .output()
     {
         Ok(o) if o.status.success() => o,
-        // binutils comes with gcc, which the set-up installs; say so if it is missing.
+        // binutils is installed by scripts/setup.sh; say so if it is missing.
         other => panic!("objdump (binutils) is needed to read the binary: {other:?}"),
     };
     let text = String::from_utf8_lossy(&out.stdout);
