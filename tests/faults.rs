@@ -513,7 +513,6 @@ fn fresh_run_replaces_an_earlier_runs_snapshots() {
 /// Run `mpmcg ARGS` on `ranks` ranks (its own process group), killed if it has not
 /// ended after `secs` seconds (then the status has no code).
 fn mpmcg_within(ranks: usize, args: &[&str], secs: u64) -> Output {
-    use std::os::unix::process::CommandExt;
     let mut cmd = if ranks == 1 {
         std::process::Command::new(bin())
     } else {
@@ -521,8 +520,14 @@ fn mpmcg_within(ranks: usize, args: &[&str], secs: u64) -> Output {
         c.arg(bin());
         c
     };
-    cmd.args(args)
-        .process_group(0)
+    cmd.args(args);
+    output_within(cmd, secs)
+}
+
+/// The output of `cmd`, killed with its process group after `secs` seconds.
+fn output_within(mut cmd: std::process::Command, secs: u64) -> Output {
+    use std::os::unix::process::CommandExt;
+    cmd.process_group(0)
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped());
     let mut child = cmd.spawn().unwrap();
@@ -593,6 +598,44 @@ fn absurd_intervals_are_refused() {
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(
         err.contains("key `time.dt`") && err.contains("1.000e300 steps"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// An error found before MPI starts is left to rank 0, which finds it too when every
+/// rank reads the same file. A scene that only another rank cannot read (a file
+/// missing on its node; here an MPMD launch) used to end the job with no message at
+/// all: that rank now reports it itself, naming its rank.
+#[test]
+fn an_error_only_another_rank_finds_is_reported_by_it() {
+    let dir = temp_dir("other-rank");
+    let good = dir.join("good.toml");
+    std::fs::write(&good, short_scene(1.0, "")).unwrap();
+    let missing = dir.join("missing.toml");
+    let out = dir.join("out");
+    let mut cmd = common::mpirun(1);
+    let run = |c: &mut std::process::Command, scene: &Path| {
+        c.arg(bin()).args([
+            "run",
+            scene.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--quiet",
+        ]);
+    };
+    run(&mut cmd, &good);
+    cmd.args([":", "-n", "1"]);
+    run(&mut cmd, &missing);
+    let o = output_within(cmd, 120);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error")).collect();
+    assert_eq!(lines.len(), 1, "one message: {err}");
+    assert!(
+        lines[0].starts_with("error (rank 1): ")
+            && lines[0].contains("missing.toml")
+            && lines[0].contains("cannot read the scene file"),
         "{err}"
     );
     let _ = std::fs::remove_dir_all(&dir);

@@ -85,17 +85,36 @@ struct SweepArgs {
 }
 
 fn scene_error(e: &SceneError) -> ExitCode {
-    if !launched_as_other_rank() {
-        eprintln!("error: {e}");
+    early_error(&e.to_string())
+}
+
+/// Ends the process with exit 2 on an error found before MPI starts (usage, scene),
+/// printed once under `mpirun -n 3`, not three times.
+///
+/// Every rank reads the same file and finds the same error; rank 0 reports it.
+/// Another rank waits first: the launcher ends the whole job when the first rank exits
+/// with an error, and if that were this rank, rank 0 could be killed before its
+/// message is out (seen in CI). Rank 0's exit ends the job, and this wait with it. A
+/// rank still alive after [`OTHER_RANK_WAIT`] found an error that rank 0 did not (a
+/// scene file missing on its node) and reports it itself, naming its rank.
+fn early_error(message: &str) -> ExitCode {
+    match launcher_rank() {
+        None | Some(0) => say!("error: {message}"),
+        Some(r) => {
+            std::thread::sleep(OTHER_RANK_WAIT);
+            say!("error (rank {r}): {message}");
+        }
     }
     ExitCode::from(2)
 }
 
-/// Whether the MPI launcher started this process as a rank other than 0 (read from
-/// the environment of Open MPI, MPICH/Intel MPI, PMIx and Slurm): errors found before
-/// MPI starts (usage, scene) are then left to rank 0, so that `mpirun -n 3` prints
-/// them once, not three times.
-pub fn launched_as_other_rank() -> bool {
+/// How long a rank other than 0 leaves rank 0 to report an error they both found
+/// before MPI starts: parsing a scene takes milliseconds; a loaded node, more.
+pub const OTHER_RANK_WAIT: std::time::Duration = std::time::Duration::from_secs(5);
+
+/// The rank an MPI launcher gave this process before MPI starts, from the
+/// environment of Open MPI, MPICH/Intel MPI, PMIx and Slurm; `None` without one.
+fn launcher_rank() -> Option<u64> {
     [
         "OMPI_COMM_WORLD_RANK",
         "PMIX_RANK",
@@ -105,7 +124,12 @@ pub fn launched_as_other_rank() -> bool {
     .iter()
     .find_map(|k| std::env::var(k).ok())
     .and_then(|r| r.trim().parse::<u64>().ok())
-    .is_some_and(|r| r != 0)
+}
+
+/// Whether the MPI launcher started this process as a rank other than 0, whose
+/// messages before MPI starts are left to rank 0.
+pub fn launched_as_other_rank() -> bool {
+    launcher_rank().is_some_and(|r| r != 0)
 }
 
 /// The most threads per rank `--threads` may ask for.
@@ -115,11 +139,20 @@ pub fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
         Ok(c) => c,
         Err(e) => {
-            let code = if e.use_stderr() { 2 } else { 0 };
-            if !launched_as_other_rank() {
-                let _ = e.print();
+            if !e.use_stderr() {
+                // --help, --version: on stdout, from rank 0.
+                if !launched_as_other_rank() {
+                    let _ = e.print();
+                }
+                return ExitCode::SUCCESS;
             }
-            return ExitCode::from(code);
+            if launcher_rank().is_none() {
+                // clap's own printing: coloured on a terminal.
+                let _ = e.print();
+                return ExitCode::from(2);
+            }
+            let text = e.render().to_string();
+            return early_error(text.trim_end().trim_start_matches("error: "));
         }
     };
     match cli.command {
@@ -138,7 +171,7 @@ pub fn main() -> ExitCode {
                     ExitCode::SUCCESS
                 }
                 Err(m) => {
-                    eprintln!("error: {}: {m}", scene.display());
+                    say!("error: {}: {m}", scene.display());
                     ExitCode::from(2)
                 }
             },
@@ -153,7 +186,7 @@ pub fn main() -> ExitCode {
             restart,
         } => {
             if progress_every.is_some_and(|s| !(s >= 0.0 && s.is_finite())) {
-                eprintln!("error: --progress-every must be a number of seconds >= 0");
+                say!("error: --progress-every must be a number of seconds >= 0");
                 return ExitCode::from(2);
             }
             run_main(scene, out, threads, quiet, progress_every, restart)
@@ -172,15 +205,12 @@ fn fresh_scene(scene: &Option<PathBuf>) -> Result<(scene::Scene, String), ExitCo
         },
     }?;
     if let Err(m) = run::check_bodies(&loaded.0) {
-        if !launched_as_other_rank() {
-            let file = scene
-                .as_ref()
-                .map_or(scene::DEFAULT_SCENE_NAME.into(), |p| {
-                    p.display().to_string()
-                });
-            eprintln!("error: {file}: {m}");
-        }
-        return Err(ExitCode::from(2));
+        let file = scene
+            .as_ref()
+            .map_or(scene::DEFAULT_SCENE_NAME.into(), |p| {
+                p.display().to_string()
+            });
+        return Err(early_error(&format!("{file}: {m}")));
     }
     Ok(loaded)
 }
@@ -236,7 +266,7 @@ fn run_main(
     // Rayon's threads run beside MPI, which only the main thread calls: FUNNELED.
     let Some((universe, provided)) = mpi::initialize_with_threading(mpi::Threading::Funneled)
     else {
-        eprintln!("error: MPI could not be initialised");
+        say!("error: MPI could not be initialised");
         return ExitCode::from(1);
     };
     let comm = MpiComm::new(universe.world());
@@ -247,7 +277,7 @@ fn run_main(
             Ok(x) => x,
             Err(m) => {
                 if root {
-                    eprintln!("error: {m}");
+                    say!("error: {m}");
                 }
                 return ExitCode::from(2);
             }
@@ -259,15 +289,13 @@ fn run_main(
         Err(code) => return code,
     };
     if threads > 1 && provided == mpi::Threading::Single && root {
-        eprintln!(
+        say!(
             "warning: this MPI library does not support threads beside it (MPI_THREAD_SINGLE); running {threads} threads per rank anyway, --threads 1 is the safe choice"
         );
     }
     if let Err(m) = signals::install() {
         if root {
-            eprintln!(
-                "warning: {m}; SIGTERM, SIGINT and SIGUSR1 will end the run without a checkpoint"
-            );
+            say!("warning: {m}; SIGTERM, SIGINT and SIGUSR1 will end the run without a checkpoint");
         }
     }
     let opts = RunOptions {
@@ -298,7 +326,7 @@ fn start_threads(comm: &MpiComm, threads: Option<usize>) -> Result<usize, ExitCo
     });
     if threads == 0 || threads > MAX_THREADS {
         if comm.rank() == 0 {
-            eprintln!("error: --threads must be between 1 and {MAX_THREADS} (threads per rank), got {threads}");
+            say!("error: --threads must be between 1 and {MAX_THREADS} (threads per rank), got {threads}");
         }
         return Err(ExitCode::from(2));
     }
@@ -307,7 +335,7 @@ fn start_threads(comm: &MpiComm, threads: Option<usize>) -> Result<usize, ExitCo
         .use_current_thread()
         .build_global()
     {
-        eprintln!("error: cannot start {threads} threads: {e}");
+        say!("error: cannot start {threads} threads: {e}");
         return Err(ExitCode::from(1));
     }
     Ok(threads)
@@ -331,7 +359,7 @@ fn report(result: Result<run::Summary, RunError>, root: bool, out: &Path) -> Exi
         // The last line says where the files are, with --quiet too.
         Ok(s) => {
             if root {
-                eprintln!(
+                say!(
                     "{}: completed {} steps to t = {:.6e} in {:.2} s ({:.3e} particle updates/s); output in {}",
                     s.scene,
                     s.steps,
@@ -347,9 +375,9 @@ fn report(result: Result<run::Summary, RunError>, root: bool, out: &Path) -> Exi
             if root {
                 let dir = out.display();
                 match e {
-                    RunError::Interrupted(_) => eprintln!("interrupted: {e}; output in {dir}"),
-                    RunError::Unstable(_) => eprintln!("error: {e}; output in {dir}"),
-                    _ => eprintln!("error: {e}"),
+                    RunError::Interrupted(_) => say!("interrupted: {e}; output in {dir}"),
+                    RunError::Unstable(_) => say!("error: {e}; output in {dir}"),
+                    _ => say!("error: {e}"),
                 }
             }
             if crate::output::io::unclosed_file() {
@@ -368,7 +396,7 @@ fn report(result: Result<run::Summary, RunError>, root: bool, out: &Path) -> Exi
 /// `mpmcg sweep`: the runs, tables and plots are in [`crate::driver::sweep`].
 fn sweep_main(a: SweepArgs) -> ExitCode {
     let fail = |e: crate::driver::sweep::SweepError| {
-        eprintln!("error: {e}");
+        say!("error: {e}");
         ExitCode::from(e.exit_code())
     };
     let input = |m: String| fail(crate::driver::sweep::SweepError::Input(m));
@@ -393,14 +421,14 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
             .use_current_thread()
             .build_global()
         {
-            eprintln!("error: cannot start {t} threads: {e}");
+            say!("error: cannot start {t} threads: {e}");
             return ExitCode::from(1);
         }
     }
     let exe = match std::env::current_exe() {
         Ok(p) => p,
         Err(e) => {
-            eprintln!("error: cannot find this program's executable for mpirun: {e}");
+            say!("error: cannot find this program's executable for mpirun: {e}");
             return ExitCode::from(1);
         }
     };
@@ -423,14 +451,14 @@ fn sweep_main(a: SweepArgs) -> ExitCode {
             let count = |s: &str| rows.iter().filter(|r| r.status == s).count();
             let (unstable, failed) = (count("unstable"), count("failed"));
             if !a.quiet {
-                eprintln!(
+                say!(
                     "sweep: {} runs ({unstable} unstable, {failed} failed); report in {}",
                     rows.len(),
                     opts.out.join("report.md").display()
                 );
             }
             if failed > 0 {
-                eprintln!(
+                say!(
                     "error: {failed} of {} runs failed; see the status column of {}",
                     rows.len(),
                     opts.out.join("results.csv").display()

@@ -125,13 +125,13 @@ impl Progress {
             100.0 * (t / end).clamp(0.0, 1.0),
             hms(el),
         );
-        let mut err = std::io::stderr().lock();
-        // In place: back to the line's start, then clear what a longer line left.
-        let _ = match self.mode {
-            Mode::InPlace => write!(err, "\r{line}\x1b[K"),
-            _ => writeln!(err, "{line}"),
+        // In place: back to the line's start, then clear what a longer line left. One
+        // write, so that the launcher's forwarding never splits it (see `say!`).
+        let text = match self.mode {
+            Mode::InPlace => format!("\r{line}\x1b[K"),
+            _ => format!("{line}\n"),
         };
-        let _ = err.flush();
+        let _ = std::io::stderr().lock().write_all(text.as_bytes());
     }
 
     /// End the line rewritten in place, so that what follows starts on its own line.

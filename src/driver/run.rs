@@ -648,7 +648,7 @@ fn clear_old_snapshots(comm: &dyn Communicator, out: &Path) -> Result<(), RunErr
             Ok(0) => None,
             Ok(n) => {
                 // Even with --quiet: files were deleted.
-                eprintln!(
+                say!(
                     "note: removed {n} snapshot(s) of an earlier run from {}",
                     out.display()
                 );
@@ -685,7 +685,7 @@ fn lineage(
     if comm.rank() == 0 {
         let others = lineage.scan(out);
         if let (Some(first), Some(last)) = (others.first(), others.last()) {
-            eprintln!(
+            say!(
                 "warning: {} holds {} checkpoint(s) of another run ({first} ... {last}); this run does not delete them",
                 out.display(),
                 others.len()

@@ -573,7 +573,7 @@ pub fn sweep(base: &Scene, opts: &Options) -> Result<Vec<Row>, SweepError> {
                 ),
                 None => row.message.clone().unwrap_or_default(),
             };
-            eprintln!(
+            say!(
                 "[{}/{total}] {}, {n} cells: {}, {what}",
                 k + 1,
                 g.name(),
