@@ -24,6 +24,7 @@ use crate::physics::material::{Internal, Material};
 use crate::physics::shape::{self, Alpha, Geom};
 use crate::physics::tensor::{det, Mat, Vector};
 use decomposition::tiles::{Tiles, NEIGHBOURS, TILE, TILE_LOG};
+use rayon::prelude::*;
 
 /// Slab thickness in cells for the coloured scatter (see [`scatter`] for why
 /// same-coloured slabs never share a node): a particle with hat functions writes the
@@ -1061,6 +1062,25 @@ pub struct ScatterParts<'a, const D: usize> {
     /// A grid field of D numbers per node whose interpolation at the particle replaces
     /// its velocity in the momentum ([`ScatterMode::from_grid`]; XPIC's `S⁺S`).
     pub src: &'a [f64],
+    /// The external force per unit mass of each particle where the scene has a body
+    /// force ([`external_accel`]), else empty.
+    pub accel: &'a [Vector<D>],
+}
+
+/// Each particle's external force per unit mass (gravity and the body force), into
+/// `out`, one entry per particle of `x0`: formed once a step, before the forces'
+/// scatter, which uses it, and kept for the work the gather or the remap of the same
+/// step counts with it. A benchmark's body force costs sines and a logarithm per
+/// particle; a pass of its own forms them in batches ([`At::add_body_forces`]).
+pub fn external_accel<const D: usize>(ctx: &Ctx<'_, D>, x0: &[Vector<D>], out: &mut [Vector<D>]) {
+    assert_eq!(out.len(), x0.len());
+    const CHUNK: usize = 4096;
+    out.par_chunks_mut(CHUNK)
+        .enumerate()
+        .for_each(|(c, out)| match ctx.body_force {
+            Some(b) => b.add_body_forces(ctx.gravity, x0, c * CHUNK, out),
+            None => out.fill(ctx.gravity),
+        });
 }
 
 /// A particle's slab from its cell along the last axis ([`SlabOrder::slabs_mut`]).
@@ -1349,23 +1369,6 @@ impl GridPtr {
 unsafe impl Send for GridPtr {}
 unsafe impl Sync for GridPtr {}
 
-/// What the scatter's threads write: the node records and the kept accelerations.
-#[derive(Clone, Copy)]
-struct ScatterOut<const D: usize> {
-    grid: GridPtr,
-    accel: *mut Vector<D>,
-    /// `accel` points at one entry per particle (else it is not written).
-    keep: bool,
-}
-
-// SAFETY: made in `scatter` from `&mut` slices that it holds for its whole run. The
-// records: see `GridPtr`. The accelerations: each particle index is visited by one
-// thread only (`SlabOrder::finish` puts every particle into `order` exactly once,
-// slabs are disjoint ranges of `order`, and `scatter_slabs` gives every slab to one
-// thread), and `scatter` checked that `accel` has an entry per particle.
-unsafe impl<const D: usize> Send for ScatterOut<D> {}
-unsafe impl<const D: usize> Sync for ScatterOut<D> {}
-
 /// Particle → grid over all particles into `scat` (cleared by the caller), in slab
 /// colours so that no two threads write the same node.
 ///
@@ -1380,24 +1383,14 @@ unsafe impl<const D: usize> Sync for ScatterOut<D> {}
 /// storage map of [`Tiles`] is injective (a node has one tile, a tile one slot), so
 /// they write disjoint records. The two colours run one after the other.
 ///
-/// Where the scene has a body force and the scatter forms forces, it keeps each
-/// particle's external force per unit mass in `accel` (else empty), for the work the
-/// gather or the remap of the same step counts with it: a benchmark's body force costs
-/// sines and a logarithm per particle, formed once a step instead of twice.
 pub fn scatter<const D: usize, const NA: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
     parts: &ScatterParts<'_, D>,
     slabs: &SlabOrder,
     scat: &mut [f64],
-    accel: &mut [Vector<D>],
     m: ScatterMode,
 ) {
-    assert!(accel.is_empty() || accel.len() == parts.x.len());
-    let grid = ScatterOut {
-        grid: GridPtr::new(scat),
-        accel: accel.as_mut_ptr(),
-        keep: !accel.is_empty(),
-    };
+    let grid = GridPtr::new(scat);
     let ns = slabs.slabs();
     for colour in 0..2 {
         let first = colour;
@@ -1413,7 +1406,7 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
     parts: &ScatterParts<'_, D>,
     slabs: &SlabOrder,
-    grid: ScatterOut<D>,
+    grid: GridPtr,
     first: usize,
     count: usize,
     m: ScatterMode,
@@ -1447,7 +1440,7 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
         let (k, below, _) = ctx.weights::<NA, N>(&parts.x[p], half, &parts.xi[p]);
         if run.is_new(parts.tile[p], below) {
             if run.started() {
-                acc.flush(ctx, grid.grid, &run.idx, m);
+                acc.flush(ctx, grid, &run.idx, m);
             }
             run.enter(ctx, parts.tile[p], below);
         }
@@ -1474,20 +1467,14 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
             Mat::<D>::zeros()
         };
         let fe = if m.forces {
-            let a = ctx.accel(parts.x0, p);
-            if grid.keep {
-                // SAFETY: see `ScatterOut`: `p` is a particle index, visited by
-                // this thread only.
-                unsafe { *grid.accel.add(p) = a };
-            }
-            a * mass
+            ctx.accel_kept(parts.accel, parts.x0, p) * mass
         } else {
             Vector::<D>::zeros()
         };
         acc.add(&k, mass, &mv, vol, &vs, &fe, m);
     }
     if run.started() {
-        acc.flush(ctx, grid.grid, &run.idx, m);
+        acc.flush(ctx, grid, &run.idx, m);
     }
 }
 

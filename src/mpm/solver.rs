@@ -1121,6 +1121,19 @@ impl<'c, const D: usize> Solver<'c, D> {
         let two = self.scheme.two_step() && !from_grid;
         zero(&mut self.scat);
         let ctx = ctx!(self);
+        // The forces' scatter has each particle's body force formed before it, and it
+        // is kept for the gather or remap after it (every update order has one between
+        // them); other scatters leave it.
+        if forces {
+            let keep = ctx.body_force.is_some();
+            self.accel.resize(
+                if keep { self.parts.len() } else { 0 },
+                Vector::<D>::zeros(),
+            );
+            if keep {
+                kernel::external_accel(&ctx, &self.parts.x0, &mut self.accel);
+            }
+        }
         let parts = kernel::ScatterParts {
             x: &self.parts.x,
             v: &self.parts.v,
@@ -1134,25 +1147,13 @@ impl<'c, const D: usize> Solver<'c, D> {
             tile: &self.ptile,
             xi: &self.pxi,
             src: &self.xpic_term,
+            accel: if forces { &self.accel } else { &[] },
         };
         let m = kernel::ScatterMode {
             sw: self.sw,
             forces,
             two_step: two,
             from_grid,
-        };
-        // The forces' scatter keeps a body force for the gather or remap after it
-        // (every update order has one between them); other scatters leave it.
-        let mut none = [];
-        let accel = if !forces {
-            &mut none[..]
-        } else {
-            let keep = ctx.body_force.is_some();
-            self.accel.resize(
-                if keep { self.parts.len() } else { 0 },
-                Vector::<D>::zeros(),
-            );
-            &mut self.accel[..]
         };
         by_nodes!(
             self.scheme.gimp,
@@ -1161,7 +1162,6 @@ impl<'c, const D: usize> Solver<'c, D> {
             &parts,
             &self.slabs,
             &mut self.scat,
-            accel,
             m
         );
         self.block.ghost_sum(self.comm, &mut self.scat, self.sw);

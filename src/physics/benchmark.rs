@@ -373,32 +373,10 @@ impl<'a, const D: usize> At<'a, D> {
         let mut b = Vector::<D>::zeros();
         match *self.b {
             Benchmark::VibratingBar { .. } => {}
-            Benchmark::AxisAlignedMms {
-                a,
-                c,
-                mu,
-                lambda,
-                rho0,
-            } => {
-                let mut u = [0.0; D];
-                let mut fii = [0.0; D];
-                let mut j = 1.0;
-                for i in 0..D {
-                    let (s, co) = (f[i], f[3 + i]);
-                    u[i] = a * s * self.sin[i];
-                    fii[i] = 1.0 + a * PI * co * self.sin[i];
-                    j *= fii[i];
-                }
+            Benchmark::AxisAlignedMms { .. } => {
+                let (u, fii, j) = self.mms_terms(f);
                 // ln J of the diagonal F, one logarithm for all axes.
-                let lnj = j.ln();
-                for i in 0..D {
-                    b[i] = PI
-                        * PI
-                        * u[i]
-                        * (mu / rho0
-                            - c * c
-                            - (lambda * (lnj - 1.0) - mu) / (rho0 * fii[i] * fii[i]));
-                }
+                b = self.mms_force(&u, &fii, j.ln());
             }
             Benchmark::GeneralizedVortex { mu, rho0, .. } => {
                 let (r, th, al, al_t, al_tt, al_r, al_rr) = self.vortex_terms(f);
@@ -412,6 +390,88 @@ impl<'a, const D: usize> At<'a, D> {
             }
         }
         b
+    }
+
+    /// The axis-aligned MMS's displacement `u`, the diagonal of `F` and `J` at a
+    /// reference point of factors `f`: what its body force needs besides `ln J`.
+    #[inline(always)]
+    fn mms_terms(&self, f: &[f64; 6]) -> ([f64; D], [f64; D], f64) {
+        let Benchmark::AxisAlignedMms { a, .. } = *self.b else {
+            unreachable!()
+        };
+        let mut u = [0.0; D];
+        let mut fii = [0.0; D];
+        let mut j = 1.0;
+        for i in 0..D {
+            let (s, co) = (f[i], f[3 + i]);
+            u[i] = a * s * self.sin[i];
+            fii[i] = 1.0 + a * PI * co * self.sin[i];
+            j *= fii[i];
+        }
+        (u, fii, j)
+    }
+
+    /// The axis-aligned MMS's body force from [`At::mms_terms`] and `ln J`.
+    #[inline(always)]
+    fn mms_force(&self, u: &[f64; D], fii: &[f64; D], lnj: f64) -> Vector<D> {
+        let Benchmark::AxisAlignedMms {
+            c,
+            mu,
+            lambda,
+            rho0,
+            ..
+        } = *self.b
+        else {
+            unreachable!()
+        };
+        let mut b = Vector::<D>::zeros();
+        for i in 0..D {
+            b[i] = PI
+                * PI
+                * u[i]
+                * (mu / rho0 - c * c - (lambda * (lnj - 1.0) - mu) / (rho0 * fii[i] * fii[i]));
+        }
+        b
+    }
+
+    /// `base` plus the body force per unit mass of particles `first ..` into `out`
+    /// (one per entry), the same numbers as [`At::body_force_of`] of each.
+    ///
+    /// The axis-aligned MMS's force is a chain, memo → `J` → `ln J` → a division, that
+    /// a particle at a time leaves the core waiting on (a quarter of that scene's
+    /// step). In batches the logarithms are independent calls the core overlaps.
+    pub fn add_body_forces(
+        &self,
+        base: Vector<D>,
+        x0: &[Vector<D>],
+        first: usize,
+        out: &mut [Vector<D>],
+    ) {
+        if !matches!(self.b, Benchmark::AxisAlignedMms { .. }) {
+            for (k, o) in out.iter_mut().enumerate() {
+                *o = base + self.body_force_of(x0, first + k);
+            }
+            return;
+        }
+        const BATCH: usize = 32;
+        let mut u = [[0.0; D]; BATCH];
+        let mut fii = [[0.0; D]; BATCH];
+        let mut lnj = [0.0; BATCH];
+        for (c, out) in out.chunks_mut(BATCH).enumerate() {
+            let p0 = first + c * BATCH;
+            for k in 0..out.len() {
+                let (f, _) = self.factors_of(x0, p0 + k);
+                let j;
+                (u[k], fii[k], j) = self.mms_terms(&f.0);
+                lnj[k] = j;
+            }
+            for l in &mut lnj[..out.len()] {
+                *l = l.ln();
+            }
+            for (k, o) in out.iter_mut().enumerate() {
+                *o = base + self.mms_force(&u[k], &fii[k], lnj[k]);
+            }
+        }
     }
 
     /// (R, Θ, α, α_t, α_tt, α_R, α_RR) of the vortex at a reference point of factors
@@ -657,8 +717,8 @@ mod tests {
     /// reordered since the refresh, as the sort every 20 steps leaves them), missing
     /// (arrivals) or made for −0 where the particle sits at +0 (whose sines differ in
     /// sign), and with the vortex angle kept for this time or another,
-    /// `exact_of` and `body_force_of` equal the exact solution and body force formed
-    /// from the position itself, for each kind of benchmark.
+    /// `exact_of`, `body_force_of` and `add_body_forces` equal the exact solution and
+    /// body force formed from the position itself, for each kind of benchmark.
     #[test]
     fn memo_changes_no_bit() {
         let (lambda, mu) = lame(1e4, 0.3);
@@ -694,6 +754,15 @@ mod tests {
                     for (x, y) in [(u, ue), (v, ve), (f, fe)] {
                         assert!(same(&x, &y), "{b:?} particle {p}: {x:?} vs {y:?}");
                     }
+                }
+                // In batches (of 32: 37 particles make a full and a partial one),
+                // from particle 1 on, onto a base.
+                let base = Vector::<2>::new(0.5, -9.81);
+                let mut out = vec![Vector::<2>::zeros(); x0.len().saturating_sub(1)];
+                at.add_body_forces(base, x0, 1, &mut out);
+                for (k, f) in out.iter().enumerate() {
+                    let fe = base + b.body_force(&x0[k + 1], t);
+                    assert!(same(f, &fe), "{b:?} batch, particle {}", k + 1);
                 }
             };
             let mut memo = Memo::default();
