@@ -888,11 +888,20 @@ fn deform<const D: usize>(
     j > 0.0 && s.parts.vol[p].is_finite() && s.parts.stress[p].iter().all(|x| x.is_finite())
 }
 
-/// Wave speed plus particle speed: the signal speed the time step must resolve.
+/// The running maximum `max` of the signal speed the time step must resolve (wave
+/// speed plus particle speed), raised by particle `p`'s where that is larger: formed
+/// only if it may be ([`Material::signal_speed_at_most`]). The same maximum, bit for
+/// bit.
 #[inline(always)]
-fn speed<const D: usize>(ctx: &Ctx<'_, D>, s: &Slices<'_, D>, p: usize) -> f64 {
+fn raise_speed<const D: usize>(ctx: &Ctx<'_, D>, s: &Slices<'_, D>, p: usize, max: f64) -> f64 {
     let j = s.parts.vol[p] / s.parts.vol0[p];
-    ctx.materials[s.parts.mat[p] as usize].wave_speed(j) + s.parts.v[p].norm()
+    let v = s.parts.v[p].norm();
+    let mat = &ctx.materials[s.parts.mat[p] as usize];
+    if mat.signal_speed_at_most(j, v, max) {
+        max
+    } else {
+        max.max(mat.wave_speed(j) + v)
+    }
 }
 
 /// Grid → particle over all particles.
@@ -983,7 +992,7 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
                 s.dx[p] = vm * m.dt;
             }
             if m.speed {
-                t.max_speed = t.max_speed.max(speed(ctx, &s, p));
+                t.max_speed = raise_speed(ctx, &s, p, t.max_speed);
             }
         }
         t
@@ -1036,7 +1045,7 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
                 s.parts.x[p] += s.dx[p];
             }
             if m.speed {
-                t.max_speed = t.max_speed.max(speed(ctx, &s, p));
+                t.max_speed = raise_speed(ctx, &s, p, t.max_speed);
             }
         }
         t
