@@ -183,7 +183,7 @@ impl Material {
     #[inline]
     pub fn signal_speed_at_most(&self, j: f64, v: f64, limit: f64) -> bool {
         // (NaN fails it.)
-        if !(j >= 0.5) {
+        if j.is_nan() || j < 0.5 {
             return false;
         }
         let x = (1.0 - j).max(0.0);
