@@ -889,23 +889,12 @@ fn deform<const D: usize>(
 }
 
 /// The running maximum `max` of the signal speed the time step must resolve (wave
-/// speed plus particle speed), raised by particle `p`'s where that is larger: formed
-/// only if it may be ([`Material::signal_speed_at_most`]). The same maximum, bit for
-/// bit.
-///
-/// Not asked for J >= 1, where the speeds need no logarithm: there forming it is
-/// cheaper than the test, which also fails whenever the particle's speed equals the
-/// maximum (its safety margin), as in a falling block, where every particle's does.
+/// speed plus particle speed), raised by particle `p`'s where that is larger
+/// ([`Material::raise_signal_speed`]).
 #[inline(always)]
 fn raise_speed<const D: usize>(ctx: &Ctx<'_, D>, s: &Slices<'_, D>, p: usize, max: f64) -> f64 {
     let j = s.parts.vol[p] / s.parts.vol0[p];
-    let v = s.parts.v[p].norm();
-    let mat = &ctx.materials[s.parts.mat[p] as usize];
-    if j < 1.0 && mat.signal_speed_at_most(j, v, max) {
-        max
-    } else {
-        max.max(mat.wave_speed(j) + v)
-    }
+    ctx.materials[s.parts.mat[p] as usize].raise_signal_speed(j, s.parts.v[p].norm(), max)
 }
 
 /// Grid → particle over all particles.

@@ -169,10 +169,9 @@ impl Material {
     /// logarithm; false when unsure, and for the models whose speed needs none.
     ///
     /// The step's fastest signal is a running maximum over the particles, and a
-    /// particle that cannot raise it need not have its speed formed. In the neo-Hookean
-    /// and J2 models the logarithm is that speed's cost under compression, and where J
-    /// hovers around 1 (the vortex) the branch between the sides of J = 1 mispredicts
-    /// half the time: together a tenth of that scene's step.
+    /// particle that cannot raise it need not have its speed formed
+    /// ([`Material::raise_signal_speed`]). In the neo-Hookean and J2 models the
+    /// logarithm is that speed's cost under compression.
     ///
     /// Both speeds are `sqrt(m / ρ)` with `m` growing with `−ln J`, which is at most
     /// `x + x²` for `x = 1 − J ∈ [0, ½]` (its series `x + x²/2 + x³/3 + ...` has the
@@ -199,6 +198,43 @@ impl Material {
         };
         let room = limit - v - 1e-12 * limit;
         room > 0.0 && m * (1.0 + 1e-12) <= density * room * room
+    }
+
+    /// The running maximum `max` of the signal speed the time step must resolve,
+    /// `wave_speed(j) + v`, raised by a particle's at volume ratio `j` and speed `v`
+    /// where that is larger: the same maximum, bit for bit, with the logarithm formed
+    /// only where the particle may raise it.
+    ///
+    /// For J ≥ 1 the neo-Hookean and J2 speeds are the small-strain one, formed
+    /// without a logarithm; for J < 1 [`Material::signal_speed_at_most`] tells which
+    /// particles cannot raise the maximum. Both are formed for every particle and
+    /// chosen between without a branch: only the rare particle that may raise the
+    /// maximum under compression branches. Where J hovers around 1 (the vortex), a
+    /// branch on its side mispredicts half the time, and the skip test alone fails for
+    /// J ≥ 1 whenever every particle's speed is the maximum (a falling block).
+    #[inline(always)]
+    pub fn raise_signal_speed(&self, j: f64, v: f64, max: f64) -> f64 {
+        let small = match self {
+            Material::NeoHookean(m) if m.lambda >= 0.0 => Some((m.lambda + 2.0 * m.mu) / m.density),
+            Material::J2Plastic(m) => Some((m.lambda + 2.0 * m.mu) / m.density),
+            _ => None,
+        };
+        let Some(small) = small else {
+            return max.max(self.wave_speed(j) + v);
+        };
+        // `wave_speed(j)` for J >= 1, as it rounds: `(small / ρ).sqrt()` (J2's
+        // `max(1 − ln J, 1)` is then 1).
+        let at_least_one = j >= 1.0;
+        let skip = self.signal_speed_at_most(j, v, max);
+        if !at_least_one && !skip {
+            return max.max(self.wave_speed(j) + v);
+        }
+        let quick = small.sqrt() + v;
+        if at_least_one {
+            max.max(quick)
+        } else {
+            max
+        }
     }
 
     /// Stored energy of a particle with current volume `vol` and reference volume
@@ -240,7 +276,9 @@ mod tests {
     /// within 1e-6 of 1 (the bound's excess is `x²/2`), with the limit 1e-9 above the
     /// formed speed, the
     /// neo-Hookean (ν ≥ 0) and J2 models say yes; the models whose speed needs no
-    /// logarithm, and the neo-Hookean with ν < 0, always no.
+    /// logarithm, and the neo-Hookean with ν < 0, always no. `raise_signal_speed`,
+    /// which uses it, gives `max(limit, wave_speed(j) + v)` bit for bit, also for J
+    /// infinite or NaN (NaN is passed over, as `f64::max` does).
     #[test]
     fn signal_speed_bound_is_safe_and_tight() {
         let (lambda, mu) = lame(1e3, 0.3);
@@ -269,7 +307,15 @@ mod tests {
         });
         let mut js: Vec<f64> = (0..=130).map(|k| 0.3 + 0.01 * k as f64).collect();
         js.extend((-20..=20).map(|k| 1.0 + 5e-9 * k as f64));
-        js.extend([0.5, 0.5 - 1e-16, 1.0 - 1e-6, 1.0 + 1e-6, f64::NAN]);
+        js.extend([
+            0.5,
+            0.5 - 1e-16,
+            1.0 - 1e-6,
+            1.0 + 1e-6,
+            1e300,
+            f64::INFINITY,
+            f64::NAN,
+        ]);
         let mut yes = 0;
         for (name, m) in [
             ("neo-Hookean", &neo),
@@ -284,6 +330,12 @@ mod tests {
                     for rel in [-1e-3, -1e-12, -1e-15, 0.0, 1e-15, 1e-12, 1e-9, 1e-3] {
                         let limit = formed * (1.0 + rel);
                         let at_most = m.signal_speed_at_most(j, v, limit);
+                        let raised = m.raise_signal_speed(j, v, limit);
+                        assert_eq!(
+                            raised.to_bits(),
+                            limit.max(formed).to_bits(),
+                            "{name}: J = {j}, v = {v}: raised to {raised}, not max({limit}, {formed})"
+                        );
                         assert!(
                             !at_most || formed <= limit,
                             "{name}: J = {j}, v = {v}: yes, but {formed} > {limit}"
