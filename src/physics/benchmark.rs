@@ -11,7 +11,7 @@ use crate::input::scene::Scene;
 use crate::physics::material::{lame, Material};
 use crate::physics::tensor::{Mat, Vector};
 use rayon::prelude::*;
-use std::f64::consts::PI;
+use std::f64::consts::{FRAC_PI_4, PI};
 
 #[derive(Clone, Debug)]
 pub enum Benchmark<const D: usize> {
@@ -127,7 +127,7 @@ impl<const D: usize> Benchmark<D> {
 
     /// What the exact solution and the body force need of a reference position alone:
     /// sin(πX_i) and cos(πX_i) per axis (axis-aligned MMS), sin(β(X − x0)) (vibrating
-    /// bar), R, Θ and h(R) with its derivatives (vortex). They are transcendental
+    /// bar), R, sin Θ, h(R) with its derivatives and cos Θ (vortex). They are transcendental
     /// functions of a position that never changes, so a run forms them once per
     /// particle ([`Memo`]) instead of once or twice a step.
     pub fn factors(&self, x0: &Vector<D>) -> Factors {
@@ -144,13 +144,14 @@ impl<const D: usize> Benchmark<D> {
                 let dy = x0[1] - center[1];
                 let r = dx.hypot(dy);
                 let q = r - 1.0;
+                let (st, ct) = dy.atan2(dx).sin_cos();
                 f = [
                     r,
-                    dy.atan2(dx),
+                    st,
                     1.0 - 32.0 * q * q + 256.0 * q.powi(4),
                     -64.0 * q + 1024.0 * q.powi(3),
                     -64.0 + 3072.0 * q * q,
-                    0.0,
+                    ct,
                 ];
             }
         }
@@ -176,10 +177,10 @@ impl<const D: usize> Benchmark<D> {
             }
             Benchmark::GeneralizedVortex { .. } => {
                 // F = Q(α) (I + R α_R (e_θ ⊗ e_R)) in the reference polar frame.
-                let (r, th, al, _, _, al_r, _) = self.at(t).vortex_terms(&self.factors(x0).0);
+                let (r, st, ct, al, _, _, al_r, _) = self.at(t).vortex_terms(&self.factors(x0).0);
                 let (c, s) = (al.cos(), al.sin());
-                let er = [th.cos(), th.sin()];
-                let et = [-th.sin(), th.cos()];
+                let er = [ct, st];
+                let et = [-st, ct];
                 let mut g = [[0.0; 2]; 2];
                 for i in 0..2 {
                     for j in 0..2 {
@@ -335,6 +336,7 @@ impl<'a, const D: usize> At<'a, D> {
 
     /// [`At::exact`] from the position's [`Factors`] (and the vortex angle's sine and
     /// cosine, if known).
+    #[inline(always)]
     fn exact_with(
         &self,
         x0: &Vector<D>,
@@ -379,12 +381,12 @@ impl<'a, const D: usize> At<'a, D> {
                 b = self.mms_force(&u, &fii, j.ln());
             }
             Benchmark::GeneralizedVortex { mu, rho0, .. } => {
-                let (r, th, al, al_t, al_tt, al_r, al_rr) = self.vortex_terms(f);
+                let (r, st, ct, al, al_t, al_tt, al_r, al_rr) = self.vortex_terms(f);
                 let g = mu / rho0;
                 let br = -r * al_t * al_t + g * r * al_r * al_r;
                 let bt = r * al_tt - g * (r * al_rr + 3.0 * al_r);
                 // Of the current polar angle Θ + α.
-                let (sp, cp) = angle.map_or_else(|| (th + al).sin_cos(), |[s, c]| (s, c));
+                let (sp, cp) = angle.map_or_else(|| rotated_unkept(st, ct, al), |[s, c]| (s, c));
                 b[0] = br * cp - bt * sp;
                 b[1] = br * sp + bt * cp;
             }
@@ -475,17 +477,19 @@ impl<'a, const D: usize> At<'a, D> {
     }
 
     /// (R, Θ, α, α_t, α_tt, α_R, α_RR) of the vortex at a reference point of factors
-    /// `f` (R, Θ, h, h_R, h_RR).
-    fn vortex_terms(&self, f: &[f64; 6]) -> (f64, f64, f64, f64, f64, f64, f64) {
+    /// `f`, with sin Θ and cos Θ after R.
+    #[allow(clippy::type_complexity)]
+    fn vortex_terms(&self, f: &[f64; 6]) -> (f64, f64, f64, f64, f64, f64, f64, f64) {
         let Benchmark::GeneralizedVortex { a, c, .. } = *self.b else {
             unreachable!()
         };
-        let [r, th, h, hr, hrr, _] = *f;
+        let [r, st, h, hr, hrr, ct] = *f;
         let w = c * PI;
         let (s, co) = (self.sin[0], self.cos[0]);
         (
             r,
-            th,
+            st,
+            ct,
             a * s * h,
             a * w * co * h,
             -a * w * w * s * h,
@@ -497,18 +501,19 @@ impl<'a, const D: usize> At<'a, D> {
     /// Sine and cosine of the vortex's current polar angle Θ + α at a reference point
     /// of factors `f`.
     fn vortex_angle(&self, f: &[f64; 6]) -> (f64, f64) {
-        let (_, th, al, ..) = self.vortex_terms(f);
-        (th + al).sin_cos()
+        let (_, st, ct, al, ..) = self.vortex_terms(f);
+        rotated(st, ct, al)
     }
 
+    #[inline(always)]
     fn vortex_motion(&self, f: &[f64; 6], angle: Option<[f64; 2]>) -> (Vector<D>, Vector<D>) {
         let Benchmark::GeneralizedVortex { center, .. } = *self.b else {
             unreachable!()
         };
         // (Without a kept angle, from the terms at hand: `vortex_angle` would form
         // them again.)
-        let (r, th, al, al_t, ..) = self.vortex_terms(f);
-        let (sp, cp) = angle.map_or_else(|| (th + al).sin_cos(), |[s, c]| (s, c));
+        let (r, st, ct, al, al_t, ..) = self.vortex_terms(f);
+        let (sp, cp) = angle.map_or_else(|| rotated_unkept(st, ct, al), |[s, c]| (s, c));
         let mut x = Vector::<D>::zeros();
         let mut v = Vector::<D>::zeros();
         x[0] = center[0] + r * cp;
@@ -517,6 +522,69 @@ impl<'a, const D: usize> At<'a, D> {
         v[1] = al_t * r * cp;
         (x, v)
     }
+}
+
+/// Sine and cosine of Θ + α from those of Θ (a particle's reference polar angle,
+/// kept) and the angle α it has turned by.
+///
+/// Formed once per particle and step, `(Θ + α).sin_cos()` was the vortex's costliest
+/// call (8 % of its step): a general argument sends libm through its range
+/// reduction. Here a small α (always, for A ≲ π/4: |α| ≤ A) takes the series of
+/// [`small_sin_cos`] and the sum formulas, a few ulp from the direct call.
+#[inline(always)]
+fn rotated(st: f64, ct: f64, al: f64) -> (f64, f64) {
+    let (sa, ca) = if al.abs() <= FRAC_PI_4 {
+        small_sin_cos(al)
+    } else {
+        libm_sin_cos(al)
+    };
+    (st * ca + ct * sa, ct * ca - st * sa)
+}
+
+/// [`rotated`] where the pass has no angle kept: out of line, so that the compiler
+/// does not form it on both sides of that choice (it is free of side effects).
+#[cold]
+#[inline(never)]
+fn rotated_unkept(st: f64, ct: f64, al: f64) -> (f64, f64) {
+    rotated(st, ct, al)
+}
+
+/// `x.sin_cos()` out of line, for the same reason.
+#[cold]
+#[inline(never)]
+fn libm_sin_cos(x: f64) -> (f64, f64) {
+    x.sin_cos()
+}
+
+/// sin x and cos x for |x| ≤ π/4 by their Taylor series to x¹⁷ and x¹⁶: the first
+/// terms left out, x¹⁹/19! and x¹⁸/18!, are below 3e-18 there, under a fortieth of
+/// an ulp of the results (sin x ≥ 0.99 x, cos x ≥ 0.7), and Horner's rule in x² adds
+/// a few ulp of rounding (`small_sin_cos_matches_libm`). Pure arithmetic: the loops
+/// that call it are free to vectorise.
+#[inline(always)]
+fn small_sin_cos(x: f64) -> (f64, f64) {
+    // 1/n! for n = 2 ..= 17.
+    const F: [f64; 16] = {
+        let mut f = [0.0; 16];
+        let mut k = 1.0;
+        let mut n = 2;
+        while n <= 17 {
+            k *= n as f64;
+            f[n - 2] = 1.0 / k;
+            n += 1;
+        }
+        f
+    };
+    let x2 = x * x;
+    // sin x = x (1 − x² (1/3! − x² (1/5! − ... − x²/17!))), cos x = 1 − x² (1/2! − ...
+    // − x²/16!): the nesting alternates the signs.
+    let mut s = F[15];
+    let mut c = F[14];
+    for k in (0..7).rev() {
+        s = F[2 * k + 1] - x2 * s;
+        c = F[2 * k] - x2 * c;
+    }
+    (x * (1.0 - x2 * s), 1.0 - x2 * c)
 }
 
 #[cfg(test)]
@@ -560,6 +628,40 @@ mod tests {
         assert!(resid.norm() < 1e-4 * b.norm().max(1.0), "residual {resid}");
     }
 
+    /// The series agree with libm's sine and cosine over |x| ≤ π/4 to 2 ulp of the
+    /// result (libm's own are within 1), and the sum formulas of `rotated` with
+    /// `(Θ + α).sin_cos()` to 3 ulp of 1 (their two products and a sum round) over
+    /// every Θ, α up to ±π/4 and beyond.
+    #[test]
+    fn small_sin_cos_matches_libm() {
+        let ulps = |a: f64, b: f64| (a - b).abs() / (f64::EPSILON * b.abs().max(f64::MIN_POSITIVE));
+        let mut worst: f64 = 0.0;
+        let n = 100_000;
+        for k in -n..=n {
+            let x = FRAC_PI_4 * k as f64 / n as f64;
+            let (s, c) = small_sin_cos(x);
+            if x != 0.0 {
+                worst = worst.max(ulps(s, x.sin()));
+            } else {
+                assert_eq!(s, 0.0);
+            }
+            worst = worst.max(ulps(c, x.cos()));
+        }
+        assert!(worst <= 2.0, "{worst} ulp");
+        let mut worst: f64 = 0.0;
+        for i in 0..400 {
+            let th = -PI + 2.0 * PI * i as f64 / 400.0;
+            for k in -50..=50 {
+                let al = 1.2 * k as f64 / 50.0;
+                let (st, ct) = th.sin_cos();
+                let (s, c) = rotated(st, ct, al);
+                let (se, ce) = (th + al).sin_cos();
+                worst = worst.max((s - se).abs()).max((c - ce).abs());
+            }
+        }
+        assert!(worst <= 3.0 * f64::EPSILON, "{worst}");
+    }
+
     /// The vortex with the published parameters: E = 1000, ν = 0.3, ρ0 = 1000, A = c = 1.
     fn published_vortex() -> Benchmark<2> {
         let (_, mu) = lame(1000.0, 0.3);
@@ -588,7 +690,7 @@ mod tests {
             let r = x.norm();
             let th = x[1].atan2(x[0]);
             let probe = Vector::<2>::new(r, 0.0);
-            let (_, _, al, ..) = bm.at(t).vortex_terms(&bm.factors(&probe).0);
+            let (_, _, _, al, ..) = bm.at(t).vortex_terms(&bm.factors(&probe).0);
             let xr = Vector::<2>::new(r * (th - al).cos(), r * (th - al).sin());
             let f = bm.deformation_gradient(&xr, t);
             (f * f.transpose() - Mat::<2>::identity()) * mu
