@@ -196,6 +196,11 @@ pub struct Solver<'c, const D: usize> {
     /// Per chunk of [`LOCATE_CHUNK`] particles, whether one left the grid or its block
     /// ([`Solver::wrap_and_flag`]).
     flagged: Vec<bool>,
+    /// Whether `pxi`, the slab order's slabs and `cell_runs` hold the tile pass's
+    /// location of every particle as it is now: `relocate` locates them with the wrap
+    /// (one read of the positions, not two) and keeps it if none left or arrived; the
+    /// sort, a new layout and the next tile pass, which uses it, end it.
+    located: bool,
     record: Vec<f64>,
     dx: Vec<Vector<D>>,
     /// The sort's permutation and its in-place application's marks.
@@ -654,6 +659,30 @@ impl Update {
 
 const SORT_EVERY: u64 = 20;
 
+/// The tile pass's location of particle `at`, the next of its chunk after the one in
+/// cell `prev`: its local coordinate `xi` and its slab, and a new run in `runs` where
+/// its cell differs.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn locate_one<const D: usize>(
+    geom: &Geom<D>,
+    index: kernel::SlabIndex,
+    at: usize,
+    x: &Vector<D>,
+    xi: &mut [f64; D],
+    slab: &mut u32,
+    runs: &mut Vec<(u32, u32)>,
+    prev: &mut [i64; D],
+) {
+    let (c, f) = geom.locate(&std::array::from_fn(|a| x[a]));
+    *xi = f;
+    *slab = index.slab(c[D - 1]);
+    if c != *prev {
+        *prev = c;
+        runs.push((at as u32, 0));
+    }
+}
+
 /// Whether coordinate `x` along axis `a` lies on the grid: always on a periodic axis
 /// (positions are wrapped), within the faces on a bounded one (never if NaN).
 #[inline]
@@ -836,6 +865,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             accel: Vec::new(),
             memo: Memo::default(),
             flagged: Vec::new(),
+            located: false,
             permuted: Vec::new(),
             scratch: Vec::new(),
         };
@@ -962,7 +992,28 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// and group the particles by slab for the scatter.
     fn activate_tiles(&mut self) {
         self.tiles.begin();
-        self.locate_all();
+        // Located by `relocate` if nothing moved, left or arrived since.
+        let located = std::mem::take(&mut self.located);
+        if !located {
+            self.locate_all();
+        } else if cfg!(debug_assertions) {
+            // The tests' builds check that claim: locating again changes nothing.
+            let pxi = self.pxi.clone();
+            let slab_of = self.slabs.slabs_mut().1.to_vec();
+            let runs = self.cell_runs.clone();
+            self.locate_all();
+            let same_xi = pxi.len() == self.pxi.len()
+                && pxi
+                    .iter()
+                    .flatten()
+                    .zip(self.pxi.iter().flatten())
+                    .all(|(a, b)| a.to_bits() == b.to_bits());
+            assert!(
+                same_xi && slab_of == self.slabs.slabs_mut().1 && runs == self.cell_runs,
+                "the particles' location kept from the wrap is stale at step {}",
+                self.step
+            );
+        }
         // The tiles of the runs' cells.
         self.touch_runs();
         self.slabs.finish();
@@ -997,6 +1048,39 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// chunk's first particle starts one). Chunks are fixed, so the runs do not depend
     /// on the thread count.
     fn locate_all(&mut self) {
+        let (chunks, index) = self.begin_locate();
+        let geom = &self.geom;
+        let (_, slab_of) = self.slabs.slabs_mut();
+        self.parts
+            .x
+            .par_chunks(LOCATE_CHUNK)
+            .zip(self.pxi.par_chunks_mut(LOCATE_CHUNK))
+            .zip(slab_of.par_chunks_mut(LOCATE_CHUNK))
+            .zip(self.cell_runs.par_iter_mut())
+            .enumerate()
+            .for_each(|(k, (((x, xi), slab), runs))| {
+                runs.clear();
+                let mut prev = [i64::MIN; D];
+                for (p, x) in x.iter().enumerate() {
+                    let at = k * LOCATE_CHUNK + p;
+                    locate_one(
+                        geom,
+                        index,
+                        at,
+                        x,
+                        &mut xi[p],
+                        &mut slab[p],
+                        runs,
+                        &mut prev,
+                    );
+                }
+            });
+        self.cell_runs.truncate(chunks);
+    }
+
+    /// The tile pass's arrays sized for this rank's particles and the slab order
+    /// begun: the chunk count and how to find a particle's slab.
+    fn begin_locate(&mut self) -> (usize, kernel::SlabIndex) {
         let n = self.parts.len();
         // Every entry is written below: only new ones need a value (no serial fill).
         particles::reserve(&mut self.ptile, n);
@@ -1011,31 +1095,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         if self.cell_runs.len() < chunks {
             self.cell_runs.resize_with(chunks, Vec::new);
         }
-        let geom = &self.geom;
-        let (slabs, slab_of) = self.slabs.slabs_mut();
-        self.parts
-            .x
-            .par_chunks(LOCATE_CHUNK)
-            .zip(self.pxi.par_chunks_mut(LOCATE_CHUNK))
-            .zip(slab_of.par_chunks_mut(LOCATE_CHUNK))
-            .zip(self.cell_runs.par_iter_mut())
-            .enumerate()
-            .for_each(|(k, (((x, xi), slab), runs))| {
-                runs.clear();
-                // No particle's cell is this (cells are within the grid or a period).
-                let mut prev = [i64::MIN; D];
-                let each = x.iter().zip(xi.iter_mut()).zip(slab.iter_mut());
-                for (p, ((x, xi), slab)) in each.enumerate() {
-                    let (c, f) = geom.locate(&std::array::from_fn(|a| x[a]));
-                    *xi = f;
-                    *slab = slabs.slab(c[last]);
-                    if c != prev {
-                        prev = c;
-                        runs.push(((k * LOCATE_CHUNK + p) as u32, 0));
-                    }
-                }
-            });
-        self.cell_runs.truncate(chunks);
+        (chunks, self.slabs.slabs_mut().0)
     }
 
     /// The local cell of the first particle of a run (as the tile pass located it).
@@ -1694,18 +1754,27 @@ impl<'c, const D: usize> Solver<'c, D> {
 
     /// In parallel over fixed chunks of particles: wrap periodic coordinates into the
     /// period, and flag the chunks ([`Solver::flagged`]) that hold a particle outside
-    /// the grid or its block, the only ones [`Solver::relocate`] then visits.
+    /// the grid or its block, the only ones [`Solver::relocate`] then visits. The
+    /// others' particles are located for the next tile pass as in
+    /// [`Solver::locate_all`], while their positions are at hand.
     fn wrap_and_flag(&mut self) {
-        let chunks = self.parts.len().div_ceil(LOCATE_CHUNK);
+        let (chunks, index) = self.begin_locate();
         self.flagged.clear();
         self.flagged.resize(chunks, false);
         let (geom, lo, hi) = (&self.geom, &self.block.cell_lo, &self.block.cell_hi);
+        let (_, slab_of) = self.slabs.slabs_mut();
         self.parts
             .x
             .par_chunks_mut(LOCATE_CHUNK)
             .zip(self.flagged.par_iter_mut())
-            .for_each(|(xs, flag)| {
-                for x in xs {
+            .zip(self.pxi.par_chunks_mut(LOCATE_CHUNK))
+            .zip(slab_of.par_chunks_mut(LOCATE_CHUNK))
+            .zip(self.cell_runs.par_iter_mut())
+            .enumerate()
+            .for_each(|(k, ((((xs, flag), xi), slab), runs))| {
+                runs.clear();
+                let mut prev = [i64::MIN; D];
+                for (p, x) in xs.iter_mut().enumerate() {
                     for a in 0..D {
                         let (lo, hi) = (geom.lower[a], geom.upper[a]);
                         if geom.periodic[a] && (x[a] < lo || x[a] >= hi) {
@@ -1719,9 +1788,25 @@ impl<'c, const D: usize> Solver<'c, D> {
                     for a in 0..D {
                         in_grid &= on_grid(geom, a, x[a]);
                     }
-                    *flag |= !(in_grid & in_block(geom, lo, hi, x));
+                    let inside = in_grid & in_block(geom, lo, hi, x);
+                    *flag |= !inside;
+                    // A flagged chunk is located again after the exchange.
+                    if inside {
+                        let at = k * LOCATE_CHUNK + p;
+                        locate_one(
+                            geom,
+                            index,
+                            at,
+                            x,
+                            &mut xi[p],
+                            &mut slab[p],
+                            runs,
+                            &mut prev,
+                        );
+                    }
                 }
             });
+        self.cell_runs.truncate(chunks);
     }
 
     /// Wrap periodic coordinates, check bounded ones, and hand particles that left the
@@ -1786,6 +1871,9 @@ impl<'c, const D: usize> Solver<'c, D> {
         let parts = &mut self.parts;
         match self.migrator.exchange(self.comm) {
             Ok(recs) => {
+                // The tile pass's location of every particle, done with the wrap, holds
+                // if none left (none was flagged) and none arrived.
+                self.located = !self.flagged.contains(&true) && recs.is_empty();
                 parts.reserve_total(parts.len() + recs.len(), carries);
                 for r in recs.iter() {
                     parts.unpack(r, carries);
@@ -1889,6 +1977,7 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// the same grid and rank count) and rebuild this rank's block, halo, tiles and
     /// migration for it. The grid fields are rebuilt by the next step's scatter.
     pub fn relayout(&mut self, layout: Layout<D>) {
+        self.located = false;
         let me = self.comm.rank();
         let n = self.parts.len();
         let mut mig = Migrator::everywhere(&layout, &self.block, self.migrator.width());
@@ -1932,6 +2021,7 @@ impl<'c, const D: usize> Solver<'c, D> {
 
     /// Reorder particles by cell (then id, for determinism) for cache locality.
     pub fn sort(&mut self) {
+        self.located = false;
         let n = self.parts.len();
         // A rank's particles fit in u32 indices, as the node indices do (`ptile`):
         // 4e9 particles would take over a terabyte.
