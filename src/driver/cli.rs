@@ -146,7 +146,13 @@ pub fn main() -> ExitCode {
                 }
                 return ExitCode::SUCCESS;
             }
-            if launcher_rank().is_none() {
+            // `mpmcg` alone prints the help as an error: every rank finds it, and it is
+            // no message to wait for or to tag with a rank.
+            let help = e.kind() == clap::error::ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand;
+            if help && launched_as_other_rank() {
+                return ExitCode::from(2);
+            }
+            if launcher_rank().is_none() || help {
                 // clap's own printing: coloured on a terminal.
                 let _ = e.print();
                 return ExitCode::from(2);
@@ -170,10 +176,7 @@ pub fn main() -> ExitCode {
                     );
                     ExitCode::SUCCESS
                 }
-                Err(m) => {
-                    say!("error: {}: {m}", scene.display());
-                    ExitCode::from(2)
-                }
+                Err(m) => early_error(&format!("{}: {m}", scene.display())),
             },
             Err(e) => scene_error(&e),
         },
@@ -186,8 +189,7 @@ pub fn main() -> ExitCode {
             restart,
         } => {
             if progress_every.is_some_and(|s| !(s >= 0.0 && s.is_finite())) {
-                say!("error: --progress-every must be a number of seconds >= 0");
-                return ExitCode::from(2);
+                return early_error("--progress-every must be a number of seconds >= 0");
             }
             run_main(scene, out, threads, quiet, progress_every, restart)
         }
