@@ -659,27 +659,46 @@ impl Update {
 
 const SORT_EVERY: u64 = 20;
 
-/// The tile pass's location of particle `at`, the next of its chunk after the one in
-/// cell `prev`: its local coordinate `xi` and its slab, and a new run in `runs` where
-/// its cell differs.
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn locate_one<const D: usize>(
-    geom: &Geom<D>,
+/// The tile pass's location of the particles of one chunk, in order: each one's local
+/// coordinate and slab, and in `runs` where a run of particles in one cell starts
+/// (the chunk's first particle starts one).
+struct ChunkLocator<'a, const D: usize> {
+    geom: &'a Geom<D>,
     index: kernel::SlabIndex,
-    at: usize,
-    x: &Vector<D>,
-    xi: &mut [f64; D],
-    slab: &mut u32,
-    runs: &mut Vec<(u32, u32)>,
-    prev: &mut [i64; D],
-) {
-    let (c, f) = geom.locate(&std::array::from_fn(|a| x[a]));
-    *xi = f;
-    *slab = index.slab(c[D - 1]);
-    if c != *prev {
-        *prev = c;
-        runs.push((at as u32, 0));
+    /// The chunk's first particle.
+    base: usize,
+    /// The cell of the particle located last (none at first).
+    prev: [i64; D],
+    runs: &'a mut Vec<(u32, u32)>,
+}
+
+impl<'a, const D: usize> ChunkLocator<'a, D> {
+    fn new(
+        geom: &'a Geom<D>,
+        index: kernel::SlabIndex,
+        chunk: usize,
+        runs: &'a mut Vec<(u32, u32)>,
+    ) -> Self {
+        runs.clear();
+        ChunkLocator {
+            geom,
+            index,
+            base: chunk * LOCATE_CHUNK,
+            prev: [i64::MIN; D],
+            runs,
+        }
+    }
+
+    /// Locate the chunk's particle `p`, at `x`, into its `xi` and `slab`.
+    #[inline(always)]
+    fn locate(&mut self, p: usize, x: &Vector<D>, xi: &mut [f64; D], slab: &mut u32) {
+        let (c, f) = self.geom.locate(&std::array::from_fn(|a| x[a]));
+        *xi = f;
+        *slab = self.index.slab(c[D - 1]);
+        if c != self.prev {
+            self.prev = c;
+            self.runs.push(((self.base + p) as u32, 0));
+        }
     }
 }
 
@@ -1059,20 +1078,9 @@ impl<'c, const D: usize> Solver<'c, D> {
             .zip(self.cell_runs.par_iter_mut())
             .enumerate()
             .for_each(|(k, (((x, xi), slab), runs))| {
-                runs.clear();
-                let mut prev = [i64::MIN; D];
+                let mut loc = ChunkLocator::new(geom, index, k, runs);
                 for (p, x) in x.iter().enumerate() {
-                    let at = k * LOCATE_CHUNK + p;
-                    locate_one(
-                        geom,
-                        index,
-                        at,
-                        x,
-                        &mut xi[p],
-                        &mut slab[p],
-                        runs,
-                        &mut prev,
-                    );
+                    loc.locate(p, x, &mut xi[p], &mut slab[p]);
                 }
             });
         self.cell_runs.truncate(chunks);
@@ -1774,8 +1782,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             .zip(self.cell_runs.par_iter_mut())
             .enumerate()
             .for_each(|(k, ((((xs, flag), xi), slab), runs))| {
-                runs.clear();
-                let mut prev = [i64::MIN; D];
+                let mut loc = ChunkLocator::new(geom, index, k, runs);
                 for (p, x) in xs.iter_mut().enumerate() {
                     for a in 0..D {
                         let (lo, hi) = (geom.lower[a], geom.upper[a]);
@@ -1794,17 +1801,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                     *flag |= !inside;
                     // A flagged chunk is located again after the exchange.
                     if inside {
-                        let at = k * LOCATE_CHUNK + p;
-                        locate_one(
-                            geom,
-                            index,
-                            at,
-                            x,
-                            &mut xi[p],
-                            &mut slab[p],
-                            runs,
-                            &mut prev,
-                        );
+                        loc.locate(p, x, &mut xi[p], &mut slab[p]);
                     }
                 }
             });
