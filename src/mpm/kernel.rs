@@ -26,6 +26,9 @@ use crate::physics::tensor::{det, Mat, Vector};
 use decomposition::tiles::{Tiles, NEIGHBOURS, TILE, TILE_LOG};
 use rayon::prelude::*;
 
+mod lanes;
+use lanes::LANES;
+
 /// Slab thickness in cells for the coloured scatter (see [`scatter`] for why
 /// same-coloured slabs never share a node): a particle with hat functions writes the
 /// node rows of its cell's two faces, so one cell will do; a GIMP particle writes one
@@ -992,6 +995,43 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
     })
 }
 
+/// The stress pass for particle `p` of `s` with weights `k` over its nodes' data
+/// `nd` (loaded, with the differences of slot `m.slot`): deform it, move it as `m`
+/// asks, and account for it in `t`.
+#[inline(always)]
+fn stress_one<const D: usize, const N: usize>(
+    ctx: &Ctx<'_, D>,
+    s: &mut Slices<'_, D>,
+    p: usize,
+    k: &Kern<D, N>,
+    nd: &NodeData<D, N>,
+    m: &StressMode,
+    t: &mut Tally,
+) {
+    let lb = lbar_at(k, nd, m.two_step);
+    let l = velocity_gradient_at(k, nd, &lb, m.slot, m.two_step);
+    t.ok &= deform(ctx, s, p, &l, m.dt);
+    if m.moves {
+        // MUSL, two-step scheme: the particle moves with the reconstruction of
+        // the remapped velocity (and its velocity into a slip wall is clipped to
+        // that, as in the gather).
+        let vm = moving_velocity(ctx, k, nd, &lb, m.slot);
+        // Only particles touching a wall's nodes can be clipped: the others'
+        // velocities are neither read nor written here.
+        if k.ends.iter().flatten().any(|&e| e) {
+            let mut v = s.parts.v[p];
+            t.work += clip_at_slip_walls(ctx, k, &mut v, &vm, s.parts.mass[p]);
+            s.parts.v[p] = v;
+        }
+        s.parts.x[p] += vm * m.dt;
+    } else if m.moves_kept {
+        s.parts.x[p] += s.dx[p];
+    }
+    if m.speed {
+        t.max_speed = raise_speed(ctx, s, p, t.max_speed);
+    }
+}
+
 /// Stress update from velocity slot `slot` at the current positions.
 pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
@@ -1005,7 +1045,29 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
         let mut t = Tally::ZERO;
         let mut nd = NodeData::<D, N>::new();
         let mut run = Run::<D, NA, N>::new();
-        for p in 0..s.len() {
+        let batches = lanes::applies(ctx.gimp, &s);
+        let mut p = 0;
+        while p < s.len() {
+            // Eight particles of one run away from walls at a time where the lanes
+            // apply ([`lanes`]); the rest, one by one.
+            if batches
+                && p + LANES <= s.len()
+                && s.tile[p + 1..p + LANES].iter().all(|&c| c == s.tile[p])
+            {
+                if run.is_new(s.tile[p], [0; D]) {
+                    run.enter(ctx, s.tile[p], [0; D]);
+                    nd.load(&run.idx, vel, avg, None);
+                    nd.load_differences(m.slot);
+                }
+                if !run.at_wall {
+                    t.ok &= lanes::deform_and_move(ctx, &mut s, p, &nd, &m);
+                    if m.speed {
+                        t.max_speed = lanes::raise_speed(ctx, &s, p, t.max_speed);
+                    }
+                    p += LANES;
+                    continue;
+                }
+            }
             let half = if ctx.gimp {
                 Some(&s.parts.half[p])
             } else {
@@ -1018,28 +1080,8 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
                 nd.load_differences(m.slot);
             }
             k.ends = run.ends(ctx, &w);
-            let lb = lbar_at(&k, &nd, m.two_step);
-            let l = velocity_gradient_at(&k, &nd, &lb, m.slot, m.two_step);
-            t.ok &= deform(ctx, &mut s, p, &l, m.dt);
-            if m.moves {
-                // MUSL, two-step scheme: the particle moves with the reconstruction of
-                // the remapped velocity (and its velocity into a slip wall is clipped to
-                // that, as in the gather).
-                let vm = moving_velocity(ctx, &k, &nd, &lb, m.slot);
-                // Only particles touching a wall's nodes can be clipped: the others'
-                // velocities are neither read nor written here.
-                if k.ends.iter().flatten().any(|&e| e) {
-                    let mut v = s.parts.v[p];
-                    t.work += clip_at_slip_walls(ctx, &k, &mut v, &vm, s.parts.mass[p]);
-                    s.parts.v[p] = v;
-                }
-                s.parts.x[p] += vm * m.dt;
-            } else if m.moves_kept {
-                s.parts.x[p] += s.dx[p];
-            }
-            if m.speed {
-                t.max_speed = raise_speed(ctx, &s, p, t.max_speed);
-            }
+            stress_one(ctx, &mut s, p, &k, &nd, &m, &mut t);
+            p += 1;
         }
         t
     })

@@ -165,6 +165,20 @@ impl Material {
         }
     }
 
+    /// `wave_speed(j)` for every J >= 1, as it rounds, where the model's speed is the
+    /// small-strain one there (neo-Hookean and J2: `((λ + 2μ) / ρ).sqrt()`, J2's
+    /// `max(1 − ln J, 1)` being 1): formed without a logarithm.
+    #[inline(always)]
+    pub fn stretched_wave_speed(&self) -> Option<f64> {
+        match self {
+            Material::NeoHookean(m) if m.lambda >= 0.0 => {
+                Some(((m.lambda + 2.0 * m.mu) / m.density).sqrt())
+            }
+            Material::J2Plastic(m) => Some(((m.lambda + 2.0 * m.mu) / m.density).sqrt()),
+            _ => None,
+        }
+    }
+
     /// Whether `wave_speed(j) + v <= limit` holds for certain, decided without a
     /// logarithm; false when unsure, and for the models whose speed needs none.
     ///
@@ -214,22 +228,15 @@ impl Material {
     /// J ≥ 1 whenever every particle's speed is the maximum (a falling block).
     #[inline(always)]
     pub fn raise_signal_speed(&self, j: f64, v: f64, max: f64) -> f64 {
-        let small = match self {
-            Material::NeoHookean(m) if m.lambda >= 0.0 => Some((m.lambda + 2.0 * m.mu) / m.density),
-            Material::J2Plastic(m) => Some((m.lambda + 2.0 * m.mu) / m.density),
-            _ => None,
-        };
-        let Some(small) = small else {
+        let Some(small) = self.stretched_wave_speed() else {
             return max.max(self.wave_speed(j) + v);
         };
-        // `wave_speed(j)` for J >= 1, as it rounds: `(small / ρ).sqrt()` (J2's
-        // `max(1 − ln J, 1)` is then 1).
         let at_least_one = j >= 1.0;
         let skip = self.signal_speed_at_most(j, v, max);
         if !at_least_one && !skip {
             return max.max(self.wave_speed(j) + v);
         }
-        let quick = small.sqrt() + v;
+        let quick = small + v;
         if at_least_one {
             max.max(quick)
         } else {
