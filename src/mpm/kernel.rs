@@ -27,7 +27,7 @@ use decomposition::tiles::{Tiles, NEIGHBOURS, TILE, TILE_LOG};
 use rayon::prelude::*;
 
 mod lanes;
-use lanes::LANES;
+use lanes::{HALF, LANES};
 
 /// Slab thickness in cells for the coloured scatter (see [`scatter`] for why
 /// same-coloured slabs never share a node): a particle with hat functions writes the
@@ -1048,23 +1048,37 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
         let batches = lanes::applies(ctx.gimp, &s);
         let mut p = 0;
         while p < s.len() {
-            // Eight particles of one run away from walls at a time where the lanes
-            // apply ([`lanes`]); the rest, one by one.
-            if batches
-                && p + LANES <= s.len()
-                && s.tile[p + 1..p + LANES].iter().all(|&c| c == s.tile[p])
-            {
+            // Eight (or four) particles of one run away from walls at a time where
+            // the lanes apply ([`lanes`]); the rest, one by one.
+            let same = |b: usize| {
+                batches && p + b <= s.len() && s.tile[p + 1..p + b].iter().all(|&c| c == s.tile[p])
+            };
+            let b = if same(LANES) {
+                LANES
+            } else if same(HALF) {
+                HALF
+            } else {
+                1
+            };
+            if b > 1 {
                 if run.is_new(s.tile[p], [0; D]) {
                     run.enter(ctx, s.tile[p], [0; D]);
                     nd.load(&run.idx, vel, avg, None);
                     nd.load_differences(m.slot);
                 }
                 if !run.at_wall {
-                    t.ok &= lanes::deform_and_move(ctx, &mut s, p, &nd, &m);
-                    if m.speed {
-                        t.max_speed = lanes::raise_speed(ctx, &s, p, t.max_speed);
+                    if b == LANES {
+                        t.ok &= lanes::deform_and_move::<D, N, LANES>(ctx, &mut s, p, &nd, &m);
+                        if m.speed {
+                            t.max_speed = lanes::raise_speed::<D, LANES>(ctx, &s, p, t.max_speed);
+                        }
+                    } else {
+                        t.ok &= lanes::deform_and_move::<D, N, HALF>(ctx, &mut s, p, &nd, &m);
+                        if m.speed {
+                            t.max_speed = lanes::raise_speed::<D, HALF>(ctx, &s, p, t.max_speed);
+                        }
                     }
-                    p += LANES;
+                    p += b;
                     continue;
                 }
             }

@@ -15,8 +15,11 @@
 use super::{pair, Alpha, Ctx, NodeData, Slices, StressMode};
 use crate::physics::tensor::Mat;
 
-/// Particles per batch: eight f64 fill an AVX-512 register (two AVX2 ones).
+/// Particles per batch: eight f64 fill an AVX-512 register (two AVX2 ones). Where a
+/// run is shorter (2 × 2 particles per cell: runs of 4), batches of [`HALF`].
 pub const LANES: usize = 8;
+/// The short batch: half a register.
+pub const HALF: usize = 4;
 
 /// Whether the batch path can take this pass at all: hat functions, and particles
 /// whose stress is formed from `F` where it is used (neo-Hookean), so that
@@ -29,75 +32,75 @@ pub fn applies<const D: usize>(gimp: bool, s: &Slices<'_, D>) -> bool {
     D == 2 && !gimp && s.parts.stress.is_empty() && !s.parts.def_grad.is_empty()
 }
 
-/// Deform and (as `m` asks) move particles `p0 .. p0 + LANES` of `s`, which share
+/// Deform and (as `m` asks) move particles `p0 .. p0 + B` of `s`, which share
 /// their nodes, whose data `nd` holds (loaded, with the differences of slot
 /// `m.slot`), and none of which gives weight to a wall's node: the scalar pass's
 /// velocity gradient, deformation, volume, and the move with the reconstruction of
 /// slot `m.slot` (`m.moves`) or by the kept increment (`m.moves_kept`). Returns
 /// whether every new state is physical; the signal speed is left to the caller.
 #[inline(always)]
-pub fn deform_and_move<const D: usize, const N: usize>(
+pub fn deform_and_move<const D: usize, const N: usize, const B: usize>(
     ctx: &Ctx<'_, D>,
     s: &mut Slices<'_, D>,
     p0: usize,
     nd: &NodeData<D, N>,
     m: &StressMode,
 ) -> bool {
-    // Fixed-size views of the batch: indices below LANES need no bounds checks,
+    // Fixed-size views of the batch: indices below B need no bounds checks,
     // so the loads and stores below are whole vectors.
-    let r = p0..p0 + LANES;
-    let xs: &[[f64; D]; LANES] = s.xi[r.clone()].try_into().expect("a full batch");
+    let r = p0..p0 + B;
+    let xs: &[[f64; D]; B] = s.xi[r.clone()].try_into().expect("a full batch");
     // (Plain loops over fixed arrays throughout: `array::from_fn`'s closures were
     // left as calls, with the lanes spilled around them.)
-    let mut xi = [[0.0; LANES]; D];
-    for l in 0..LANES {
+    let mut xi = [[0.0; B]; D];
+    for l in 0..B {
         for a in 0..D {
             xi[a][l] = xs[l][a];
         }
     }
     // Hat functions (`shape::hat`): weights 1 − ξ and ξ, derivatives ∓ 1/h.
-    let mut w = [[[0.0; LANES]; 2]; D];
+    let mut w = [[[0.0; B]; 2]; D];
     let mut dw = [[0.0; 2]; D];
     for a in 0..D {
-        for l in 0..LANES {
+        for l in 0..B {
             w[a][0][l] = 1.0 - xi[a][l];
         }
         w[a][1] = xi[a];
         dw[a] = [-ctx.geom.inv_h[a], ctx.geom.inv_h[a]];
     }
-    let alpha: [f64; LANES] = match ctx.alpha {
+    let alpha: [f64; B] = match ctx.alpha {
         // `shape::bubble`: Π_a 4 ξ_a (1 − ξ_a).
         Alpha::ProductOfShapes => {
-            let mut b = [1.0; LANES];
+            let mut b = [1.0; B];
             for xa in &xi {
-                for l in 0..LANES {
+                for l in 0..B {
                     b[l] *= 4.0 * xa[l] * (1.0 - xa[l]);
                 }
             }
             b
         }
-        Alpha::Constant(c) => [c; LANES],
+        Alpha::Constant(c) => [c; B],
     };
     // `Ctx::weights`: shape functions and gradients over the cell's corners.
-    let mut sh = [[0.0; LANES]; N];
-    let mut g = [[[0.0; LANES]; N]; D];
+    let mut sh = [[0.0; B]; N];
+    let mut g = [[[0.0; B]; N]; D];
     for n in 0..N {
         let mut o = [0; D];
         for (a, o) in o.iter_mut().enumerate() {
             *o = (n >> a) & 1;
         }
-        let mut sn = [1.0; LANES];
+        let mut sn = [1.0; B];
         for a in 0..D {
-            for l in 0..LANES {
+            for l in 0..B {
                 sn[l] *= w[a][o[a]][l];
             }
         }
         sh[n] = sn;
         for d in 0..D {
-            let mut p = [dw[d][o[d]]; LANES];
+            let mut p = [dw[d][o[d]]; B];
             for e in 0..D {
                 if e != d {
-                    for l in 0..LANES {
+                    for l in 0..B {
                         p[l] *= w[e][o[e]][l];
                     }
                 }
@@ -106,26 +109,26 @@ pub fn deform_and_move<const D: usize, const N: usize>(
         }
     }
     // `lbar_at`: the nodal L̄ at the particle, all nodes and the upper side per column.
-    let mut all = [[[0.0; LANES]; D]; D];
-    let mut upper = [[[0.0; LANES]; D]; D];
+    let mut all = [[[0.0; B]; D]; D];
+    let mut upper = [[[0.0; B]; D]; D];
     if m.two_step {
         for a in 0..D {
             for b in 0..D {
-                let mut lo = [0.0; LANES];
-                let mut hi = [0.0; LANES];
+                let mut lo = [0.0; B];
+                let mut hi = [0.0; B];
                 for n in 0..N {
                     let c = nd.lb[a][b][n];
                     if (n >> b) & 1 == 1 {
-                        for l in 0..LANES {
+                        for l in 0..B {
                             hi[l] += sh[n][l] * c;
                         }
                     } else {
-                        for l in 0..LANES {
+                        for l in 0..B {
                             lo[l] += sh[n][l] * c;
                         }
                     }
                 }
-                for l in 0..LANES {
+                for l in 0..B {
                     all[a][b][l] = lo[l] + hi[l];
                 }
                 upper[a][b] = hi;
@@ -134,24 +137,24 @@ pub fn deform_and_move<const D: usize, const N: usize>(
     }
     // `velocity_gradient_at` with hat functions: velocity differences across the
     // cell's pairs, times α, blended with (1 − α) L̄ for a two-step scheme.
-    let mut lg = [[[0.0; LANES]; D]; D];
+    let mut lg = [[[0.0; B]; D]; D];
     for a in 0..D {
         for b in 0..D {
-            let mut x = [0.0; LANES];
+            let mut x = [0.0; B];
             for mm in 0..N / 2 {
                 let c = nd.dv[a][b][mm];
                 let gb = &g[b][pair(b, mm).1];
-                for l in 0..LANES {
+                for l in 0..B {
                     x[l] += c * gb[l];
                 }
             }
             // Both sides formed, then chosen: a select per lane, not a branch.
-            for l in 0..LANES {
+            for l in 0..B {
                 let ax = alpha[l] * x[l];
                 lg[a][b][l] = if alpha[l] != 0.0 { ax } else { 0.0 };
             }
             if m.two_step {
-                for l in 0..LANES {
+                for l in 0..B {
                     let v = lg[a][b][l];
                     let blended = v + (1.0 - alpha[l]) * all[a][b][l];
                     lg[a][b][l] = if alpha[l] != 1.0 { blended } else { v };
@@ -160,52 +163,52 @@ pub fn deform_and_move<const D: usize, const N: usize>(
         }
     }
     // `deform`: increment I + L dt, its determinant J, the volume, F ← (I + L dt) F.
-    let mut inc = [[[0.0; LANES]; D]; D];
+    let mut inc = [[[0.0; B]; D]; D];
     for i in 0..D {
         for k in 0..D {
             let id = if i == k { 1.0 } else { 0.0 };
-            for l in 0..LANES {
+            for l in 0..B {
                 inc[i][k][l] = id + lg[i][k][l] * m.dt;
             }
         }
     }
     let j = det_lanes(&inc);
-    let fs: &mut [Mat<D>; LANES] = (&mut s.parts.def_grad[r.clone()])
+    let fs: &mut [Mat<D>; B] = (&mut s.parts.def_grad[r.clone()])
         .try_into()
         .expect("a full batch");
-    let mut f = [[[0.0; LANES]; D]; D];
-    for l in 0..LANES {
+    let mut f = [[[0.0; B]; D]; D];
+    for l in 0..B {
         for k in 0..D {
             for c in 0..D {
                 f[k][c][l] = fs[l][(k, c)];
             }
         }
     }
-    let mut fnew = [[[0.0; LANES]; D]; D];
+    let mut fnew = [[[0.0; B]; D]; D];
     for i in 0..D {
         for c in 0..D {
             // nalgebra's product: the sum over k in order.
-            let mut x = [0.0; LANES];
-            for l in 0..LANES {
+            let mut x = [0.0; B];
+            for l in 0..B {
                 x[l] = inc[i][0][l] * f[0][c][l];
             }
             for k in 1..D {
-                for l in 0..LANES {
+                for l in 0..B {
                     x[l] += inc[i][k][l] * f[k][c][l];
                 }
             }
             fnew[i][c] = x;
         }
     }
-    let vs: &mut [f64; LANES] = (&mut s.parts.vol[r.clone()])
+    let vs: &mut [f64; B] = (&mut s.parts.vol[r.clone()])
         .try_into()
         .expect("a full batch");
-    let mut vol = [0.0; LANES];
-    for l in 0..LANES {
+    let mut vol = [0.0; B];
+    for l in 0..B {
         vol[l] = vs[l] * j[l];
     }
     let mut ok = true;
-    for l in 0..LANES {
+    for l in 0..B {
         let mut finite = vol[l].is_finite();
         for row in &fnew {
             for x in row {
@@ -215,7 +218,7 @@ pub fn deform_and_move<const D: usize, const N: usize>(
         ok &= j[l] > 0.0 && finite;
     }
     *vs = vol;
-    for l in 0..LANES {
+    for l in 0..B {
         for i in 0..D {
             for c in 0..D {
                 fs[l][(i, c)] = fnew[i][c][l];
@@ -225,23 +228,23 @@ pub fn deform_and_move<const D: usize, const N: usize>(
     if m.moves {
         // `moving_velocity` away from walls: Σ_n S_n v̄_n plus the L̄ terms.
         let h = &ctx.geom.h;
-        let x: &mut [_; LANES] = (&mut s.parts.x[r.clone()])
+        let x: &mut [_; B] = (&mut s.parts.x[r.clone()])
             .try_into()
             .expect("a full batch");
         for a in 0..D {
-            let mut u = [0.0; LANES];
+            let mut u = [0.0; B];
             for n in 0..N {
                 let c = nd.vb[a][n];
-                for l in 0..LANES {
+                for l in 0..B {
                     u[l] += sh[n][l] * c;
                 }
             }
             for b in 0..D {
-                for l in 0..LANES {
+                for l in 0..B {
                     u[l] += (all[a][b][l] * xi[b][l] - upper[a][b][l]) * h[b];
                 }
             }
-            for l in 0..LANES {
+            for l in 0..B {
                 x[l][a] += u[l] * m.dt;
             }
         }
@@ -255,8 +258,8 @@ pub fn deform_and_move<const D: usize, const N: usize>(
 
 /// [`crate::physics::tensor::det`] lane by lane, term for term.
 #[inline(always)]
-fn det_lanes<const D: usize>(m: &[[[f64; LANES]; D]; D]) -> [f64; LANES] {
-    let mut out = [0.0; LANES];
+fn det_lanes<const D: usize, const B: usize>(m: &[[[f64; B]; D]; D]) -> [f64; B] {
+    let mut out = [0.0; B];
     for (l, out) in out.iter_mut().enumerate() {
         let e = |i: usize, k: usize| m[i][k][l];
         *out = match D {
@@ -274,7 +277,7 @@ fn det_lanes<const D: usize>(m: &[[[f64; LANES]; D]; D]) -> [f64; LANES] {
 }
 
 /// The running maximum `max` of the signal speed raised by particles
-/// `p0 .. p0 + LANES` of `s` ([`super::raise_speed`] for each in turn): the same
+/// `p0 .. p0 + B` of `s` ([`super::raise_speed`] for each in turn): the same
 /// maximum, bit for bit. Where the eight share a material whose speed for J >= 1
 /// needs no logarithm ([`crate::physics::material::Material::stretched_wave_speed`]), the stretched ones'
 /// speeds and the skip test of the compressed ones
@@ -284,7 +287,7 @@ fn det_lanes<const D: usize>(m: &[[[f64; LANES]; D]; D]) -> [f64; LANES] {
 /// particle skipped against the maximum so far cannot raise a later, larger one,
 /// so this is the maximum the particle-by-particle loop forms.
 #[inline(always)]
-pub fn raise_speed<const D: usize>(
+pub fn raise_speed<const D: usize, const B: usize>(
     ctx: &Ctx<'_, D>,
     s: &Slices<'_, D>,
     p0: usize,
@@ -293,32 +296,32 @@ pub fn raise_speed<const D: usize>(
     let mat = s.parts.mat[p0];
     let material = &ctx.materials[mat as usize];
     let quick = match material.stretched_wave_speed() {
-        Some(q) if s.parts.mat[p0 + 1..p0 + LANES].iter().all(|&m| m == mat) => q,
+        Some(q) if s.parts.mat[p0 + 1..p0 + B].iter().all(|&m| m == mat) => q,
         _ => {
-            return (p0..p0 + LANES).fold(max, |m, p| super::raise_speed(ctx, s, p, m));
+            return (p0..p0 + B).fold(max, |m, p| super::raise_speed(ctx, s, p, m));
         }
     };
-    let r = p0..p0 + LANES;
-    let (vol, vol0): (&[f64; LANES], &[f64; LANES]) = (
+    let r = p0..p0 + B;
+    let (vol, vol0): (&[f64; B], &[f64; B]) = (
         s.parts.vol[r.clone()].try_into().expect("a full batch"),
         s.parts.vol0[r.clone()].try_into().expect("a full batch"),
     );
-    let vs: &[_; LANES] = s.parts.v[r].try_into().expect("a full batch");
-    let mut j = [0.0; LANES];
-    let mut v = [0.0; LANES];
-    for l in 0..LANES {
+    let vs: &[_; B] = s.parts.v[r].try_into().expect("a full batch");
+    let mut j = [0.0; B];
+    let mut v = [0.0; B];
+    for l in 0..B {
         j[l] = vol[l] / vol0[l];
         v[l] = vs[l].norm();
     }
     let mut slow = false;
-    let mut c = [0.0; LANES];
-    for l in 0..LANES {
+    let mut c = [0.0; B];
+    for l in 0..B {
         let stretched = j[l] >= 1.0;
         slow |= !stretched && !material.signal_speed_at_most(j[l], v[l], max);
         c[l] = if stretched { quick + v[l] } else { max };
     }
     // The lanes' maximum by halves: a few vector operations, not a chain of eight.
-    let mut width = LANES;
+    let mut width = B;
     while width > 1 {
         width /= 2;
         for l in 0..width {
@@ -327,7 +330,7 @@ pub fn raise_speed<const D: usize>(
     }
     let mut top = max.max(c[0]);
     if slow {
-        for l in 0..LANES {
+        for l in 0..B {
             if j[l] < 1.0 || j[l].is_nan() {
                 top = top.max(material.wave_speed(j[l]) + v[l]);
             }
@@ -420,11 +423,14 @@ mod tests {
                 (false, false, true),
                 (false, false, false),
             ] {
-                for (steep, max0, nan_lane) in [
-                    (1.0, 0.0, None),
-                    (1.0, 1e3, None),
-                    (1e5, 0.0, None),
-                    (1.0, 0.0, Some(5)),
+                for (steep, max0, nan_lane, width) in [
+                    (1.0, 0.0, None, LANES),
+                    (1.0, 1e3, None, LANES),
+                    (1e5, 0.0, None, LANES),
+                    (1.0, 0.0, Some(5), LANES),
+                    (1.0, 0.0, None, HALF),
+                    (1e5, 0.0, None, HALF),
+                    (1.0, 0.0, Some(2), HALF),
                 ] {
                     let mut nd = NodeData::<2, 4>::new();
                     for a in 0..2 {
@@ -467,7 +473,7 @@ mod tests {
                         max_speed: max0,
                         ..Tally::ZERO
                     };
-                    for p in 0..LANES {
+                    for p in 0..width {
                         let (k, _, _): (Kern<2, 4>, _, _) =
                             ctx.weights::<2, 4>(&sa.parts.x[p], None, &xi[p]);
                         stress_one(&ctx, &mut sa, p, &k, &nd, &m, &mut ta);
@@ -481,11 +487,17 @@ mod tests {
                         accel: &[],
                     };
                     assert!(applies(false, &sb));
-                    let ok = deform_and_move(&ctx, &mut sb, 0, &nd, &m);
-                    let top = raise_speed(&ctx, &sb, 0, max0);
-                    let what = format!("{alpha:?}, two-step {two_step}, moves {moves}/{moves_kept}, steep {steep}, max {max0}, NaN {nan_lane:?}");
+                    let (ok, top) = if width == LANES {
+                        let ok = deform_and_move::<2, 4, LANES>(&ctx, &mut sb, 0, &nd, &m);
+                        (ok, raise_speed::<2, LANES>(&ctx, &sb, 0, max0))
+                    } else {
+                        let ok = deform_and_move::<2, 4, HALF>(&ctx, &mut sb, 0, &nd, &m);
+                        (ok, raise_speed::<2, HALF>(&ctx, &sb, 0, max0))
+                    };
+                    let what = format!("{width} lanes, {alpha:?}, two-step {two_step}, moves {moves}/{moves_kept}, steep {steep}, max {max0}, NaN {nan_lane:?}");
                     assert_eq!(ok, ta.ok, "{what}");
                     assert_eq!(top.to_bits(), ta.max_speed.to_bits(), "{what}");
+                    // (Particles past the batch are untouched by both.)
                     for p in 0..LANES {
                         assert_eq!(a.vol[p].to_bits(), b.vol[p].to_bits(), "vol {p}: {what}");
                         for (x, y) in a.def_grad[p].iter().zip(b.def_grad[p].iter()) {
@@ -502,7 +514,7 @@ mod tests {
                 }
             }
         }
-        assert_eq!(cases, 64);
+        assert_eq!(cases, 112);
         // The comparison covered inverted states, not only physical ones.
         assert!(inverted >= 8, "{inverted} cases inverted a particle");
     }
