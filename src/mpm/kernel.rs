@@ -914,7 +914,36 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
         let mut t = Tally::ZERO;
         let mut nd = NodeData::<D, N>::new();
         let mut run = Run::<D, NA, N>::new();
-        for p in 0..s.len() {
+        let batches = xpic.is_none() && lanes::applies(ctx.gimp, &s);
+        let mut p = 0;
+        while p < s.len() {
+            // Eight (or four) particles of one run away from walls at a time where
+            // the lanes apply, as in the stress pass ([`update_stress`]).
+            let b = batch_width(batches, s.tile, p);
+            if b > 1 {
+                if run.is_new(s.tile[p], [0; D]) {
+                    run.enter(ctx, s.tile[p], [0; D]);
+                    nd.load(&run.idx, vel, avg, xpic);
+                    if m.stress {
+                        nd.load_differences(UPDATED);
+                    }
+                }
+                if !run.at_wall {
+                    if b == LANES {
+                        t.ok &= lanes::gather::<D, N, LANES>(ctx, &mut s, p, &nd, &m, &mut t.work);
+                        if m.speed {
+                            t.max_speed = lanes::raise_speed::<D, LANES>(ctx, &s, p, t.max_speed);
+                        }
+                    } else {
+                        t.ok &= lanes::gather::<D, N, HALF>(ctx, &mut s, p, &nd, &m, &mut t.work);
+                        if m.speed {
+                            t.max_speed = lanes::raise_speed::<D, HALF>(ctx, &s, p, t.max_speed);
+                        }
+                    }
+                    p += b;
+                    continue;
+                }
+            }
             let half = if ctx.gimp {
                 Some(&s.parts.half[p])
             } else {
@@ -929,70 +958,106 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
                 }
             }
             k.ends = run.ends(ctx, &w);
-            let mut vn = Vector::<D>::zeros();
-            let mut dv = Vector::<D>::zeros();
-            for n in 0..N {
-                for a in 0..D {
-                    let (v0, v1) = (nd.v[FROM_MOMENTUM][a][n], nd.v[UPDATED][a][n]);
-                    vn[a] += k.s[n] * v1;
-                    dv[a] += k.s[n] * (v1 - v0);
-                }
-            }
-            let old = s.parts.v[p];
-            let mut new = match xpic {
-                // XPIC(m): V = S v⁺ + S ((m − 1) v − m v*), the field precomputed.
-                Some(_) => {
-                    let mut u = vn;
-                    for n in 0..N {
-                        for a in 0..D {
-                            u[a] += k.s[n] * nd.x[a][n];
-                        }
-                    }
-                    u
-                }
-                None => (old + dv) * m.flip + vn * (1.0 - m.flip),
-            };
-            // The velocity the particle moves with: the grid's, or for a two-step
-            // scheme whose L̄ and v̄ of slot 1 are at hand, their reconstruction.
-            let lb = lbar_at(&k, &nd, m.two_step && (m.recon || m.stress));
-            let vm = if m.recon {
-                moving_velocity(ctx, &k, &nd, &lb, UPDATED)
-            } else {
-                vn
-            };
-            // At a slip wall the grid's normal velocity is zeroed before and after the
-            // force update alike, so FLIP's increment never tells a particle that the
-            // wall stopped it: particles kept their velocity into the wall (Taylor bar:
-            // -176 m/s at 0.1 mm from it at 80 µs). So its normal component is clipped
-            // to the one the particle moves with (which vanishes at the wall). Clipping,
-            // not PIC: PIC every step also damps legitimate subgrid motion (bent beam at
-            // its clamp: 6 % of the energy in two periods for the normal component, 12 %
-            // for all, 1.1 % clipping). Not at fixed walls: there the material is
-            // clamped, and clipping pressed the cantilever's compressed root onto the
-            // clamp until particles left the grid through it (5 and 6 m beams at 3 × 3
-            // per cell).
-            t.work += clip_at_slip_walls(ctx, &k, &mut new, &vm, s.parts.mass[p]);
-            let a = ctx.accel_kept(s.accel, s.parts.x0, p);
-            t.work += m.dt * s.parts.mass[p] * a.dot(&(old + new)) * 0.5;
-            s.parts.v[p] = new;
-            t.ok &= new.iter().all(|x| x.is_finite());
-            if m.stress {
-                let l = velocity_gradient_at(&k, &nd, &lb, UPDATED, m.two_step);
-                t.ok &= deform(ctx, &mut s, p, &l, m.dt);
-            }
-            if m.move_now {
-                s.parts.x[p] += vm * m.dt;
-            } else if !m.two_step {
-                // (A two-step scheme's stress pass sets the increment: MUSL moves it
-                // with the reconstruction of the remapped velocity.)
-                s.dx[p] = vm * m.dt;
-            }
-            if m.speed {
-                t.max_speed = raise_speed(ctx, &s, p, t.max_speed);
-            }
+            gather_one(ctx, &mut s, p, &k, &nd, xpic, &m, &mut t);
+            p += 1;
         }
         t
     })
+}
+
+/// The gather for particle `p` of `s` with weights `k` over its nodes' data `nd`
+/// (loaded, with the differences of the updated slot if `m.stress`): its new
+/// velocity, the work on it, its deformation and move as `m` asks, accounted in `t`.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn gather_one<const D: usize, const N: usize>(
+    ctx: &Ctx<'_, D>,
+    s: &mut Slices<'_, D>,
+    p: usize,
+    k: &Kern<D, N>,
+    nd: &NodeData<D, N>,
+    xpic: Option<&[f64]>,
+    m: &GatherMode,
+    t: &mut Tally,
+) {
+    let mut vn = Vector::<D>::zeros();
+    let mut dv = Vector::<D>::zeros();
+    for n in 0..N {
+        for a in 0..D {
+            let (v0, v1) = (nd.v[FROM_MOMENTUM][a][n], nd.v[UPDATED][a][n]);
+            vn[a] += k.s[n] * v1;
+            dv[a] += k.s[n] * (v1 - v0);
+        }
+    }
+    let old = s.parts.v[p];
+    let mut new = match xpic {
+        // XPIC(m): V = S v⁺ + S ((m − 1) v − m v*), the field precomputed.
+        Some(_) => {
+            let mut u = vn;
+            for n in 0..N {
+                for a in 0..D {
+                    u[a] += k.s[n] * nd.x[a][n];
+                }
+            }
+            u
+        }
+        None => (old + dv) * m.flip + vn * (1.0 - m.flip),
+    };
+    // The velocity the particle moves with: the grid's, or for a two-step
+    // scheme whose L̄ and v̄ of slot 1 are at hand, their reconstruction.
+    let lb = lbar_at(k, nd, m.two_step && (m.recon || m.stress));
+    let vm = if m.recon {
+        moving_velocity(ctx, k, nd, &lb, UPDATED)
+    } else {
+        vn
+    };
+    // At a slip wall the grid's normal velocity is zeroed before and after the
+    // force update alike, so FLIP's increment never tells a particle that the
+    // wall stopped it: particles kept their velocity into the wall (Taylor bar:
+    // -176 m/s at 0.1 mm from it at 80 µs). So its normal component is clipped
+    // to the one the particle moves with (which vanishes at the wall). Clipping,
+    // not PIC: PIC every step also damps legitimate subgrid motion (bent beam at
+    // its clamp: 6 % of the energy in two periods for the normal component, 12 %
+    // for all, 1.1 % clipping). Not at fixed walls: there the material is
+    // clamped, and clipping pressed the cantilever's compressed root onto the
+    // clamp until particles left the grid through it (5 and 6 m beams at 3 × 3
+    // per cell).
+    t.work += clip_at_slip_walls(ctx, k, &mut new, &vm, s.parts.mass[p]);
+    let a = ctx.accel_kept(s.accel, s.parts.x0, p);
+    t.work += m.dt * s.parts.mass[p] * a.dot(&(old + new)) * 0.5;
+    s.parts.v[p] = new;
+    t.ok &= new.iter().all(|x| x.is_finite());
+    if m.stress {
+        let l = velocity_gradient_at(k, nd, &lb, UPDATED, m.two_step);
+        t.ok &= deform(ctx, s, p, &l, m.dt);
+    }
+    if m.move_now {
+        s.parts.x[p] += vm * m.dt;
+    } else if !m.two_step {
+        // (A two-step scheme's stress pass sets the increment: MUSL moves it
+        // with the reconstruction of the remapped velocity.)
+        s.dx[p] = vm * m.dt;
+    }
+    if m.speed {
+        t.max_speed = raise_speed(ctx, s, p, t.max_speed);
+    }
+}
+
+/// How many particles from `p` the particle loops take at once: [`LANES`] or
+/// [`HALF`] where as many in a row share the cell corner `tile[p]` (and `batches`,
+/// the lanes apply to the pass), else 1.
+#[inline(always)]
+fn batch_width(batches: bool, tile: &[u32], p: usize) -> usize {
+    let same = |b: usize| p + b <= tile.len() && tile[p + 1..p + b].iter().all(|&c| c == tile[p]);
+    if !batches {
+        1
+    } else if same(LANES) {
+        LANES
+    } else if same(HALF) {
+        HALF
+    } else {
+        1
+    }
 }
 
 /// The stress pass for particle `p` of `s` with weights `k` over its nodes' data
@@ -1050,16 +1115,7 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
         while p < s.len() {
             // Eight (or four) particles of one run away from walls at a time where
             // the lanes apply ([`lanes`]); the rest, one by one.
-            let same = |b: usize| {
-                batches && p + b <= s.len() && s.tile[p + 1..p + b].iter().all(|&c| c == s.tile[p])
-            };
-            let b = if same(LANES) {
-                LANES
-            } else if same(HALF) {
-                HALF
-            } else {
-                1
-            };
+            let b = batch_width(batches, s.tile, p);
             if b > 1 {
                 if run.is_new(s.tile[p], [0; D]) {
                     run.enter(ctx, s.tile[p], [0; D]);

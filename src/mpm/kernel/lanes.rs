@@ -12,8 +12,9 @@
 //! never contracts), so the results are the same bits, not merely close; the test
 //! `lanes_match_the_scalar_pass` holds the two to that.
 
-use super::{pair, Alpha, Ctx, NodeData, Slices, StressMode};
-use crate::physics::tensor::Mat;
+use super::{pair, Alpha, Ctx, GatherMode, NodeData, Slices, StressMode, FROM_MOMENTUM, UPDATED};
+use crate::physics::tensor::{Mat, Vector};
+use std::ops::Range;
 
 /// Particles per batch: eight f64 fill an AVX-512 register (two AVX2 ones). Where a
 /// run is shorter (2 × 2 particles per cell: runs of 4), batches of [`HALF`].
@@ -32,6 +33,217 @@ pub fn applies<const D: usize>(gimp: bool, s: &Slices<'_, D>) -> bool {
     D == 2 && !gimp && s.parts.stress.is_empty() && !s.parts.def_grad.is_empty()
 }
 
+/// A batch's weights and, for a two-step scheme, its interpolated nodal `L̄`
+/// ([`super::lbar_at`]), lane by lane.
+struct Batch<const D: usize, const N: usize, const B: usize> {
+    xi: [[f64; B]; D],
+    sh: [[f64; B]; N],
+    g: [[[f64; B]; N]; D],
+    alpha: [f64; B],
+    all: [[[f64; B]; D]; D],
+    upper: [[[f64; B]; D]; D],
+}
+
+impl<const D: usize, const N: usize, const B: usize> Batch<D, N, B> {
+    /// The weights of particles `r` of `s` and, if `two`, their `L̄` from `nd`.
+    #[inline(always)]
+    fn new(
+        ctx: &Ctx<'_, D>,
+        s: &Slices<'_, D>,
+        r: Range<usize>,
+        nd: &NodeData<D, N>,
+        two: bool,
+    ) -> Self {
+        // A fixed-size view of the batch: indices below B need no bounds checks, so
+        // the loads are whole vectors. (Plain loops over fixed arrays throughout:
+        // `array::from_fn`'s closures were left as calls, with the lanes spilled
+        // around them.)
+        let xs: &[[f64; D]; B] = s.xi[r].try_into().expect("a full batch");
+        let mut xi = [[0.0; B]; D];
+        for l in 0..B {
+            for a in 0..D {
+                xi[a][l] = xs[l][a];
+            }
+        }
+        let (sh, g, alpha) = weights::<D, N, B>(ctx, &xi);
+        // `lbar_at`: the nodal L̄ at the particle, all nodes and the upper side per
+        // column.
+        let mut all = [[[0.0; B]; D]; D];
+        let mut upper = [[[0.0; B]; D]; D];
+        if two {
+            for a in 0..D {
+                for b in 0..D {
+                    let mut lo = [0.0; B];
+                    let mut hi = [0.0; B];
+                    for n in 0..N {
+                        let c = nd.lb[a][b][n];
+                        if (n >> b) & 1 == 1 {
+                            for l in 0..B {
+                                hi[l] += sh[n][l] * c;
+                            }
+                        } else {
+                            for l in 0..B {
+                                lo[l] += sh[n][l] * c;
+                            }
+                        }
+                    }
+                    for l in 0..B {
+                        all[a][b][l] = lo[l] + hi[l];
+                    }
+                    upper[a][b] = hi;
+                }
+            }
+        }
+        Batch {
+            xi,
+            sh,
+            g,
+            alpha,
+            all,
+            upper,
+        }
+    }
+
+    /// `velocity_gradient_at` with hat functions from the differences `nd.dv`:
+    /// across the cell's pairs, times α, blended with (1 − α) L̄ for a two-step
+    /// scheme; then `deform`: the increment I + L dt, its determinant J, the volume
+    /// and F ← (I + L dt) F of particles `r` of `s`. Returns whether all are physical.
+    #[inline(always)]
+    fn deform(
+        &self,
+        s: &mut Slices<'_, D>,
+        r: Range<usize>,
+        nd: &NodeData<D, N>,
+        two: bool,
+        dt: f64,
+    ) -> bool {
+        let alpha = &self.alpha;
+        let mut lg = [[[0.0; B]; D]; D];
+        for a in 0..D {
+            for b in 0..D {
+                let mut x = [0.0; B];
+                for mm in 0..N / 2 {
+                    let c = nd.dv[a][b][mm];
+                    let gb = &self.g[b][pair(b, mm).1];
+                    for l in 0..B {
+                        x[l] += c * gb[l];
+                    }
+                }
+                // Both sides formed, then chosen: a select per lane, not a branch.
+                for l in 0..B {
+                    let ax = alpha[l] * x[l];
+                    lg[a][b][l] = if alpha[l] != 0.0 { ax } else { 0.0 };
+                }
+                if two {
+                    for l in 0..B {
+                        let v = lg[a][b][l];
+                        let blended = v + (1.0 - alpha[l]) * self.all[a][b][l];
+                        lg[a][b][l] = if alpha[l] != 1.0 { blended } else { v };
+                    }
+                }
+            }
+        }
+        let mut inc = [[[0.0; B]; D]; D];
+        for i in 0..D {
+            for k in 0..D {
+                let id = if i == k { 1.0 } else { 0.0 };
+                for l in 0..B {
+                    inc[i][k][l] = id + lg[i][k][l] * dt;
+                }
+            }
+        }
+        let j = det_lanes(&inc);
+        let fs: &mut [Mat<D>; B] = (&mut s.parts.def_grad[r.clone()])
+            .try_into()
+            .expect("a full batch");
+        let mut f = [[[0.0; B]; D]; D];
+        for l in 0..B {
+            for k in 0..D {
+                for c in 0..D {
+                    f[k][c][l] = fs[l][(k, c)];
+                }
+            }
+        }
+        let mut fnew = [[[0.0; B]; D]; D];
+        for i in 0..D {
+            for c in 0..D {
+                // nalgebra's product: the sum over k in order.
+                let mut x = [0.0; B];
+                for l in 0..B {
+                    x[l] = inc[i][0][l] * f[0][c][l];
+                }
+                for k in 1..D {
+                    for l in 0..B {
+                        x[l] += inc[i][k][l] * f[k][c][l];
+                    }
+                }
+                fnew[i][c] = x;
+            }
+        }
+        let vs: &mut [f64; B] = (&mut s.parts.vol[r]).try_into().expect("a full batch");
+        let mut vol = [0.0; B];
+        for l in 0..B {
+            vol[l] = vs[l] * j[l];
+        }
+        let mut ok = true;
+        for l in 0..B {
+            let mut finite = vol[l].is_finite();
+            for row in &fnew {
+                for x in row {
+                    finite &= x[l].is_finite();
+                }
+            }
+            ok &= j[l] > 0.0 && finite;
+        }
+        *vs = vol;
+        for l in 0..B {
+            for i in 0..D {
+                for c in 0..D {
+                    fs[l][(i, c)] = fnew[i][c][l];
+                }
+            }
+        }
+        ok
+    }
+
+    /// `moving_velocity` away from walls: Σ_n S_n v̄_n plus the L̄ terms.
+    #[inline(always)]
+    fn moving_velocity(&self, ctx: &Ctx<'_, D>, nd: &NodeData<D, N>) -> [[f64; B]; D] {
+        let h = &ctx.geom.h;
+        let mut u = [[0.0; B]; D];
+        for a in 0..D {
+            for n in 0..N {
+                let c = nd.vb[a][n];
+                for l in 0..B {
+                    u[a][l] += self.sh[n][l] * c;
+                }
+            }
+            for b in 0..D {
+                for l in 0..B {
+                    u[a][l] += (self.all[a][b][l] * self.xi[b][l] - self.upper[a][b][l]) * h[b];
+                }
+            }
+        }
+        u
+    }
+}
+
+/// `x += u dt` for particles `r` of `s`.
+#[inline(always)]
+fn advance<const D: usize, const B: usize>(
+    s: &mut Slices<'_, D>,
+    r: Range<usize>,
+    u: &[[f64; B]; D],
+    dt: f64,
+) {
+    let x: &mut [Vector<D>; B] = (&mut s.parts.x[r]).try_into().expect("a full batch");
+    for a in 0..D {
+        for l in 0..B {
+            x[l][a] += u[a][l] * dt;
+        }
+    }
+}
+
 /// Deform and (as `m` asks) move particles `p0 .. p0 + B` of `s`, which share
 /// their nodes, whose data `nd` holds (loaded, with the differences of slot
 /// `m.slot`), and none of which gives weight to a wall's node: the scalar pass's
@@ -46,18 +258,100 @@ pub fn deform_and_move<const D: usize, const N: usize, const B: usize>(
     nd: &NodeData<D, N>,
     m: &StressMode,
 ) -> bool {
-    // Fixed-size views of the batch: indices below B need no bounds checks,
-    // so the loads and stores below are whole vectors.
     let r = p0..p0 + B;
-    let xs: &[[f64; D]; B] = s.xi[r.clone()].try_into().expect("a full batch");
-    // (Plain loops over fixed arrays throughout: `array::from_fn`'s closures were
-    // left as calls, with the lanes spilled around them.)
-    let mut xi = [[0.0; B]; D];
-    for l in 0..B {
-        for a in 0..D {
-            xi[a][l] = xs[l][a];
+    let batch = Batch::<D, N, B>::new(ctx, s, r.clone(), nd, m.two_step);
+    let ok = batch.deform(s, r.clone(), nd, m.two_step, m.dt);
+    if m.moves {
+        let u = batch.moving_velocity(ctx, nd);
+        advance(s, r, &u, m.dt);
+    } else if m.moves_kept {
+        for p in r {
+            s.parts.x[p] += s.dx[p];
         }
     }
+    ok
+}
+
+/// The gather ([`super::gather`]) of particles `p0 .. p0 + B` of `s`, which share
+/// their nodes, whose data `nd` holds (with the differences of the updated slot if
+/// `m.stress`), none of which gives weight to a wall's node, without XPIC: the new
+/// velocity (FLIP/PIC blend), the external work into `t.work` particle by particle
+/// in order, the velocity gradient and deformation (`m.stress`), the move or the
+/// kept increment. The same bits as the scalar gather; returns whether every new
+/// state is physical (the signal speed is left to the caller).
+#[inline(always)]
+pub fn gather<const D: usize, const N: usize, const B: usize>(
+    ctx: &Ctx<'_, D>,
+    s: &mut Slices<'_, D>,
+    p0: usize,
+    nd: &NodeData<D, N>,
+    m: &GatherMode,
+    work: &mut f64,
+) -> bool {
+    let r = p0..p0 + B;
+    let batch = Batch::<D, N, B>::new(ctx, s, r.clone(), nd, m.two_step && (m.recon || m.stress));
+    // Σ_n S_n v_n of the updated slot and Σ_n S_n (v_n − v_n^old), node by node in
+    // order as the scalar loop sums them.
+    let mut vn = [[0.0; B]; D];
+    let mut dv = [[0.0; B]; D];
+    for n in 0..N {
+        for a in 0..D {
+            let (v0, v1) = (nd.v[FROM_MOMENTUM][a][n], nd.v[UPDATED][a][n]);
+            let d = v1 - v0;
+            for l in 0..B {
+                vn[a][l] += batch.sh[n][l] * v1;
+                dv[a][l] += batch.sh[n][l] * d;
+            }
+        }
+    }
+    let vs: &mut [Vector<D>; B] = (&mut s.parts.v[r.clone()])
+        .try_into()
+        .expect("a full batch");
+    let mut ok = true;
+    for l in 0..B {
+        let old = vs[l];
+        let mut new = Vector::<D>::zeros();
+        for a in 0..D {
+            new[a] = (old[a] + dv[a][l]) * m.flip + vn[a][l] * (1.0 - m.flip);
+        }
+        // What `clip_at_slip_walls` returns where it clips nothing, then the
+        // external force's work, as the scalar loop adds them.
+        let p = p0 + l;
+        let mass = s.parts.mass[p];
+        *work += 0.5 * mass * (new.norm_squared() - new.norm_squared());
+        let acc = ctx.accel_kept(s.accel, s.parts.x0, p);
+        *work += m.dt * mass * acc.dot(&(old + new)) * 0.5;
+        vs[l] = new;
+        ok &= new.iter().all(|x| x.is_finite());
+    }
+    if m.stress {
+        ok &= batch.deform(s, r.clone(), nd, m.two_step, m.dt);
+    }
+    let u = if m.recon {
+        batch.moving_velocity(ctx, nd)
+    } else {
+        vn
+    };
+    if m.move_now {
+        advance(s, r, &u, m.dt);
+    } else if !m.two_step {
+        for (l, p) in r.enumerate() {
+            for a in 0..D {
+                s.dx[p][a] = u[a][l] * m.dt;
+            }
+        }
+    }
+    ok
+}
+
+/// [`Ctx::weights`] with hat functions, lane by lane: the shape functions `sh[n]`,
+/// their gradients `g[d][n]` and α of particles with local coordinates `xi[a]`.
+#[allow(clippy::type_complexity)]
+#[inline(always)]
+fn weights<const D: usize, const N: usize, const B: usize>(
+    ctx: &Ctx<'_, D>,
+    xi: &[[f64; B]; D],
+) -> ([[f64; B]; N], [[[f64; B]; N]; D], [f64; B]) {
     // Hat functions (`shape::hat`): weights 1 − ξ and ξ, derivatives ∓ 1/h.
     let mut w = [[[0.0; B]; 2]; D];
     let mut dw = [[0.0; 2]; D];
@@ -72,7 +366,7 @@ pub fn deform_and_move<const D: usize, const N: usize, const B: usize>(
         // `shape::bubble`: Π_a 4 ξ_a (1 − ξ_a).
         Alpha::ProductOfShapes => {
             let mut b = [1.0; B];
-            for xa in &xi {
+            for xa in xi {
                 for l in 0..B {
                     b[l] *= 4.0 * xa[l] * (1.0 - xa[l]);
                 }
@@ -108,152 +402,7 @@ pub fn deform_and_move<const D: usize, const N: usize, const B: usize>(
             g[d][n] = p;
         }
     }
-    // `lbar_at`: the nodal L̄ at the particle, all nodes and the upper side per column.
-    let mut all = [[[0.0; B]; D]; D];
-    let mut upper = [[[0.0; B]; D]; D];
-    if m.two_step {
-        for a in 0..D {
-            for b in 0..D {
-                let mut lo = [0.0; B];
-                let mut hi = [0.0; B];
-                for n in 0..N {
-                    let c = nd.lb[a][b][n];
-                    if (n >> b) & 1 == 1 {
-                        for l in 0..B {
-                            hi[l] += sh[n][l] * c;
-                        }
-                    } else {
-                        for l in 0..B {
-                            lo[l] += sh[n][l] * c;
-                        }
-                    }
-                }
-                for l in 0..B {
-                    all[a][b][l] = lo[l] + hi[l];
-                }
-                upper[a][b] = hi;
-            }
-        }
-    }
-    // `velocity_gradient_at` with hat functions: velocity differences across the
-    // cell's pairs, times α, blended with (1 − α) L̄ for a two-step scheme.
-    let mut lg = [[[0.0; B]; D]; D];
-    for a in 0..D {
-        for b in 0..D {
-            let mut x = [0.0; B];
-            for mm in 0..N / 2 {
-                let c = nd.dv[a][b][mm];
-                let gb = &g[b][pair(b, mm).1];
-                for l in 0..B {
-                    x[l] += c * gb[l];
-                }
-            }
-            // Both sides formed, then chosen: a select per lane, not a branch.
-            for l in 0..B {
-                let ax = alpha[l] * x[l];
-                lg[a][b][l] = if alpha[l] != 0.0 { ax } else { 0.0 };
-            }
-            if m.two_step {
-                for l in 0..B {
-                    let v = lg[a][b][l];
-                    let blended = v + (1.0 - alpha[l]) * all[a][b][l];
-                    lg[a][b][l] = if alpha[l] != 1.0 { blended } else { v };
-                }
-            }
-        }
-    }
-    // `deform`: increment I + L dt, its determinant J, the volume, F ← (I + L dt) F.
-    let mut inc = [[[0.0; B]; D]; D];
-    for i in 0..D {
-        for k in 0..D {
-            let id = if i == k { 1.0 } else { 0.0 };
-            for l in 0..B {
-                inc[i][k][l] = id + lg[i][k][l] * m.dt;
-            }
-        }
-    }
-    let j = det_lanes(&inc);
-    let fs: &mut [Mat<D>; B] = (&mut s.parts.def_grad[r.clone()])
-        .try_into()
-        .expect("a full batch");
-    let mut f = [[[0.0; B]; D]; D];
-    for l in 0..B {
-        for k in 0..D {
-            for c in 0..D {
-                f[k][c][l] = fs[l][(k, c)];
-            }
-        }
-    }
-    let mut fnew = [[[0.0; B]; D]; D];
-    for i in 0..D {
-        for c in 0..D {
-            // nalgebra's product: the sum over k in order.
-            let mut x = [0.0; B];
-            for l in 0..B {
-                x[l] = inc[i][0][l] * f[0][c][l];
-            }
-            for k in 1..D {
-                for l in 0..B {
-                    x[l] += inc[i][k][l] * f[k][c][l];
-                }
-            }
-            fnew[i][c] = x;
-        }
-    }
-    let vs: &mut [f64; B] = (&mut s.parts.vol[r.clone()])
-        .try_into()
-        .expect("a full batch");
-    let mut vol = [0.0; B];
-    for l in 0..B {
-        vol[l] = vs[l] * j[l];
-    }
-    let mut ok = true;
-    for l in 0..B {
-        let mut finite = vol[l].is_finite();
-        for row in &fnew {
-            for x in row {
-                finite &= x[l].is_finite();
-            }
-        }
-        ok &= j[l] > 0.0 && finite;
-    }
-    *vs = vol;
-    for l in 0..B {
-        for i in 0..D {
-            for c in 0..D {
-                fs[l][(i, c)] = fnew[i][c][l];
-            }
-        }
-    }
-    if m.moves {
-        // `moving_velocity` away from walls: Σ_n S_n v̄_n plus the L̄ terms.
-        let h = &ctx.geom.h;
-        let x: &mut [_; B] = (&mut s.parts.x[r.clone()])
-            .try_into()
-            .expect("a full batch");
-        for a in 0..D {
-            let mut u = [0.0; B];
-            for n in 0..N {
-                let c = nd.vb[a][n];
-                for l in 0..B {
-                    u[l] += sh[n][l] * c;
-                }
-            }
-            for b in 0..D {
-                for l in 0..B {
-                    u[l] += (all[a][b][l] * xi[b][l] - upper[a][b][l]) * h[b];
-                }
-            }
-            for l in 0..B {
-                x[l][a] += u[l] * m.dt;
-            }
-        }
-    } else if m.moves_kept {
-        for p in r {
-            s.parts.x[p] += s.dx[p];
-        }
-    }
-    ok
+    (sh, g, alpha)
 }
 
 /// [`crate::physics::tensor::det`] lane by lane, term for term.
@@ -341,7 +490,7 @@ pub fn raise_speed<const D: usize, const B: usize>(
 
 #[cfg(test)]
 mod tests {
-    use super::super::{stress_one, Kern, Tally};
+    use super::super::{gather_one, stress_one, Kern, Tally};
     use super::*;
     use crate::input::scene::Face;
     use crate::mpm::particles::Particles;
@@ -382,70 +531,126 @@ mod tests {
         (p, xi)
     }
 
-    /// The lanes give the scalar pass's bits: volumes, deformation gradients,
-    /// positions, the physical-state flag and the signal speed's running maximum,
-    /// for both gradients' α (the bubble, 0, 1 and between), one- and two-step
-    /// schemes, each way of moving, starting maxima below and above the particles'
-    /// speeds, and velocity gradients steep enough to invert some particles (J <= 0).
-    #[test]
-    fn lanes_match_the_scalar_pass() {
-        let geom = Geom::<2>::new([0.0; 2], [1.0; 2], [10, 10], [false; 2]);
-        let tiles = Tiles::<2>::new([12, 12], [1, 1]);
-        let (lambda, mu) = lame(1e3, 0.2);
-        let materials = [Material::NeoHookean(NeoHookean {
-            lambda,
-            mu,
-            density: 1.0,
-        })];
-        let mut rng = Rng::new(11);
-        let (mut cases, mut inverted) = (0, 0);
-        for alpha in [
-            Alpha::ProductOfShapes,
-            Alpha::Constant(0.0),
-            Alpha::Constant(1.0),
-            Alpha::Constant(0.3),
-        ] {
-            let ctx = Ctx {
-                geom: &geom,
+    /// A material, a grid and the context of a 2D pass with gradient `alpha`.
+    struct Setup {
+        geom: Geom<2>,
+        tiles: Tiles<2>,
+        materials: [Material; 1],
+    }
+
+    impl Setup {
+        fn new() -> Self {
+            let (lambda, mu) = lame(1e3, 0.2);
+            Setup {
+                geom: Geom::<2>::new([0.0; 2], [1.0; 2], [10, 10], [false; 2]),
+                tiles: Tiles::<2>::new([12, 12], [1, 1]),
+                materials: [Material::NeoHookean(NeoHookean {
+                    lambda,
+                    mu,
+                    density: 1.0,
+                })],
+            }
+        }
+
+        fn ctx(&self, alpha: Alpha) -> Ctx<'_, 2> {
+            Ctx {
+                geom: &self.geom,
                 node_lo: [-1, -1],
-                tiles: &tiles,
+                tiles: &self.tiles,
                 gimp: false,
                 alpha,
-                materials: &materials,
-                gravity: Vector::<2>::zeros(),
+                materials: &self.materials,
+                gravity: Vector::<2>::new(0.0, -9.81),
                 body_force: None,
                 faces: [[Face::Slip; 2]; 2],
                 walls: false,
-            };
+            }
+        }
+    }
+
+    const ALPHAS: [Alpha; 4] = [
+        Alpha::ProductOfShapes,
+        Alpha::Constant(0.0),
+        Alpha::Constant(1.0),
+        Alpha::Constant(0.3),
+    ];
+
+    /// Velocity gradient scale, starting maximum of the signal speed, lane with a
+    /// non-finite F, batch width: gentle and steep (inverting) gradients, maxima
+    /// below and above the particles' speeds, both widths.
+    const VARIANTS: [(f64, f64, Option<usize>, usize); 7] = [
+        (1.0, 0.0, None, LANES),
+        (1.0, 1e3, None, LANES),
+        (1e5, 0.0, None, LANES),
+        (1.0, 0.0, Some(5), LANES),
+        (1.0, 0.0, None, HALF),
+        (1e5, 0.0, None, HALF),
+        (1.0, 0.0, Some(2), HALF),
+    ];
+
+    /// Random node data of a run, velocities scaled by `steep`, with the
+    /// differences of slot `slot`.
+    fn nodes(rng: &mut Rng, steep: f64, slot: usize) -> NodeData<2, 4> {
+        let mut nd = NodeData::<2, 4>::new();
+        for a in 0..2 {
+            for n in 0..4 {
+                for slot in 0..2 {
+                    nd.v[slot][a][n] = steep * (rng.f64() - 0.5);
+                }
+                nd.vb[a][n] = rng.f64() - 0.5;
+                for b in 0..2 {
+                    nd.lb[a][b][n] = steep * (rng.f64() - 0.5);
+                }
+            }
+        }
+        nd.load_differences(slot);
+        nd
+    }
+
+    /// Both particle sets (and kept increments) hold the same bits.
+    fn same_bits(
+        a: &Particles<2>,
+        b: &Particles<2>,
+        dx: &[Vector<2>],
+        dx_b: &[Vector<2>],
+        what: &str,
+    ) {
+        for p in 0..LANES {
+            assert_eq!(a.vol[p].to_bits(), b.vol[p].to_bits(), "vol {p}: {what}");
+            let pairs = [
+                (a.def_grad[p].as_slice(), b.def_grad[p].as_slice(), "F"),
+                (a.x[p].as_slice(), b.x[p].as_slice(), "x"),
+                (a.v[p].as_slice(), b.v[p].as_slice(), "v"),
+                (dx[p].as_slice(), dx_b[p].as_slice(), "dx"),
+            ];
+            for (x, y, name) in pairs {
+                for (x, y) in x.iter().zip(y) {
+                    assert_eq!(x.to_bits(), y.to_bits(), "{name} {p}: {what}");
+                }
+            }
+        }
+    }
+
+    /// The stress pass's lanes give its scalar body's bits: volumes, deformation
+    /// gradients, positions, the physical-state flag and the signal speed's running
+    /// maximum, for both gradients' α (the bubble, 0, 1 and between), one- and
+    /// two-step schemes, each way of moving, and the [`VARIANTS`].
+    #[test]
+    fn lanes_match_the_scalar_pass() {
+        let setup = Setup::new();
+        let mut rng = Rng::new(11);
+        let (mut cases, mut inverted) = (0, 0);
+        for alpha in ALPHAS {
+            let ctx = setup.ctx(alpha);
             for (two_step, moves, moves_kept) in [
                 (true, true, false),
                 (true, false, false),
                 (false, false, true),
                 (false, false, false),
             ] {
-                for (steep, max0, nan_lane, width) in [
-                    (1.0, 0.0, None, LANES),
-                    (1.0, 1e3, None, LANES),
-                    (1e5, 0.0, None, LANES),
-                    (1.0, 0.0, Some(5), LANES),
-                    (1.0, 0.0, None, HALF),
-                    (1e5, 0.0, None, HALF),
-                    (1.0, 0.0, Some(2), HALF),
-                ] {
-                    let mut nd = NodeData::<2, 4>::new();
-                    for a in 0..2 {
-                        for n in 0..4 {
-                            for slot in 0..2 {
-                                nd.v[slot][a][n] = steep * (rng.f64() - 0.5);
-                            }
-                            nd.vb[a][n] = rng.f64() - 0.5;
-                            for b in 0..2 {
-                                nd.lb[a][b][n] = steep * (rng.f64() - 0.5);
-                            }
-                        }
-                    }
+                for (steep, max0, nan_lane, width) in VARIANTS {
                     let slot = rng.below(2);
-                    nd.load_differences(slot);
+                    let nd = nodes(&mut rng, steep, slot);
                     let m = StressMode {
                         slot,
                         dt: 1e-3,
@@ -478,7 +683,7 @@ mod tests {
                             ctx.weights::<2, 4>(&sa.parts.x[p], None, &xi[p]);
                         stress_one(&ctx, &mut sa, p, &k, &nd, &m, &mut ta);
                     }
-                    // Eight at a time.
+                    // A batch at a time.
                     let mut sb = Slices {
                         parts: b.slices(),
                         dx: &mut dx_b,
@@ -494,19 +699,13 @@ mod tests {
                         let ok = deform_and_move::<2, 4, HALF>(&ctx, &mut sb, 0, &nd, &m);
                         (ok, raise_speed::<2, HALF>(&ctx, &sb, 0, max0))
                     };
-                    let what = format!("{width} lanes, {alpha:?}, two-step {two_step}, moves {moves}/{moves_kept}, steep {steep}, max {max0}, NaN {nan_lane:?}");
+                    let what = format!(
+                        "{width} lanes, {alpha:?}, two-step {two_step}, moves {moves}/{moves_kept}, steep {steep}, max {max0}, NaN {nan_lane:?}"
+                    );
                     assert_eq!(ok, ta.ok, "{what}");
                     assert_eq!(top.to_bits(), ta.max_speed.to_bits(), "{what}");
                     // (Particles past the batch are untouched by both.)
-                    for p in 0..LANES {
-                        assert_eq!(a.vol[p].to_bits(), b.vol[p].to_bits(), "vol {p}: {what}");
-                        for (x, y) in a.def_grad[p].iter().zip(b.def_grad[p].iter()) {
-                            assert_eq!(x.to_bits(), y.to_bits(), "F {p}: {what}");
-                        }
-                        for (x, y) in a.x[p].iter().zip(b.x[p].iter()) {
-                            assert_eq!(x.to_bits(), y.to_bits(), "x {p}: {what}");
-                        }
-                    }
+                    same_bits(&a, &b, &dx, &dx_b, &what);
                     cases += 1;
                     if !ok && nan_lane.is_none() {
                         inverted += 1;
@@ -516,6 +715,100 @@ mod tests {
         }
         assert_eq!(cases, 112);
         // The comparison covered inverted states, not only physical ones.
+        assert!(inverted >= 8, "{inverted} cases inverted a particle");
+    }
+
+    /// The gather's lanes give its scalar body's bits: velocities, the external
+    /// work (gravity, and a kept body force), volumes, deformation gradients,
+    /// positions or kept increments, the physical-state flag and the signal
+    /// speed, for each α, one- and two-step schemes (the latter moving with the
+    /// reconstruction), with and without the stress update, moving now or keeping
+    /// the increment, FLIP, PIC and a blend, and the [`VARIANTS`].
+    #[test]
+    fn gather_lanes_match_the_scalar_gather() {
+        let setup = Setup::new();
+        let mut rng = Rng::new(12);
+        let (mut cases, mut inverted) = (0, 0);
+        for alpha in ALPHAS {
+            let ctx = setup.ctx(alpha);
+            for (two_step, recon, stress, move_now, flip) in [
+                (true, true, true, true, 1.0),
+                (true, true, false, true, 0.0),
+                (true, false, true, true, 0.95),
+                (false, false, true, true, 1.0),
+                (false, false, true, false, 0.5),
+            ] {
+                for (steep, max0, nan_lane, width) in VARIANTS {
+                    let nd = nodes(&mut rng, steep, UPDATED);
+                    let m = GatherMode {
+                        dt: 1e-3,
+                        flip,
+                        stress,
+                        move_now,
+                        two_step,
+                        recon,
+                        speed: true,
+                    };
+                    let (mut a, xi) = particles(&mut rng, nan_lane);
+                    let mut b = a.clone();
+                    let mut dx = vec![Vector::<2>::zeros(); LANES];
+                    let mut dx_b = dx.clone();
+                    // A kept body force in half the cases, gravity alone in the others.
+                    let accel: Vec<Vector<2>> = if cases % 2 == 0 {
+                        (0..LANES)
+                            .map(|_| Vector::<2>::new(rng.f64(), rng.f64() - 10.0))
+                            .collect()
+                    } else {
+                        Vec::new()
+                    };
+                    let tile = vec![0u32; LANES];
+                    let mut sa = Slices {
+                        parts: a.slices(),
+                        dx: &mut dx,
+                        tile: &tile,
+                        xi: &xi,
+                        accel: &accel,
+                    };
+                    let mut ta = Tally {
+                        max_speed: max0,
+                        work: 0.25,
+                        ..Tally::ZERO
+                    };
+                    for p in 0..width {
+                        let (k, _, _): (Kern<2, 4>, _, _) =
+                            ctx.weights::<2, 4>(&sa.parts.x[p], None, &xi[p]);
+                        gather_one(&ctx, &mut sa, p, &k, &nd, None, &m, &mut ta);
+                    }
+                    let mut sb = Slices {
+                        parts: b.slices(),
+                        dx: &mut dx_b,
+                        tile: &tile,
+                        xi: &xi,
+                        accel: &accel,
+                    };
+                    let mut work = 0.25;
+                    let (ok, top) = if width == LANES {
+                        let ok = gather::<2, 4, LANES>(&ctx, &mut sb, 0, &nd, &m, &mut work);
+                        (ok, raise_speed::<2, LANES>(&ctx, &sb, 0, max0))
+                    } else {
+                        let ok = gather::<2, 4, HALF>(&ctx, &mut sb, 0, &nd, &m, &mut work);
+                        (ok, raise_speed::<2, HALF>(&ctx, &sb, 0, max0))
+                    };
+                    let what = format!(
+                        "{width} lanes, {alpha:?}, two-step {two_step}, recon {recon}, stress {stress}, move now {move_now}, flip {flip}, steep {steep}, max {max0}, NaN {nan_lane:?}"
+                    );
+                    assert_eq!(ok, ta.ok, "{what}");
+                    assert_eq!(top.to_bits(), ta.max_speed.to_bits(), "{what}");
+                    assert_eq!(work.to_bits(), ta.work.to_bits(), "work: {what}");
+                    same_bits(&a, &b, &dx, &dx_b, &what);
+                    cases += 1;
+                    if !ok && nan_lane.is_none() {
+                        inverted += 1;
+                    }
+                }
+            }
+        }
+        assert_eq!(cases, 140);
         assert!(inverted >= 8, "{inverted} cases inverted a particle");
     }
 }
