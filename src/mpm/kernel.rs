@@ -26,7 +26,7 @@ use crate::physics::tensor::{det, Mat, Vector};
 use decomposition::tiles::{Tiles, NEIGHBOURS, TILE, TILE_LOG};
 use rayon::prelude::*;
 
-mod lanes;
+pub(crate) mod lanes;
 use lanes::{HALF, LANES};
 
 /// Slab thickness in cells for the coloured scatter (see [`scatter`] for why
@@ -606,6 +606,11 @@ impl<const D: usize, const NA: usize, const N: usize> Run<D, NA, N> {
         }
     }
 
+    /// Whether any of the run's nodes lies on a grid face.
+    pub fn at_wall(&self) -> bool {
+        self.at_wall
+    }
+
     /// Whether a run has been entered (its sums may need flushing).
     pub fn started(&self) -> bool {
         self.key != u64::MAX
@@ -1047,7 +1052,7 @@ fn gather_one<const D: usize, const N: usize>(
 /// [`HALF`] where as many in a row share the cell corner `tile[p]` (and `batches`,
 /// the lanes apply to the pass), else 1.
 #[inline(always)]
-fn batch_width(batches: bool, tile: &[u32], p: usize) -> usize {
+pub(crate) fn batch_width(batches: bool, tile: &[u32], p: usize) -> usize {
     let same = |b: usize| p + b <= tile.len() && tile[p + 1..p + b].iter().all(|&c| c == tile[p]);
     if !batches {
         1

@@ -12,8 +12,9 @@
 //! (same formulas); the nodal momenta are summed per run of particles that share their
 //! nodes, as in `kernel::scatter`, so they equal the two passes' to round-off.
 
+use crate::mpm::kernel::lanes::{self, HALF, LANES};
 use crate::mpm::kernel::{
-    clip_at_slip_walls, Ctx, GridPtr, NodeData, Run, SlabOrder, FROM_MOMENTUM, UPDATED,
+    clip_at_slip_walls, Ctx, GridPtr, Kern, NodeData, Run, SlabOrder, FROM_MOMENTUM, UPDATED,
 };
 use crate::physics::tensor::Vector;
 
@@ -142,8 +143,50 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
     let mut nd = NodeData::<D, N>::new();
     let mut sum = [[0.0; N]; D];
     let mut run = Run::<D, NA, N>::new();
-    for &p in &slabs.order[slabs.start[first]..slabs.start[first + 1]] {
-        let p = p as usize;
+    let order = &slabs.order[slabs.start[first]..slabs.start[first + 1]];
+    // 2D hat functions: eight (or four) particles of a run at a time, their
+    // weights and interpolated velocities over lanes (`kernel::lanes`), the rest
+    // of each particle's update one by one in order, so the same bits.
+    let batches = D == 2 && !ctx.gimp;
+    let mut i = 0;
+    while i < order.len() {
+        if batches && i + HALF <= order.len() {
+            let tile = parts.tile[order[i] as usize];
+            let same = |b: usize| {
+                i + b <= order.len()
+                    && order[i + 1..i + b]
+                        .iter()
+                        .all(|&q| parts.tile[q as usize] == tile)
+            };
+            let b = if same(LANES) {
+                LANES
+            } else if same(HALF) {
+                HALF
+            } else {
+                1
+            };
+            if b > 1 {
+                if run.is_new(tile, [0; D]) {
+                    if run.started() {
+                        add_momentum(grid, &run.idx, &mut sum);
+                    }
+                    run.enter(ctx, tile, [0; D]);
+                    nd.load(&run.idx, vel, &[], None);
+                }
+                if !run.at_wall() {
+                    let ps = &order[i..i + b];
+                    if b == LANES {
+                        remap_lanes::<D, N, LANES>(ctx, parts, pp, ps, &nd, m, &mut sum, &mut t);
+                    } else {
+                        remap_lanes::<D, N, HALF>(ctx, parts, pp, ps, &nd, m, &mut sum, &mut t);
+                    }
+                    i += b;
+                    continue;
+                }
+            }
+        }
+        let p = order[i] as usize;
+        i += 1;
         assert!(p < pp.len, "slab order names particle {p} of {}", pp.len);
         let half = if ctx.gimp { Some(&parts.half[p]) } else { None };
         let (mut k, below, w) = ctx.weights::<NA, N>(&parts.x[p], half, &parts.xi[p]);
@@ -155,41 +198,117 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
             nd.load(&run.idx, vel, &[], None);
         }
         k.ends = run.ends(ctx, &w);
-        let mut vn = Vector::<D>::zeros();
-        let mut dv = Vector::<D>::zeros();
-        for n in 0..N {
-            for a in 0..D {
-                let (v0, v1) = (nd.v[FROM_MOMENTUM][a][n], nd.v[UPDATED][a][n]);
-                vn[a] += k.s[n] * v1;
-                dv[a] += k.s[n] * (v1 - v0);
-            }
+        remap_one(ctx, parts, pp, p, &k, &nd, m, &mut sum, &mut t);
+    }
+    if run.started() {
+        add_momentum(grid, &run.idx, &mut sum);
+    }
+    t
+}
+
+/// The remap of particle `p` with weights `k` over its nodes' velocities `nd`: its
+/// new velocity (clipped at slip walls), the work on it, the kept increment, and its
+/// momentum into the run's sums `sum`.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn remap_one<const D: usize, const N: usize>(
+    ctx: &Ctx<'_, D>,
+    parts: &RemapParts<'_, D>,
+    pp: ParticlePtr<D>,
+    p: usize,
+    k: &Kern<D, N>,
+    nd: &NodeData<D, N>,
+    m: RemapMode,
+    sum: &mut [[f64; N]; D],
+    t: &mut RemapTally,
+) {
+    let mut vn = Vector::<D>::zeros();
+    let mut dv = Vector::<D>::zeros();
+    for n in 0..N {
+        for a in 0..D {
+            let (v0, v1) = (nd.v[FROM_MOMENTUM][a][n], nd.v[UPDATED][a][n]);
+            vn[a] += k.s[n] * v1;
+            dv[a] += k.s[n] * (v1 - v0);
         }
-        // SAFETY: p is in bounds (asserted) and visited by this thread only (see
-        // `ParticlePtr`); no other reference to v[p] or dx[p] lives meanwhile.
+    }
+    // SAFETY: the caller asserted p in bounds, and only this thread visits it (see
+    // `ParticlePtr`); no other reference to v[p] or dx[p] lives meanwhile.
+    let vp = unsafe { &mut *pp.v.add(p) };
+    let old = *vp;
+    let mass = parts.mass[p];
+    let mut new = (old + dv) * m.flip + vn * (1.0 - m.flip);
+    t.work += clip_at_slip_walls(ctx, k, &mut new, &vn, mass);
+    let a = ctx.accel_kept(parts.accel, parts.x0, p);
+    t.work += m.dt * mass * a.dot(&(old + new)) * 0.5;
+    *vp = new;
+    t.ok &= new.iter().all(|x| x.is_finite());
+    if m.keep_dx {
+        // SAFETY: as for v[p]; dx has the particles' length when kept (asserted).
+        unsafe { *pp.dx.add(p) = vn * m.dt };
+    }
+    let mv = new * mass;
+    for a in 0..D {
+        for n in 0..N {
+            sum[a][n] += mv[a] * k.s[n];
+        }
+    }
+}
+
+/// The remap of particles `ps` (one run's, away from walls; 2D hat functions) with
+/// their nodes' velocities `nd`: the weights and interpolated velocities over lanes,
+/// then per particle in order what the scalar loop does with them.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn remap_lanes<const D: usize, const N: usize, const B: usize>(
+    ctx: &Ctx<'_, D>,
+    parts: &RemapParts<'_, D>,
+    pp: ParticlePtr<D>,
+    ps: &[u32],
+    nd: &NodeData<D, N>,
+    m: RemapMode,
+    sum: &mut [[f64; N]; D],
+    t: &mut RemapTally,
+) {
+    let ps: &[u32; B] = ps.try_into().expect("a full batch");
+    let mut xi = [[0.0; B]; D];
+    for (l, &p) in ps.iter().enumerate() {
+        for a in 0..D {
+            xi[a][l] = parts.xi[p as usize][a];
+        }
+    }
+    let (vn, dv, sh) = lanes::velocities::<D, N, B>(ctx, &xi, nd);
+    for (l, &p) in ps.iter().enumerate() {
+        let p = p as usize;
+        assert!(p < pp.len, "slab order names particle {p} of {}", pp.len);
+        // SAFETY: as in `remap_slabs`: p is in bounds (asserted) and visited by this
+        // thread only; no other reference to v[p] or dx[p] lives meanwhile.
         let vp = unsafe { &mut *pp.v.add(p) };
         let old = *vp;
         let mass = parts.mass[p];
-        let mut new = (old + dv) * m.flip + vn * (1.0 - m.flip);
-        t.work += clip_at_slip_walls(ctx, &k, &mut new, &vn, mass);
+        let mut new = Vector::<D>::zeros();
+        let mut vnl = Vector::<D>::zeros();
+        for a in 0..D {
+            new[a] = (old[a] + dv[a][l]) * m.flip + vn[a][l] * (1.0 - m.flip);
+            vnl[a] = vn[a][l];
+        }
+        // What `clip_at_slip_walls` returns where it clips nothing, then the
+        // external force's work, as the scalar loop adds them.
+        t.work += 0.5 * mass * (new.norm_squared() - new.norm_squared());
         let a = ctx.accel_kept(parts.accel, parts.x0, p);
         t.work += m.dt * mass * a.dot(&(old + new)) * 0.5;
         *vp = new;
         t.ok &= new.iter().all(|x| x.is_finite());
         if m.keep_dx {
             // SAFETY: as for v[p]; dx has the particles' length when kept (asserted).
-            unsafe { *pp.dx.add(p) = vn * m.dt };
+            unsafe { *pp.dx.add(p) = vnl * m.dt };
         }
         let mv = new * mass;
         for a in 0..D {
             for n in 0..N {
-                sum[a][n] += mv[a] * k.s[n];
+                sum[a][n] += mv[a] * sh[n][l];
             }
         }
     }
-    if run.started() {
-        add_momentum(grid, &run.idx, &mut sum);
-    }
-    t
 }
 
 /// Add one run's momentum sums into the nodes `idx` of `mom` and clear them.
@@ -208,4 +327,155 @@ fn add_momentum<const D: usize, const N: usize>(
         }
     }
     *sum = [[0.0; N]; D];
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::input::scene::Face;
+    use crate::physics::material::{lame, neo_hookean::NeoHookean, Material};
+    use crate::physics::shape::{Alpha, Geom};
+    use decomposition::splitmix::Rng;
+    use decomposition::Tiles;
+
+    /// The remap's lanes give its scalar body's bits: new velocities (FLIP, PIC and
+    /// a blend), kept increments, the external work (gravity, and a kept body
+    /// force), the momentum sums and the finite-state flag, for both batch widths,
+    /// and with a non-finite nodal velocity.
+    #[test]
+    fn remap_lanes_match_the_scalar_remap() {
+        let geom = Geom::<2>::new([0.0; 2], [1.0; 2], [10, 10], [false; 2]);
+        let tiles = Tiles::<2>::new([12, 12], [1, 1]);
+        let (lambda, mu) = lame(1e3, 0.2);
+        let materials = [Material::NeoHookean(NeoHookean {
+            lambda,
+            mu,
+            density: 1.0,
+        })];
+        let ctx = Ctx {
+            geom: &geom,
+            node_lo: [-1, -1],
+            tiles: &tiles,
+            gimp: false,
+            alpha: Alpha::ProductOfShapes,
+            materials: &materials,
+            gravity: Vector::<2>::new(0.0, -9.81),
+            body_force: None,
+            faces: [[Face::Slip; 2]; 2],
+            walls: false,
+        };
+        let mut rng = Rng::new(13);
+        let mut cases = 0;
+        for flip in [1.0, 0.0, 0.95] {
+            for keep_dx in [true, false] {
+                for (width, body, nan) in [
+                    (LANES, false, false),
+                    (LANES, true, false),
+                    (HALF, true, false),
+                    (LANES, false, true),
+                ] {
+                    let n = LANES;
+                    let xi: Vec<[f64; 2]> = (0..n)
+                        .map(|l| {
+                            if l == 0 {
+                                [0.0, rng.f64()]
+                            } else {
+                                [rng.f64(), rng.f64()]
+                            }
+                        })
+                        .collect();
+                    let x: Vec<Vector<2>> = xi
+                        .iter()
+                        .map(|c| Vector::<2>::new(0.3 + 0.1 * c[0], 0.6 + 0.1 * c[1]))
+                        .collect();
+                    let mass: Vec<f64> = (0..n).map(|_| 1e-4 * (0.5 + rng.f64())).collect();
+                    let accel: Vec<Vector<2>> = if body {
+                        (0..n)
+                            .map(|_| Vector::<2>::new(rng.f64(), rng.f64() - 10.0))
+                            .collect()
+                    } else {
+                        Vec::new()
+                    };
+                    let tile = vec![0u32; n];
+                    let parts = RemapParts {
+                        x: &x,
+                        mass: &mass,
+                        x0: &x,
+                        half: &[],
+                        tile: &tile,
+                        xi: &xi,
+                        accel: &accel,
+                    };
+                    let mut nd = NodeData::<2, 4>::new();
+                    for a in 0..2 {
+                        for k in 0..4 {
+                            for slot in 0..2 {
+                                nd.v[slot][a][k] = rng.f64() - 0.5;
+                            }
+                        }
+                    }
+                    if nan {
+                        nd.v[UPDATED][1][2] = f64::INFINITY;
+                    }
+                    let m = RemapMode {
+                        dt: 1e-3,
+                        flip,
+                        keep_dx,
+                    };
+                    let v0: Vec<Vector<2>> = (0..n)
+                        .map(|_| Vector::<2>::new(rng.f64() - 0.5, rng.f64() - 0.5))
+                        .collect();
+                    let (mut va, mut vb) = (v0.clone(), v0);
+                    let (mut dxa, mut dxb) =
+                        (vec![Vector::<2>::zeros(); n], vec![Vector::<2>::zeros(); n]);
+                    let ptr = |v: &mut Vec<Vector<2>>, dx: &mut Vec<Vector<2>>| ParticlePtr {
+                        v: v.as_mut_ptr(),
+                        dx: dx.as_mut_ptr(),
+                        len: n,
+                    };
+                    let mut ta = RemapTally {
+                        ok: true,
+                        work: 0.5,
+                    };
+                    let mut tb = ta;
+                    let mut suma = [[0.25; 4]; 2];
+                    let mut sumb = suma;
+                    let pa = ptr(&mut va, &mut dxa);
+                    for p in 0..width {
+                        let (k, _, _): (Kern<2, 4>, _, _) =
+                            ctx.weights::<2, 4>(&x[p], None, &xi[p]);
+                        remap_one(&ctx, &parts, pa, p, &k, &nd, m, &mut suma, &mut ta);
+                    }
+                    let pb = ptr(&mut vb, &mut dxb);
+                    let ps: Vec<u32> = (0..width as u32).collect();
+                    if width == LANES {
+                        remap_lanes::<2, 4, LANES>(
+                            &ctx, &parts, pb, &ps, &nd, m, &mut sumb, &mut tb,
+                        );
+                    } else {
+                        remap_lanes::<2, 4, HALF>(
+                            &ctx, &parts, pb, &ps, &nd, m, &mut sumb, &mut tb,
+                        );
+                    }
+                    let what = format!("{width} lanes, flip {flip}, keep dx {keep_dx}, body force {body}, infinite node {nan}");
+                    assert_eq!(ta.ok, tb.ok, "{what}");
+                    assert_eq!(ta.ok, !nan, "{what}");
+                    assert_eq!(ta.work.to_bits(), tb.work.to_bits(), "work: {what}");
+                    for p in 0..n {
+                        for a in 0..2 {
+                            assert_eq!(va[p][a].to_bits(), vb[p][a].to_bits(), "v {p}: {what}");
+                            assert_eq!(dxa[p][a].to_bits(), dxb[p][a].to_bits(), "dx {p}: {what}");
+                        }
+                    }
+                    for a in 0..2 {
+                        for k in 0..4 {
+                            assert_eq!(suma[a][k].to_bits(), sumb[a][k].to_bits(), "sum: {what}");
+                        }
+                    }
+                    cases += 1;
+                }
+            }
+        }
+        assert_eq!(cases, 24);
+    }
 }

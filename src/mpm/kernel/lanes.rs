@@ -344,6 +344,33 @@ pub fn gather<const D: usize, const N: usize, const B: usize>(
     ok
 }
 
+/// The remap's share of a batch ([`crate::mpm::remap`]): for particles with local
+/// coordinates `xi` (hat functions), `Σ_n S_n v_n` of the updated slot and
+/// `Σ_n S_n (v_n − v_n^old)` over the run's nodes `nd`, summed node by node as the
+/// scalar loop sums them, and the shape functions for the momentum's sums.
+#[allow(clippy::type_complexity)]
+#[inline(always)]
+pub(crate) fn velocities<const D: usize, const N: usize, const B: usize>(
+    ctx: &Ctx<'_, D>,
+    xi: &[[f64; B]; D],
+    nd: &NodeData<D, N>,
+) -> ([[f64; B]; D], [[f64; B]; D], [[f64; B]; N]) {
+    let (sh, _, _) = weights::<D, N, B>(ctx, xi);
+    let mut vn = [[0.0; B]; D];
+    let mut dv = [[0.0; B]; D];
+    for n in 0..N {
+        for a in 0..D {
+            let (v0, v1) = (nd.v[FROM_MOMENTUM][a][n], nd.v[UPDATED][a][n]);
+            let d = v1 - v0;
+            for l in 0..B {
+                vn[a][l] += sh[n][l] * v1;
+                dv[a][l] += sh[n][l] * d;
+            }
+        }
+    }
+    (vn, dv, sh)
+}
+
 /// [`Ctx::weights`] with hat functions, lane by lane: the shape functions `sh[n]`,
 /// their gradients `g[d][n]` and α of particles with local coordinates `xi[a]`.
 #[allow(clippy::type_complexity)]
