@@ -144,10 +144,12 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
     let mut sum = [[0.0; N]; D];
     let mut run = Run::<D, NA, N>::new();
     let order = &slabs.order[slabs.start[first]..slabs.start[first + 1]];
-    // 2D hat functions: eight (or four) particles of a run at a time, their
-    // weights and interpolated velocities over lanes (`kernel::lanes`), the rest
-    // of each particle's update one by one in order, so the same bits.
-    let batches = D == 2 && !ctx.gimp;
+    // Hat functions: eight (or four) particles of a run at a time, their weights
+    // and interpolated velocities over lanes (`kernel::lanes`), the rest of each
+    // particle's update one by one in order, so the same bits. (In 3D too: unlike
+    // the stress pass, the remap's lanes are few numbers, the nodes' weights and two
+    // interpolated velocities, and fit the registers.)
+    let batches = !ctx.gimp;
     let mut i = 0;
     while i < order.len() {
         if batches && i + HALF <= order.len() {
@@ -254,7 +256,7 @@ fn remap_one<const D: usize, const N: usize>(
     }
 }
 
-/// The remap of particles `ps` (one run's, away from walls; 2D hat functions) with
+/// The remap of particles `ps` (one run's, away from walls; hat functions) with
 /// their nodes' velocities `nd`: the weights and interpolated velocities over lanes,
 /// then per particle in order what the scalar loop does with them.
 #[allow(clippy::too_many_arguments)]
@@ -338,14 +340,14 @@ mod tests {
     use decomposition::splitmix::Rng;
     use decomposition::Tiles;
 
-    /// The remap's lanes give its scalar body's bits: new velocities (FLIP, PIC and
-    /// a blend), kept increments, the external work (gravity, and a kept body
-    /// force), the momentum sums and the finite-state flag, for both batch widths,
-    /// and with a non-finite nodal velocity.
-    #[test]
-    fn remap_lanes_match_the_scalar_remap() {
-        let geom = Geom::<2>::new([0.0; 2], [1.0; 2], [10, 10], [false; 2]);
-        let tiles = Tiles::<2>::new([12, 12], [1, 1]);
+    /// The remap's lanes give its scalar body's bits (in `D` dimensions, `N`
+    /// nodes): new velocities (FLIP, PIC and a blend), kept increments, the
+    /// external work (gravity, and a kept body force), the momentum sums and the
+    /// finite-state flag, for both batch widths, and with a non-finite nodal
+    /// velocity.
+    fn lanes_match<const D: usize, const N: usize>(seed: u64) {
+        let geom = Geom::<D>::new([0.0; D], [1.0; D], [10; D], [false; D]);
+        let tiles = Tiles::<D>::new([12; D], [1; D]);
         let (lambda, mu) = lame(1e3, 0.2);
         let materials = [Material::NeoHookean(NeoHookean {
             lambda,
@@ -354,17 +356,17 @@ mod tests {
         })];
         let ctx = Ctx {
             geom: &geom,
-            node_lo: [-1, -1],
+            node_lo: [-1; D],
             tiles: &tiles,
             gimp: false,
             alpha: Alpha::ProductOfShapes,
             materials: &materials,
-            gravity: Vector::<2>::new(0.0, -9.81),
+            gravity: Vector::<D>::from_fn(|a, _| if a == 1 { -9.81 } else { 0.0 }),
             body_force: None,
-            faces: [[Face::Slip; 2]; 2],
+            faces: [[Face::Slip; 2]; D],
             walls: false,
         };
-        let mut rng = Rng::new(13);
+        let mut rng = Rng::new(seed);
         let mut cases = 0;
         for flip in [1.0, 0.0, 0.95] {
             for keep_dx in [true, false] {
@@ -375,23 +377,19 @@ mod tests {
                     (LANES, false, true),
                 ] {
                     let n = LANES;
-                    let xi: Vec<[f64; 2]> = (0..n)
+                    let xi: Vec<[f64; D]> = (0..n)
                         .map(|l| {
-                            if l == 0 {
-                                [0.0, rng.f64()]
-                            } else {
-                                [rng.f64(), rng.f64()]
-                            }
+                            std::array::from_fn(|a| if l == 0 && a == 0 { 0.0 } else { rng.f64() })
                         })
                         .collect();
-                    let x: Vec<Vector<2>> = xi
+                    let x: Vec<Vector<D>> = xi
                         .iter()
-                        .map(|c| Vector::<2>::new(0.3 + 0.1 * c[0], 0.6 + 0.1 * c[1]))
+                        .map(|c| Vector::<D>::from_fn(|a, _| 0.3 + 0.1 * c[a]))
                         .collect();
                     let mass: Vec<f64> = (0..n).map(|_| 1e-4 * (0.5 + rng.f64())).collect();
-                    let accel: Vec<Vector<2>> = if body {
+                    let accel: Vec<Vector<D>> = if body {
                         (0..n)
-                            .map(|_| Vector::<2>::new(rng.f64(), rng.f64() - 10.0))
+                            .map(|_| Vector::<D>::from_fn(|_, _| rng.f64() - 5.0))
                             .collect()
                     } else {
                         Vec::new()
@@ -406,9 +404,9 @@ mod tests {
                         xi: &xi,
                         accel: &accel,
                     };
-                    let mut nd = NodeData::<2, 4>::new();
-                    for a in 0..2 {
-                        for k in 0..4 {
+                    let mut nd = NodeData::<D, N>::new();
+                    for a in 0..D {
+                        for k in 0..N {
                             for slot in 0..2 {
                                 nd.v[slot][a][k] = rng.f64() - 0.5;
                             }
@@ -422,13 +420,13 @@ mod tests {
                         flip,
                         keep_dx,
                     };
-                    let v0: Vec<Vector<2>> = (0..n)
-                        .map(|_| Vector::<2>::new(rng.f64() - 0.5, rng.f64() - 0.5))
+                    let v0: Vec<Vector<D>> = (0..n)
+                        .map(|_| Vector::<D>::from_fn(|_, _| rng.f64() - 0.5))
                         .collect();
                     let (mut va, mut vb) = (v0.clone(), v0);
                     let (mut dxa, mut dxb) =
-                        (vec![Vector::<2>::zeros(); n], vec![Vector::<2>::zeros(); n]);
-                    let ptr = |v: &mut Vec<Vector<2>>, dx: &mut Vec<Vector<2>>| ParticlePtr {
+                        (vec![Vector::<D>::zeros(); n], vec![Vector::<D>::zeros(); n]);
+                    let ptr = |v: &mut Vec<Vector<D>>, dx: &mut Vec<Vector<D>>| ParticlePtr {
                         v: v.as_mut_ptr(),
                         dx: dx.as_mut_ptr(),
                         len: n,
@@ -438,37 +436,39 @@ mod tests {
                         work: 0.5,
                     };
                     let mut tb = ta;
-                    let mut suma = [[0.25; 4]; 2];
+                    let mut suma = [[0.25; N]; D];
                     let mut sumb = suma;
                     let pa = ptr(&mut va, &mut dxa);
                     for p in 0..width {
-                        let (k, _, _): (Kern<2, 4>, _, _) =
-                            ctx.weights::<2, 4>(&x[p], None, &xi[p]);
+                        let (k, _, _): (Kern<D, N>, _, _) =
+                            ctx.weights::<2, N>(&x[p], None, &xi[p]);
                         remap_one(&ctx, &parts, pa, p, &k, &nd, m, &mut suma, &mut ta);
                     }
                     let pb = ptr(&mut vb, &mut dxb);
                     let ps: Vec<u32> = (0..width as u32).collect();
                     if width == LANES {
-                        remap_lanes::<2, 4, LANES>(
+                        remap_lanes::<D, N, LANES>(
                             &ctx, &parts, pb, &ps, &nd, m, &mut sumb, &mut tb,
                         );
                     } else {
-                        remap_lanes::<2, 4, HALF>(
+                        remap_lanes::<D, N, HALF>(
                             &ctx, &parts, pb, &ps, &nd, m, &mut sumb, &mut tb,
                         );
                     }
-                    let what = format!("{width} lanes, flip {flip}, keep dx {keep_dx}, body force {body}, infinite node {nan}");
+                    let what = format!(
+                        "{D}D, {width} lanes, flip {flip}, keep dx {keep_dx}, body force {body}, infinite node {nan}"
+                    );
                     assert_eq!(ta.ok, tb.ok, "{what}");
                     assert_eq!(ta.ok, !nan, "{what}");
                     assert_eq!(ta.work.to_bits(), tb.work.to_bits(), "work: {what}");
                     for p in 0..n {
-                        for a in 0..2 {
+                        for a in 0..D {
                             assert_eq!(va[p][a].to_bits(), vb[p][a].to_bits(), "v {p}: {what}");
                             assert_eq!(dxa[p][a].to_bits(), dxb[p][a].to_bits(), "dx {p}: {what}");
                         }
                     }
-                    for a in 0..2 {
-                        for k in 0..4 {
+                    for a in 0..D {
+                        for k in 0..N {
                             assert_eq!(suma[a][k].to_bits(), sumb[a][k].to_bits(), "sum: {what}");
                         }
                     }
@@ -477,5 +477,11 @@ mod tests {
             }
         }
         assert_eq!(cases, 24);
+    }
+
+    #[test]
+    fn remap_lanes_match_the_scalar_remap() {
+        lanes_match::<2, 4>(13);
+        lanes_match::<3, 8>(14);
     }
 }
