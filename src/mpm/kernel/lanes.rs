@@ -1,16 +1,19 @@
-//! The stress pass of 2D scenes eight particles at a time ([`LANES`]).
+//! Particle loops eight particles of a run at a time ([`LANES`], or [`HALF`] where runs
+//! are shorter): the stress pass and the gather in 2D, MUSL's remap in 2D and 3D.
 //!
-//! Why: one particle's stress update is a chain of small matrix products (weights,
-//! velocity gradient, `F ← (I + L dt) F`, the move) that the compiler can only
-//! vectorise within the particle, with shuffles between 2- and 4-wide pieces. The
-//! particles of one run share their nodes, so their node data are common and every
-//! operation is the same on each of them: over eight particles of a run, each line
-//! below is one full-width vector operation on eight independent numbers.
+//! Why: one particle's update is a chain of small matrix products (weights, velocity
+//! gradient, `F ← (I + L dt) F`, the move) that the compiler can only vectorise
+//! within the particle, with shuffles between 2- and 4-wide pieces. The particles of
+//! one run share their nodes, so their node data are common and every operation is
+//! the same on each of them: over eight particles of a run, each line below is one
+//! full-width vector operation on eight independent numbers.
 //!
-//! Each lane does what the scalar pass ([`super::update_stress`]) does for its
-//! particle, in the same order and the same roundings (no fused multiply-adds: Rust
-//! never contracts), so the results are the same bits, not merely close; the test
-//! `lanes_match_the_scalar_pass` holds the two to that.
+//! Each lane does what the scalar body (`stress_one`, `gather_one`, the remap's
+//! `remap_one`) does for its particle, in the same order and the same roundings (no
+//! fused multiply-adds: Rust never contracts), and what is summed over particles (the
+//! external work, the momentum) is still added particle by particle in order, so the
+//! results are the same bits, not merely close; the tests below and the remap's hold
+//! each batch to its scalar body.
 
 use super::{pair, Alpha, Ctx, GatherMode, NodeData, Slices, StressMode, FROM_MOMENTUM, UPDATED};
 use crate::physics::tensor::{Mat, Vector};
@@ -25,9 +28,9 @@ pub const HALF: usize = 4;
 /// Whether the batch path can take this pass at all: hat functions, and particles
 /// whose stress is formed from `F` where it is used (neo-Hookean), so that
 /// deforming is `F` and the volume only, with no material update per particle.
-/// Only in 2D: in 3D a particle's lanes are three times as many numbers (27 nodal
+/// Only in 2D: in 3D a particle's lanes are three times as many numbers (24 shape
 /// gradient terms, nine-entry matrices), and eight lanes of them spilled to the
-/// stack (the 3D block drop 1.2× slower than one by one; four lanes, no faster).
+/// stack (the 3D block drop 1.25× slower than one by one; four lanes, no faster).
 #[inline(always)]
 pub fn applies<const D: usize>(gimp: bool, s: &Slices<'_, D>) -> bool {
     D == 2 && !gimp && s.parts.stress.is_empty() && !s.parts.def_grad.is_empty()
