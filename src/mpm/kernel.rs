@@ -934,17 +934,7 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
                     }
                 }
                 if !run.at_wall {
-                    if b == LANES {
-                        t.ok &= lanes::gather::<D, N, LANES>(ctx, &mut s, p, &nd, &m, &mut t.work);
-                        if m.speed {
-                            t.max_speed = lanes::raise_speed::<D, LANES>(ctx, &s, p, t.max_speed);
-                        }
-                    } else {
-                        t.ok &= lanes::gather::<D, N, HALF>(ctx, &mut s, p, &nd, &m, &mut t.work);
-                        if m.speed {
-                            t.max_speed = lanes::raise_speed::<D, HALF>(ctx, &s, p, t.max_speed);
-                        }
-                    }
+                    lanes::gather_batch(ctx, &mut s, p, b, &nd, &m, &mut t);
                     p += b;
                     continue;
                 }
@@ -1052,7 +1042,7 @@ fn gather_one<const D: usize, const N: usize>(
 /// [`HALF`] where as many in a row share the cell corner `tile[p]` (and `batches`,
 /// the lanes apply to the pass), else 1.
 #[inline(always)]
-pub(crate) fn batch_width(batches: bool, tile: &[u32], p: usize) -> usize {
+fn batch_width(batches: bool, tile: &[u32], p: usize) -> usize {
     let same = |b: usize| p + b <= tile.len() && tile[p + 1..p + b].iter().all(|&c| c == tile[p]);
     if !batches {
         1
@@ -1128,17 +1118,7 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
                     nd.load_differences(m.slot);
                 }
                 if !run.at_wall {
-                    if b == LANES {
-                        t.ok &= lanes::deform_and_move::<D, N, LANES>(ctx, &mut s, p, &nd, &m);
-                        if m.speed {
-                            t.max_speed = lanes::raise_speed::<D, LANES>(ctx, &s, p, t.max_speed);
-                        }
-                    } else {
-                        t.ok &= lanes::deform_and_move::<D, N, HALF>(ctx, &mut s, p, &nd, &m);
-                        if m.speed {
-                            t.max_speed = lanes::raise_speed::<D, HALF>(ctx, &s, p, t.max_speed);
-                        }
-                    }
+                    lanes::stress_batch(ctx, &mut s, p, b, &nd, &m, &mut t);
                     p += b;
                     continue;
                 }

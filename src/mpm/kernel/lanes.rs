@@ -15,7 +15,9 @@
 //! results are the same bits, not merely close; the tests below and the remap's hold
 //! each batch to its scalar body.
 
-use super::{pair, Alpha, Ctx, GatherMode, NodeData, Slices, StressMode, FROM_MOMENTUM, UPDATED};
+use super::{
+    pair, Alpha, Ctx, GatherMode, NodeData, Slices, StressMode, Tally, FROM_MOMENTUM, UPDATED,
+};
 use crate::physics::tensor::{Mat, Vector};
 use std::ops::Range;
 
@@ -34,6 +36,70 @@ pub const HALF: usize = 4;
 #[inline(always)]
 pub fn applies<const D: usize>(gimp: bool, s: &Slices<'_, D>) -> bool {
     D == 2 && !gimp && s.parts.stress.is_empty() && !s.parts.def_grad.is_empty()
+}
+
+/// The stress pass of `width` ([`LANES`] or [`HALF`]) particles from `p0` (see
+/// [`deform_and_move`]), with their signal speed if `m.speed`, accounted in `t`.
+#[inline(always)]
+pub fn stress_batch<const D: usize, const N: usize>(
+    ctx: &Ctx<'_, D>,
+    s: &mut Slices<'_, D>,
+    p0: usize,
+    width: usize,
+    nd: &NodeData<D, N>,
+    m: &StressMode,
+    t: &mut Tally,
+) {
+    fn of<const D: usize, const N: usize, const B: usize>(
+        ctx: &Ctx<'_, D>,
+        s: &mut Slices<'_, D>,
+        p0: usize,
+        nd: &NodeData<D, N>,
+        m: &StressMode,
+        t: &mut Tally,
+    ) {
+        t.ok &= deform_and_move::<D, N, B>(ctx, s, p0, nd, m);
+        if m.speed {
+            t.max_speed = raise_speed::<D, B>(ctx, s, p0, t.max_speed);
+        }
+    }
+    if width == LANES {
+        of::<D, N, LANES>(ctx, s, p0, nd, m, t)
+    } else {
+        of::<D, N, HALF>(ctx, s, p0, nd, m, t)
+    }
+}
+
+/// The gather of `width` ([`LANES`] or [`HALF`]) particles from `p0` (see
+/// [`gather`]), with their signal speed if `m.speed`, accounted in `t`.
+#[inline(always)]
+pub fn gather_batch<const D: usize, const N: usize>(
+    ctx: &Ctx<'_, D>,
+    s: &mut Slices<'_, D>,
+    p0: usize,
+    width: usize,
+    nd: &NodeData<D, N>,
+    m: &GatherMode,
+    t: &mut Tally,
+) {
+    fn of<const D: usize, const N: usize, const B: usize>(
+        ctx: &Ctx<'_, D>,
+        s: &mut Slices<'_, D>,
+        p0: usize,
+        nd: &NodeData<D, N>,
+        m: &GatherMode,
+        t: &mut Tally,
+    ) {
+        t.ok &= gather::<D, N, B>(ctx, s, p0, nd, m, &mut t.work);
+        if m.speed {
+            t.max_speed = raise_speed::<D, B>(ctx, s, p0, t.max_speed);
+        }
+    }
+    if width == LANES {
+        of::<D, N, LANES>(ctx, s, p0, nd, m, t)
+    } else {
+        of::<D, N, HALF>(ctx, s, p0, nd, m, t)
+    }
 }
 
 /// A batch's weights and, for a two-step scheme, its interpolated nodal `L̄`
@@ -293,20 +359,7 @@ pub fn gather<const D: usize, const N: usize, const B: usize>(
 ) -> bool {
     let r = p0..p0 + B;
     let batch = Batch::<D, N, B>::new(ctx, s, r.clone(), nd, m.two_step && (m.recon || m.stress));
-    // Σ_n S_n v_n of the updated slot and Σ_n S_n (v_n − v_n^old), node by node in
-    // order as the scalar loop sums them.
-    let mut vn = [[0.0; B]; D];
-    let mut dv = [[0.0; B]; D];
-    for n in 0..N {
-        for a in 0..D {
-            let (v0, v1) = (nd.v[FROM_MOMENTUM][a][n], nd.v[UPDATED][a][n]);
-            let d = v1 - v0;
-            for l in 0..B {
-                vn[a][l] += batch.sh[n][l] * v1;
-                dv[a][l] += batch.sh[n][l] * d;
-            }
-        }
-    }
+    let (vn, dv) = interpolate(&batch.sh, nd);
     let vs: &mut [Vector<D>; B] = (&mut s.parts.v[r.clone()])
         .try_into()
         .expect("a full batch");
@@ -359,6 +412,19 @@ pub(crate) fn velocities<const D: usize, const N: usize, const B: usize>(
     nd: &NodeData<D, N>,
 ) -> ([[f64; B]; D], [[f64; B]; D], [[f64; B]; N]) {
     let (sh, _, _) = weights::<D, N, B>(ctx, xi);
+    let (vn, dv) = interpolate(&sh, nd);
+    (vn, dv, sh)
+}
+
+/// With shape functions `sh`, `Σ_n S_n v_n` of the updated slot and
+/// `Σ_n S_n (v_n − v_n^old)` over the nodes `nd`, node by node in order as the
+/// scalar loops sum them.
+#[allow(clippy::type_complexity)]
+#[inline(always)]
+fn interpolate<const D: usize, const N: usize, const B: usize>(
+    sh: &[[f64; B]; N],
+    nd: &NodeData<D, N>,
+) -> ([[f64; B]; D], [[f64; B]; D]) {
     let mut vn = [[0.0; B]; D];
     let mut dv = [[0.0; B]; D];
     for n in 0..N {
@@ -371,7 +437,7 @@ pub(crate) fn velocities<const D: usize, const N: usize, const B: usize>(
             }
         }
     }
-    (vn, dv, sh)
+    (vn, dv)
 }
 
 /// [`Ctx::weights`] with hat functions, lane by lane: the shape functions `sh[n]`,
