@@ -631,6 +631,17 @@ impl<const D: usize, const NA: usize, const N: usize> Run<D, NA, N> {
         Self::key_of(cell_node, below) != self.key
     }
 
+    /// Enter the run of a particle of cell node `cell_node` with `below` unless it is
+    /// the current one; whether it entered (and its nodes' data must be read).
+    #[inline(always)]
+    pub fn enter_if_new(&mut self, ctx: &Ctx<'_, D>, cell_node: u32, below: [usize; D]) -> bool {
+        let new = self.is_new(cell_node, below);
+        if new {
+            self.enter(ctx, cell_node, below);
+        }
+        new
+    }
+
     /// Enter the run of such a particle: its nodes' indices and faces.
     #[inline(always)]
     pub fn enter(&mut self, ctx: &Ctx<'_, D>, cell_node: u32, below: [usize; D]) {
@@ -920,21 +931,24 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
         let mut nd = NodeData::<D, N>::new();
         let mut run = Run::<D, NA, N>::new();
         let batches = xpic.is_none() && lanes::applies(ctx.gimp, &s);
+        // The nodes' data of a run, read once per run.
+        let load = |nd: &mut NodeData<D, N>, idx: &[usize; N]| {
+            nd.load(idx, vel, avg, xpic);
+            if m.stress {
+                nd.load_differences(UPDATED);
+            }
+        };
         let mut p = 0;
         while p < s.len() {
             // Eight (or four) particles of one run away from walls at a time where
             // the lanes apply, as in the stress pass ([`update_stress`]).
             let b = batch_width(batches, s.tile, p);
             if b > 1 {
-                if run.is_new(s.tile[p], [0; D]) {
-                    run.enter(ctx, s.tile[p], [0; D]);
-                    nd.load(&run.idx, vel, avg, xpic);
-                    if m.stress {
-                        nd.load_differences(UPDATED);
-                    }
+                if run.enter_if_new(ctx, s.tile[p], [0; D]) {
+                    load(&mut nd, &run.idx);
                 }
                 if !run.at_wall {
-                    lanes::gather_batch(ctx, &mut s, p, b, &nd, &m, &mut t);
+                    lanes::batch(ctx, &mut s, p, b, &nd, &m, &mut t);
                     p += b;
                     continue;
                 }
@@ -945,12 +959,8 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
                 None
             };
             let (mut k, below, w) = ctx.weights::<NA, N>(&s.parts.x[p], half, &s.xi[p]);
-            if run.is_new(s.tile[p], below) {
-                run.enter(ctx, s.tile[p], below);
-                nd.load(&run.idx, vel, avg, xpic);
-                if m.stress {
-                    nd.load_differences(UPDATED);
-                }
+            if run.enter_if_new(ctx, s.tile[p], below) {
+                load(&mut nd, &run.idx);
             }
             k.ends = run.ends(ctx, &w);
             gather_one(ctx, &mut s, p, &k, &nd, xpic, &m, &mut t);
@@ -1106,19 +1116,21 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
         let mut nd = NodeData::<D, N>::new();
         let mut run = Run::<D, NA, N>::new();
         let batches = lanes::applies(ctx.gimp, &s);
+        let load = |nd: &mut NodeData<D, N>, idx: &[usize; N]| {
+            nd.load(idx, vel, avg, None);
+            nd.load_differences(m.slot);
+        };
         let mut p = 0;
         while p < s.len() {
             // Eight (or four) particles of one run away from walls at a time where
             // the lanes apply ([`lanes`]); the rest, one by one.
             let b = batch_width(batches, s.tile, p);
             if b > 1 {
-                if run.is_new(s.tile[p], [0; D]) {
-                    run.enter(ctx, s.tile[p], [0; D]);
-                    nd.load(&run.idx, vel, avg, None);
-                    nd.load_differences(m.slot);
+                if run.enter_if_new(ctx, s.tile[p], [0; D]) {
+                    load(&mut nd, &run.idx);
                 }
                 if !run.at_wall {
-                    lanes::stress_batch(ctx, &mut s, p, b, &nd, &m, &mut t);
+                    lanes::batch(ctx, &mut s, p, b, &nd, &m, &mut t);
                     p += b;
                     continue;
                 }
@@ -1129,10 +1141,8 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
                 None
             };
             let (mut k, below, w) = ctx.weights::<NA, N>(&s.parts.x[p], half, &s.xi[p]);
-            if run.is_new(s.tile[p], below) {
-                run.enter(ctx, s.tile[p], below);
-                nd.load(&run.idx, vel, avg, None);
-                nd.load_differences(m.slot);
+            if run.enter_if_new(ctx, s.tile[p], below) {
+                load(&mut nd, &run.idx);
             }
             k.ends = run.ends(ctx, &w);
             stress_one(ctx, &mut s, p, &k, &nd, &m, &mut t);

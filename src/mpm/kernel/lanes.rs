@@ -38,60 +38,82 @@ pub fn applies<const D: usize>(gimp: bool, s: &Slices<'_, D>) -> bool {
     D == 2 && !gimp && s.parts.stress.is_empty() && !s.parts.def_grad.is_empty()
 }
 
-/// The stress pass of `width` ([`LANES`] or [`HALF`]) particles from `p0` (see
-/// [`deform_and_move`]), with their signal speed if `m.speed`, accounted in `t`.
-#[inline(always)]
-pub fn stress_batch<const D: usize, const N: usize>(
-    ctx: &Ctx<'_, D>,
-    s: &mut Slices<'_, D>,
-    p0: usize,
-    width: usize,
-    nd: &NodeData<D, N>,
-    m: &StressMode,
-    t: &mut Tally,
-) {
-    fn of<const D: usize, const N: usize, const B: usize>(
+/// A particle pass the lanes take in batches: the stress pass ([`StressMode`]) or the
+/// gather ([`GatherMode`]).
+pub trait Pass<const D: usize, const N: usize> {
+    /// Whether the pass reports the fastest signal speed.
+    fn speed(&self) -> bool;
+    /// The pass over the `B` particles from `p0`, external work into `work`; whether
+    /// every new state is physical.
+    fn batch<const B: usize>(
+        &self,
         ctx: &Ctx<'_, D>,
         s: &mut Slices<'_, D>,
         p0: usize,
         nd: &NodeData<D, N>,
-        m: &StressMode,
-        t: &mut Tally,
-    ) {
-        t.ok &= deform_and_move::<D, N, B>(ctx, s, p0, nd, m);
-        if m.speed {
-            t.max_speed = raise_speed::<D, B>(ctx, s, p0, t.max_speed);
-        }
+        work: &mut f64,
+    ) -> bool;
+}
+
+impl<const D: usize, const N: usize> Pass<D, N> for StressMode {
+    fn speed(&self) -> bool {
+        self.speed
     }
-    if width == LANES {
-        of::<D, N, LANES>(ctx, s, p0, nd, m, t)
-    } else {
-        of::<D, N, HALF>(ctx, s, p0, nd, m, t)
+
+    #[inline(always)]
+    fn batch<const B: usize>(
+        &self,
+        ctx: &Ctx<'_, D>,
+        s: &mut Slices<'_, D>,
+        p0: usize,
+        nd: &NodeData<D, N>,
+        _work: &mut f64,
+    ) -> bool {
+        deform_and_move::<D, N, B>(ctx, s, p0, nd, self)
     }
 }
 
-/// The gather of `width` ([`LANES`] or [`HALF`]) particles from `p0` (see
-/// [`gather`]), with their signal speed if `m.speed`, accounted in `t`.
+impl<const D: usize, const N: usize> Pass<D, N> for GatherMode {
+    fn speed(&self) -> bool {
+        self.speed
+    }
+
+    #[inline(always)]
+    fn batch<const B: usize>(
+        &self,
+        ctx: &Ctx<'_, D>,
+        s: &mut Slices<'_, D>,
+        p0: usize,
+        nd: &NodeData<D, N>,
+        work: &mut f64,
+    ) -> bool {
+        gather::<D, N, B>(ctx, s, p0, nd, self, work)
+    }
+}
+
+/// Pass `m` over `width` ([`LANES`] or [`HALF`]) particles from `p0`, with their
+/// signal speed if it reports one, accounted in `t`.
 #[inline(always)]
-pub fn gather_batch<const D: usize, const N: usize>(
+pub fn batch<const D: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
     s: &mut Slices<'_, D>,
     p0: usize,
     width: usize,
     nd: &NodeData<D, N>,
-    m: &GatherMode,
+    m: &impl Pass<D, N>,
     t: &mut Tally,
 ) {
+    #[inline(always)]
     fn of<const D: usize, const N: usize, const B: usize>(
         ctx: &Ctx<'_, D>,
         s: &mut Slices<'_, D>,
         p0: usize,
         nd: &NodeData<D, N>,
-        m: &GatherMode,
+        m: &impl Pass<D, N>,
         t: &mut Tally,
     ) {
-        t.ok &= gather::<D, N, B>(ctx, s, p0, nd, m, &mut t.work);
-        if m.speed {
+        t.ok &= m.batch::<B>(ctx, s, p0, nd, &mut t.work);
+        if m.speed() {
             t.max_speed = raise_speed::<D, B>(ctx, s, p0, t.max_speed);
         }
     }
