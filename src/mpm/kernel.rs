@@ -948,7 +948,7 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
                     load(&mut nd, &run.idx);
                 }
                 if !run.at_wall {
-                    lanes::batch(ctx, &mut s, p, b, &nd, &m, &mut t);
+                    lanes::batch(ctx, &mut s, p, b, &nd, lanes::Pass::Gather(&m), &mut t);
                     p += b;
                     continue;
                 }
@@ -1130,7 +1130,7 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
                     load(&mut nd, &run.idx);
                 }
                 if !run.at_wall {
-                    lanes::batch(ctx, &mut s, p, b, &nd, &m, &mut t);
+                    lanes::batch(ctx, &mut s, p, b, &nd, lanes::Pass::Stress(&m), &mut t);
                     p += b;
                     continue;
                 }

@@ -38,61 +38,26 @@ pub fn applies<const D: usize>(gimp: bool, s: &Slices<'_, D>) -> bool {
     D == 2 && !gimp && s.parts.stress.is_empty() && !s.parts.def_grad.is_empty()
 }
 
-/// A particle pass the lanes take in batches: the stress pass ([`StressMode`]) or the
-/// gather ([`GatherMode`]).
-pub trait Pass<const D: usize, const N: usize> {
+/// A particle pass the lanes take in batches: the stress pass or the gather.
+#[derive(Clone, Copy)]
+pub enum Pass<'a> {
+    Stress(&'a StressMode),
+    Gather(&'a GatherMode),
+}
+
+impl Pass<'_> {
     /// Whether the pass reports the fastest signal speed.
-    fn speed(&self) -> bool;
-    /// The pass over the `B` particles from `p0`, external work into `work`; whether
-    /// every new state is physical.
-    fn batch<const B: usize>(
-        &self,
-        ctx: &Ctx<'_, D>,
-        s: &mut Slices<'_, D>,
-        p0: usize,
-        nd: &NodeData<D, N>,
-        work: &mut f64,
-    ) -> bool;
-}
-
-impl<const D: usize, const N: usize> Pass<D, N> for StressMode {
-    fn speed(&self) -> bool {
-        self.speed
-    }
-
-    #[inline(always)]
-    fn batch<const B: usize>(
-        &self,
-        ctx: &Ctx<'_, D>,
-        s: &mut Slices<'_, D>,
-        p0: usize,
-        nd: &NodeData<D, N>,
-        _work: &mut f64,
-    ) -> bool {
-        deform_and_move::<D, N, B>(ctx, s, p0, nd, self)
+    fn speed(self) -> bool {
+        match self {
+            Pass::Stress(m) => m.speed,
+            Pass::Gather(m) => m.speed,
+        }
     }
 }
 
-impl<const D: usize, const N: usize> Pass<D, N> for GatherMode {
-    fn speed(&self) -> bool {
-        self.speed
-    }
-
-    #[inline(always)]
-    fn batch<const B: usize>(
-        &self,
-        ctx: &Ctx<'_, D>,
-        s: &mut Slices<'_, D>,
-        p0: usize,
-        nd: &NodeData<D, N>,
-        work: &mut f64,
-    ) -> bool {
-        gather::<D, N, B>(ctx, s, p0, nd, self, work)
-    }
-}
-
-/// Pass `m` over `width` ([`LANES`] or [`HALF`]) particles from `p0`, with their
-/// signal speed if it reports one, accounted in `t`.
+/// Pass `m` over `width` ([`LANES`] or [`HALF`]) particles from `p0`
+/// ([`deform_and_move`] or [`gather`]), with their signal speed if it reports one,
+/// accounted in `t`.
 #[inline(always)]
 pub fn batch<const D: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
@@ -100,7 +65,7 @@ pub fn batch<const D: usize, const N: usize>(
     p0: usize,
     width: usize,
     nd: &NodeData<D, N>,
-    m: &impl Pass<D, N>,
+    m: Pass<'_>,
     t: &mut Tally,
 ) {
     #[inline(always)]
@@ -109,10 +74,13 @@ pub fn batch<const D: usize, const N: usize>(
         s: &mut Slices<'_, D>,
         p0: usize,
         nd: &NodeData<D, N>,
-        m: &impl Pass<D, N>,
+        m: Pass<'_>,
         t: &mut Tally,
     ) {
-        t.ok &= m.batch::<B>(ctx, s, p0, nd, &mut t.work);
+        t.ok &= match m {
+            Pass::Stress(m) => deform_and_move::<D, N, B>(ctx, s, p0, nd, m),
+            Pass::Gather(m) => gather::<D, N, B>(ctx, s, p0, nd, m, &mut t.work),
+        };
         if m.speed() {
             t.max_speed = raise_speed::<D, B>(ctx, s, p0, t.max_speed);
         }
