@@ -970,6 +970,26 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
     })
 }
 
+/// At a particle with weights `k` over its nodes' data `nd`: `Σ_n S_n v_n` of the
+/// updated slot and `Σ_n S_n (v_n − v_n^old)` (the gather's and the remap's grid and
+/// FLIP velocities).
+#[inline(always)]
+pub(crate) fn interpolate<const D: usize, const N: usize>(
+    k: &Kern<D, N>,
+    nd: &NodeData<D, N>,
+) -> (Vector<D>, Vector<D>) {
+    let mut vn = Vector::<D>::zeros();
+    let mut dv = Vector::<D>::zeros();
+    for n in 0..N {
+        for a in 0..D {
+            let (v0, v1) = (nd.v[FROM_MOMENTUM][a][n], nd.v[UPDATED][a][n]);
+            vn[a] += k.s[n] * v1;
+            dv[a] += k.s[n] * (v1 - v0);
+        }
+    }
+    (vn, dv)
+}
+
 /// The gather for particle `p` of `s` with weights `k` over its nodes' data `nd`
 /// (loaded, with the differences of the updated slot if `m.stress`): its new
 /// velocity, the work on it, its deformation and move as `m` asks, accounted in `t`.
@@ -985,15 +1005,7 @@ fn gather_one<const D: usize, const N: usize>(
     m: &GatherMode,
     t: &mut Tally,
 ) {
-    let mut vn = Vector::<D>::zeros();
-    let mut dv = Vector::<D>::zeros();
-    for n in 0..N {
-        for a in 0..D {
-            let (v0, v1) = (nd.v[FROM_MOMENTUM][a][n], nd.v[UPDATED][a][n]);
-            vn[a] += k.s[n] * v1;
-            dv[a] += k.s[n] * (v1 - v0);
-        }
-    }
+    let (vn, dv) = interpolate(k, nd);
     let old = s.parts.v[p];
     let mut new = match xpic {
         // XPIC(m): V = S v⁺ + S ((m − 1) v − m v*), the field precomputed.

@@ -13,9 +13,7 @@
 //! nodes, as in `kernel::scatter`, so they equal the two passes' to round-off.
 
 use crate::mpm::kernel::lanes::{self, HALF, LANES};
-use crate::mpm::kernel::{
-    clip_at_slip_walls, Ctx, GridPtr, Kern, NodeData, Run, SlabOrder, FROM_MOMENTUM, UPDATED,
-};
+use crate::mpm::kernel::{self, clip_at_slip_walls, Ctx, GridPtr, Kern, NodeData, Run, SlabOrder};
 use crate::physics::tensor::Vector;
 
 /// Read-only particle arrays of the remap.
@@ -224,15 +222,7 @@ fn remap_one<const D: usize, const N: usize>(
     sum: &mut [[f64; N]; D],
     t: &mut RemapTally,
 ) {
-    let mut vn = Vector::<D>::zeros();
-    let mut dv = Vector::<D>::zeros();
-    for n in 0..N {
-        for a in 0..D {
-            let (v0, v1) = (nd.v[FROM_MOMENTUM][a][n], nd.v[UPDATED][a][n]);
-            vn[a] += k.s[n] * v1;
-            dv[a] += k.s[n] * (v1 - v0);
-        }
-    }
+    let (vn, dv) = kernel::interpolate(k, nd);
     // SAFETY: the caller asserted p in bounds, and only this thread visits it (see
     // `ParticlePtr`); no other reference to v[p] or dx[p] lives meanwhile.
     let vp = unsafe { &mut *pp.v.add(p) };
@@ -335,6 +325,7 @@ fn add_momentum<const D: usize, const N: usize>(
 mod tests {
     use super::*;
     use crate::input::scene::Face;
+    use crate::mpm::kernel::UPDATED;
     use crate::physics::material::{lame, neo_hookean::NeoHookean, Material};
     use crate::physics::shape::{Alpha, Geom};
     use decomposition::splitmix::Rng;
