@@ -3041,3 +3041,67 @@ particles_per_cell = 2
         check("3D", balance::<3>(8, 40), 8.0);
     }
 }
+
+#[cfg(test)]
+mod locate_tests {
+    //! The tile pass's shortcut ([`block_coordinates`], [`ChunkLocator::locate_inside`])
+    //! against what it replaced: the grid test and the block test, then
+    //! `Geom::locate` ([`ChunkLocator::locate`]).
+    use super::*;
+    use decomposition::splitmix::Rng;
+
+    /// Inside the block is exactly "on the grid and in the block" (NaN, the grid's
+    /// faces and beyond, the block's faces included), and an inside particle gets
+    /// `Geom::locate`'s ξ to the bit, its slab and the same runs, on bounded and
+    /// periodic axes, for a block at the grid's edge and one inside it.
+    #[test]
+    fn inside_particles_locate_as_geom_locate() {
+        let mut rng = Rng::new(0x5eed);
+        for periodic in [[false, false], [true, false], [false, true]] {
+            let geom = Geom::<2>::new([-0.3, 0.1], [1.7, 2.6], [40, 25], periodic);
+            for (lo, hi) in [([5usize, 0usize], [31usize, 25usize]), ([0, 7], [40, 19])] {
+                // Random positions over the grid and a margin beyond it, every cell
+                // face and block face exactly, the grid's faces, and NaN.
+                let mut xs: Vec<Vector<2>> = (0..4000)
+                    .map(|_| {
+                        Vector::<2>::from_fn(|a, _| {
+                            let w = geom.upper[a] - geom.lower[a];
+                            geom.lower[a] - 0.1 * w + 1.2 * w * rng.f64()
+                        })
+                    })
+                    .collect();
+                for k in 0..=40 {
+                    for j in 0..=25 {
+                        let f = |a: usize, c: usize| geom.lower[a] + c as f64 * geom.h[a];
+                        xs.push(Vector::<2>::new(f(0, k), f(1, j)));
+                    }
+                }
+                xs.push(Vector::<2>::new(f64::NAN, 1.0));
+                xs.push(Vector::<2>::new(0.5, f64::NAN));
+                let mut slabs = kernel::SlabOrder::default();
+                slabs.begin(lo[1], hi[1], 1, xs.len());
+                let (index, _) = slabs.slabs_mut();
+                let (mut runs_a, mut runs_b) = (Vec::new(), Vec::new());
+                let mut la = ChunkLocator::new(&geom, index, 0, &mut runs_a);
+                let mut lb = ChunkLocator::new(&geom, index, 0, &mut runs_b);
+                let mut inside_count = 0;
+                for (p, x) in xs.iter().enumerate() {
+                    let (s, inside) = block_coordinates(&geom, &lo, &hi, x);
+                    let on_grid = (0..2).all(|a| on_grid(&geom, a, x[a]));
+                    assert_eq!(inside, on_grid && in_block(&geom, &lo, &hi, x), "{x:?}");
+                    if !inside {
+                        continue;
+                    }
+                    inside_count += 1;
+                    let (mut xi_a, mut xi_b, mut slab_a, mut slab_b) = ([0.0; 2], [0.0; 2], 0, 0);
+                    la.locate(p, x, &mut xi_a, &mut slab_a);
+                    lb.locate_inside(p, &s, &mut xi_b, &mut slab_b);
+                    assert_eq!(xi_a.map(f64::to_bits), xi_b.map(f64::to_bits), "{x:?}");
+                    assert_eq!(slab_a, slab_b, "{x:?}");
+                }
+                assert!(inside_count > 1000, "{inside_count} inside");
+                assert_eq!(runs_a, runs_b);
+            }
+        }
+    }
+}
