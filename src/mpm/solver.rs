@@ -714,6 +714,8 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
         self.keep(p, c, f, xi, slab);
     }
 
+    /// Keep particle `p`'s local coordinate `f` and slab, and start a run where its
+    /// cell `c` differs from the last particle's.
     #[inline(always)]
     fn keep(&mut self, p: usize, c: [i64; D], f: [f64; D], xi: &mut [f64; D], slab: &mut u32) {
         *xi = f;
