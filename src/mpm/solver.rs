@@ -693,7 +693,7 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
     #[inline(always)]
     fn locate(&mut self, p: usize, x: &Vector<D>, xi: &mut [f64; D], slab: &mut u32) {
         let (c, f) = self.geom.locate(&std::array::from_fn(|a| x[a]));
-        self.keep(p, c, f, xi, slab);
+        self.store(p, c, f, xi, slab);
     }
 
     /// [`ChunkLocator::locate`] of a particle whose grid coordinates `s` (per axis
@@ -711,13 +711,13 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
             c[a] = s[a] as i64;
             f[a] = s[a] - c[a] as f64;
         }
-        self.keep(p, c, f, xi, slab);
+        self.store(p, c, f, xi, slab);
     }
 
-    /// Keep particle `p`'s local coordinate `f` and slab, and start a run where its
+    /// Store particle `p`'s local coordinate `f` and slab, and start a run where its
     /// cell `c` differs from the last particle's.
     #[inline(always)]
-    fn keep(&mut self, p: usize, c: [i64; D], f: [f64; D], xi: &mut [f64; D], slab: &mut u32) {
+    fn store(&mut self, p: usize, c: [i64; D], f: [f64; D], xi: &mut [f64; D], slab: &mut u32) {
         *xi = f;
         *slab = self.index.slab(c[D - 1]);
         if c != self.prev {
