@@ -927,9 +927,6 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
 ) -> Tally {
     let avg = if m.two_step { avg } else { &[] };
     par(parts, &|mut s: Slices<'_, D>| {
-        let mut t = Tally::ZERO;
-        let mut nd = NodeData::<D, N>::new();
-        let mut run = Run::<D, NA, N>::new();
         let batches = xpic.is_none() && lanes::applies(ctx.gimp, &s);
         // The nodes' data of a run, read once per run.
         let load = |nd: &mut NodeData<D, N>, idx: &[usize; N]| {
@@ -938,36 +935,61 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
                 nd.load_differences(UPDATED);
             }
         };
-        let mut p = 0;
-        while p < s.len() {
-            // Eight (or four) particles of one run away from walls at a time where
-            // the lanes apply, as in the stress pass ([`update_stress`]).
-            let b = batch_width(batches, s.tile, p);
-            if b > 1 {
-                if run.enter_if_new(ctx, s.tile[p], [0; D]) {
-                    load(&mut nd, &run.idx);
-                }
-                if !run.at_wall {
-                    lanes::batch(ctx, &mut s, p, b, &nd, lanes::Pass::Gather(&m), &mut t);
-                    p += b;
-                    continue;
-                }
-            }
-            let half = if ctx.gimp {
-                Some(&s.parts.half[p])
-            } else {
-                None
-            };
-            let (mut k, below, w) = ctx.weights::<NA, N>(&s.parts.x[p], half, &s.xi[p]);
-            if run.enter_if_new(ctx, s.tile[p], below) {
+        by_runs::<D, NA, N>(
+            ctx,
+            &mut s,
+            batches,
+            lanes::Pass::Gather(&m),
+            load,
+            |s, p, k, nd, t| gather_one(ctx, s, p, k, nd, xpic, &m, t),
+        )
+    })
+}
+
+/// One task's particles `s` of a grid → particle pass (the gather or the stress
+/// pass), in order: eight (or four) particles of one run away from walls at a time
+/// through the lanes as `pass` where `batches` ([`lanes`]), the rest one by one through
+/// `one` (with the particle's weights and wall ends), each run's node data read once
+/// by `load`. Returns the task's tally.
+#[inline(always)]
+fn by_runs<const D: usize, const NA: usize, const N: usize>(
+    ctx: &Ctx<'_, D>,
+    s: &mut Slices<'_, D>,
+    batches: bool,
+    pass: lanes::Pass<'_>,
+    load: impl Fn(&mut NodeData<D, N>, &[usize; N]),
+    mut one: impl FnMut(&mut Slices<'_, D>, usize, &Kern<D, N>, &NodeData<D, N>, &mut Tally),
+) -> Tally {
+    let mut t = Tally::ZERO;
+    let mut nd = NodeData::<D, N>::new();
+    let mut run = Run::<D, NA, N>::new();
+    let mut p = 0;
+    while p < s.len() {
+        let b = batch_width(batches, s.tile, p);
+        if b > 1 {
+            if run.enter_if_new(ctx, s.tile[p], [0; D]) {
                 load(&mut nd, &run.idx);
             }
-            k.ends = run.ends(ctx, &w);
-            gather_one(ctx, &mut s, p, &k, &nd, xpic, &m, &mut t);
-            p += 1;
+            if !run.at_wall {
+                lanes::batch(ctx, s, p, b, &nd, pass, &mut t);
+                p += b;
+                continue;
+            }
         }
-        t
-    })
+        let half = if ctx.gimp {
+            Some(&s.parts.half[p])
+        } else {
+            None
+        };
+        let (mut k, below, w) = ctx.weights::<NA, N>(&s.parts.x[p], half, &s.xi[p]);
+        if run.enter_if_new(ctx, s.tile[p], below) {
+            load(&mut nd, &run.idx);
+        }
+        k.ends = run.ends(ctx, &w);
+        one(s, p, &k, &nd, &mut t);
+        p += 1;
+    }
+    t
 }
 
 /// At a particle with weights `k` over its nodes' data `nd`: `Σ_n S_n v_n` of the
@@ -1124,43 +1146,19 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
 ) -> Tally {
     let avg = if m.two_step { avg } else { &[] };
     par(parts, &|mut s: Slices<'_, D>| {
-        let mut t = Tally::ZERO;
-        let mut nd = NodeData::<D, N>::new();
-        let mut run = Run::<D, NA, N>::new();
         let batches = lanes::applies(ctx.gimp, &s);
         let load = |nd: &mut NodeData<D, N>, idx: &[usize; N]| {
             nd.load(idx, vel, avg, None);
             nd.load_differences(m.slot);
         };
-        let mut p = 0;
-        while p < s.len() {
-            // Eight (or four) particles of one run away from walls at a time where
-            // the lanes apply ([`lanes`]); the rest, one by one.
-            let b = batch_width(batches, s.tile, p);
-            if b > 1 {
-                if run.enter_if_new(ctx, s.tile[p], [0; D]) {
-                    load(&mut nd, &run.idx);
-                }
-                if !run.at_wall {
-                    lanes::batch(ctx, &mut s, p, b, &nd, lanes::Pass::Stress(&m), &mut t);
-                    p += b;
-                    continue;
-                }
-            }
-            let half = if ctx.gimp {
-                Some(&s.parts.half[p])
-            } else {
-                None
-            };
-            let (mut k, below, w) = ctx.weights::<NA, N>(&s.parts.x[p], half, &s.xi[p]);
-            if run.enter_if_new(ctx, s.tile[p], below) {
-                load(&mut nd, &run.idx);
-            }
-            k.ends = run.ends(ctx, &w);
-            stress_one(ctx, &mut s, p, &k, &nd, &m, &mut t);
-            p += 1;
-        }
-        t
+        by_runs::<D, NA, N>(
+            ctx,
+            &mut s,
+            batches,
+            lanes::Pass::Stress(&m),
+            load,
+            |s, p, k, nd, t| stress_one(ctx, s, p, k, nd, &m, t),
+        )
     })
 }
 
