@@ -1225,6 +1225,27 @@ impl SlabIndex {
         );
         ((c as usize - self.lo) / self.thick) as u32
     }
+
+    /// [`SlabIndex::slab`] of `L` cells at once: one range test for all of them, and
+    /// no division for slabs one cell thick (hat functions), so that the lanes of the
+    /// tile pass ([`slab_thickness`]) stay vector operations.
+    #[inline(always)]
+    pub fn slabs<const L: usize>(self, c: &[i64; L]) -> [u32; L] {
+        let (lo, hi) = (self.lo as i64, self.hi as i64);
+        let mut ok = true;
+        for &c in c {
+            ok &= (c >= lo) & (c < hi);
+        }
+        if !ok {
+            // The same message as one at a time, for the first cell out of range.
+            return c.map(|c| self.slab(c));
+        }
+        if self.thick == 1 {
+            c.map(|c| (c - lo) as u32)
+        } else {
+            c.map(|c| ((c - lo) as usize / self.thick) as u32)
+        }
+    }
 }
 
 /// The particle order of the coloured scatter: particle indices grouped by slab.

@@ -4,6 +4,7 @@
 //! node→node stencils, migration after the position update).
 
 use crate::input::scene::{Face, Scene, Update};
+use crate::mpm::kernel::lanes::LANES;
 use crate::mpm::kernel::{
     self, AvgRecord, NodeRecord, SlabOrder, VelRecord, FROM_MOMENTUM, UPDATED,
 };
@@ -714,6 +715,70 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
         self.store(p, c, f, xi, slab);
     }
 
+    /// [`block_coordinates`] and [`ChunkLocator::locate_inside`] of the `L` particles
+    /// from the chunk's `p0`, at `xs`, as vector operations over them: `false`, with
+    /// nothing stored, unless all of them lie in the block `[lo, hi)`. The same
+    /// arithmetic per lane, so the same bits, slabs and runs as one at a time.
+    #[inline(always)]
+    fn locate_lanes<const L: usize>(
+        &mut self,
+        p0: usize,
+        xs: &[Vector<D>; L],
+        (lo, hi): (&[usize; D], &[usize; D]),
+        xi: &mut [[f64; D]; L],
+        slab: &mut [u32; L],
+    ) -> bool {
+        let geom = self.geom;
+        let mut s = [[0.0; L]; D];
+        let mut inside = true;
+        for a in 0..D {
+            let (lower, inv_h) = (geom.lower[a], geom.inv_h[a]);
+            let (lo, hi) = (lo[a] as f64, hi[a] as f64);
+            for l in 0..L {
+                s[a][l] = (xs[l][a] - lower) * inv_h;
+                inside &= (s[a][l] >= lo) & (s[a][l] < hi);
+            }
+        }
+        if !inside {
+            return false;
+        }
+        // Truncation, as `locate_inside` casts. `as` would also saturate and map NaN
+        // to 0, which per lane takes scalar compares and moves (they were half of
+        // this function); here no lane needs it.
+        let mut c = [[0i64; L]; D];
+        for a in 0..D {
+            for l in 0..L {
+                // SAFETY: every lane passed `lo[a] <= s < hi[a]` above (a NaN fails
+                // it), so `s` is finite and truncates to an integer in `[0, hi[a])`,
+                // which an i64 holds: `to_int_unchecked`'s condition.
+                c[a][l] = unsafe { s[a][l].to_int_unchecked::<i64>() };
+                xi[l][a] = s[a][l] - c[a][l] as f64;
+            }
+        }
+        *slab = self.index.slabs(&c[D - 1]);
+        // A run starts where a lane's cell differs from the one before it.
+        let mut starts = [false; L];
+        let mut any = false;
+        for l in 0..L {
+            let mut differs = false;
+            for a in 0..D {
+                let before = if l == 0 { self.prev[a] } else { c[a][l - 1] };
+                differs |= c[a][l] != before;
+            }
+            starts[l] = differs;
+            any |= differs;
+        }
+        if any {
+            for (l, &start) in starts.iter().enumerate() {
+                if start {
+                    self.runs.push(((self.base + p0 + l) as u32, 0));
+                }
+            }
+            self.prev = std::array::from_fn(|a| c[a][L - 1]);
+        }
+        true
+    }
+
     /// Store particle `p`'s local coordinate `f` and slab, and start a run where its
     /// cell `c` differs from the last particle's.
     #[inline(always)]
@@ -723,6 +788,20 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
         if c != self.prev {
             self.prev = c;
             self.runs.push(((self.base + p) as u32, 0));
+        }
+    }
+}
+
+/// Wrap the coordinates of `x` along periodic axes into the period.
+#[inline(always)]
+fn wrap_periodic<const D: usize>(geom: &Geom<D>, x: &mut Vector<D>) {
+    for a in 0..D {
+        let (lo, hi) = (geom.lower[a], geom.upper[a]);
+        if geom.periodic[a] && (x[a] < lo || x[a] >= hi) {
+            x[a] = lo + (x[a] - lo).rem_euclid(hi - lo);
+            if x[a] >= hi {
+                x[a] = lo; // rem_euclid can round up to the period
+            }
         }
     }
 }
@@ -1812,6 +1891,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.flagged.clear();
         self.flagged.resize(chunks, false);
         let (geom, lo, hi) = (&self.geom, &self.block.cell_lo, &self.block.cell_hi);
+        let periodic = geom.periodic.contains(&true);
         let (_, slab_of) = self.slabs.slabs_mut();
         self.parts
             .x
@@ -1823,23 +1903,46 @@ impl<'c, const D: usize> Solver<'c, D> {
             .enumerate()
             .for_each(|(k, ((((xs, flag), xi), slab), runs))| {
                 let mut loc = ChunkLocator::new(geom, index, k, runs);
-                for (p, x) in xs.iter_mut().enumerate() {
-                    for a in 0..D {
-                        let (lo, hi) = (geom.lower[a], geom.upper[a]);
-                        if geom.periodic[a] && (x[a] < lo || x[a] >= hi) {
-                            x[a] = lo + (x[a] - lo).rem_euclid(hi - lo);
-                            if x[a] >= hi {
-                                x[a] = lo; // rem_euclid can round up to the period
-                            }
-                        }
-                    }
+                // One particle: whether it left the block.
+                let one = |loc: &mut ChunkLocator<'_, D>,
+                           p: usize,
+                           x: &mut Vector<D>,
+                           xi: &mut [f64; D],
+                           slab: &mut u32| {
+                    wrap_periodic(geom, x);
                     // In the block is on the grid: one test for both.
                     let (s, inside) = block_coordinates(geom, lo, hi, x);
-                    *flag |= !inside;
                     // A flagged chunk is located again after the exchange.
                     if inside {
-                        loc.locate_inside(p, &s, &mut xi[p], &mut slab[p]);
+                        loc.locate_inside(p, &s, xi, slab);
                     }
+                    !inside
+                };
+                // Eight at a time where all eight stay in the block (nearly all of
+                // them), one by one where one left it and at the chunk's end.
+                let mut p = 0;
+                while p < xs.len() {
+                    let b = (xs.len() - p).min(LANES);
+                    if b == LANES {
+                        let r = p..p + LANES;
+                        if periodic {
+                            xs[r.clone()]
+                                .iter_mut()
+                                .for_each(|x| wrap_periodic(geom, x));
+                        }
+                        let batch = <&[Vector<D>; LANES]>::try_from(&xs[r.clone()]);
+                        let xi = <&mut [[f64; D]; LANES]>::try_from(&mut xi[r.clone()]);
+                        let slab = <&mut [u32; LANES]>::try_from(&mut slab[r]);
+                        let (batch, xi, slab) = (batch.unwrap(), xi.unwrap(), slab.unwrap());
+                        if loc.locate_lanes(p, batch, (lo, hi), xi, slab) {
+                            p += LANES;
+                            continue;
+                        }
+                    }
+                    for q in p..p + b {
+                        *flag |= one(&mut loc, q, &mut xs[q], &mut xi[q], &mut slab[q]);
+                    }
+                    p += b;
                 }
             });
         self.cell_runs.truncate(chunks);
@@ -3105,5 +3208,86 @@ mod locate_tests {
                 assert_eq!(runs_a, runs_b);
             }
         }
+    }
+
+    /// Eight particles at a time ([`ChunkLocator::locate_lanes`]) give what one at a
+    /// time gives ([`block_coordinates`], [`ChunkLocator::locate_inside`]): the same
+    /// ξ to the bit, slabs (one and three cells thick) and runs, in 2D and 3D, with
+    /// runs that start at any lane and span batches; and a batch with a particle
+    /// outside the block (beyond a face, on the upper face, NaN) is refused whole,
+    /// with nothing stored.
+    #[test]
+    fn lanes_locate_as_one_at_a_time() {
+        fn check<const D: usize>(cells: [usize; D], lo: [usize; D], hi: [usize; D], seed: u64) {
+            let mut rng = Rng::new(seed);
+            let geom = Geom::<D>::new([0.1; D], [1.3; D], cells, [false; D]);
+            // Runs of 1 to 12 particles in one cell, the cells at random in the block.
+            let mut xs: Vec<Vector<D>> = Vec::new();
+            while xs.len() < 4096 {
+                let c: [f64; D] = std::array::from_fn(|a| {
+                    (lo[a] + (rng.f64() * (hi[a] - lo[a]) as f64) as usize).min(hi[a] - 1) as f64
+                });
+                for _ in 0..1 + (rng.f64() * 12.0) as usize {
+                    xs.push(Vector::<D>::from_fn(|a, _| {
+                        geom.lower[a] + (c[a] + rng.f64()) * geom.h[a]
+                    }));
+                }
+            }
+            xs.truncate(4096);
+            // Cell corners exactly.
+            for k in 0..8 {
+                xs[8 * 100 + k] = Vector::<D>::from_fn(|a, _| {
+                    geom.lower[a] + (lo[a] + k % (hi[a] - lo[a])) as f64 * geom.h[a]
+                });
+            }
+            // One particle out of the block in some batches.
+            let outside = [8 * 200 + 3, 8 * 300, 8 * 400 + 7];
+            xs[outside[0]][0] = geom.lower[0] + hi[0] as f64 * geom.h[0];
+            xs[outside[1]][D - 1] = f64::NAN;
+            xs[outside[2]][0] = geom.lower[0] - 0.01;
+            for thick in [1, 3] {
+                let mut slabs = kernel::SlabOrder::default();
+                slabs.begin(lo[D - 1], hi[D - 1], thick, xs.len());
+                let (index, _) = slabs.slabs_mut();
+                let (mut runs_a, mut runs_b) = (Vec::new(), Vec::new());
+                let mut la = ChunkLocator::new(&geom, index, 1, &mut runs_a);
+                let mut lb = ChunkLocator::new(&geom, index, 1, &mut runs_b);
+                let mut refused = 0;
+                for p0 in (0..xs.len()).step_by(LANES) {
+                    let batch: &[Vector<D>; LANES] = xs[p0..p0 + LANES].try_into().unwrap();
+                    let (mut xi_a, mut slab_a) = ([[-1.0; D]; LANES], [u32::MAX; LANES]);
+                    let ok = la.locate_lanes(p0, batch, (&lo, &hi), &mut xi_a, &mut slab_a);
+                    let mut all = true;
+                    for (l, x) in batch.iter().enumerate() {
+                        let (s, inside) = block_coordinates(&geom, &lo, &hi, x);
+                        all &= inside;
+                        if ok {
+                            let (mut xi_b, mut slab_b) = ([0.0; D], 0);
+                            lb.locate_inside(p0 + l, &s, &mut xi_b, &mut slab_b);
+                            assert_eq!(xi_a[l].map(f64::to_bits), xi_b.map(f64::to_bits));
+                            assert_eq!(slab_a[l], slab_b, "{x:?}");
+                        }
+                    }
+                    assert_eq!(ok, all, "batch at {p0}");
+                    if !ok {
+                        refused += 1;
+                        assert_eq!((xi_a, slab_a), ([[-1.0; D]; LANES], [u32::MAX; LANES]));
+                    }
+                }
+                // The planted ones (random positions at a cell's upper face may round
+                // onto the block's upper face too).
+                for &p in &outside {
+                    assert!(!block_coordinates(&geom, &lo, &hi, &xs[p]).1);
+                }
+                assert!(
+                    refused >= outside.len() && refused < 10,
+                    "{refused} refused"
+                );
+                assert!(runs_a.len() > 400, "{} runs", runs_a.len());
+                assert_eq!(runs_a, runs_b);
+            }
+        }
+        check::<2>([40, 25], [5, 3], [31, 22], 0x1a9e);
+        check::<3>([9, 10, 11], [0, 2, 4], [9, 8, 11], 0x3d);
     }
 }
