@@ -41,6 +41,8 @@ PHASES = [
     (r"kernel::gather|^gather<", "gather"),
     (r"kernel::update_stress|^update_stress<", "stress update"),
     (r"relocate", "relocate"),
+    (r"wrap_and_flag|locate_all|locate_lanes|ChunkLocator|touch_runs|run_nodes|activate_tiles|slot_of_key",
+     "tile pass"),
     (r"Solver.*::sort|::sort::|^sort<|permute", "sort"),
     (r"totals|strain_energy|errors<", "history totals"),
     (r"Rescue|copy_from(?!_slice)|keep<", "rescue copy"),
@@ -222,7 +224,7 @@ def main():
     for lab, ext in final[first:]:
         if lab in ("gather", "remap", "stress update", "material stress"):
             ordinal = 2
-        elif lab in ("relocate", "sort", "rescue copy", "history totals"):
+        elif lab in ("relocate", "tile pass", "sort", "rescue copy", "history totals"):
             ordinal = 1
         if lab in TWICE:
             lab = f"{lab} ({ordinal})"

@@ -216,8 +216,8 @@ pub struct Solver<'c, const D: usize> {
     /// only), refreshed at the start of a step.
     memo: Memo<D>,
     /// The tile pass's runs of particles in one cell, per chunk of [`LOCATE_CHUNK`]
-    /// particles: the run's first particle and its cell's lower corner node.
-    cell_runs: Vec<Vec<(u32, u32)>>,
+    /// particles.
+    cell_runs: Vec<Vec<CellRun<D>>>,
     /// Per chunk of [`Solver::cell_runs`], the keys of the tiles its runs' nodes lie
     /// in (each once per chunk, mostly), gathered on threads and touched after.
     run_keys: Vec<Vec<u64>>,
@@ -663,6 +663,18 @@ const SORT_EVERY: u64 = 20;
 /// The tile pass's location of the particles of one chunk, in order: each one's local
 /// coordinate and slab, and in `runs` where a run of particles in one cell starts
 /// (the chunk's first particle starts one).
+/// A run of particles in one cell, as the tile pass finds it.
+#[derive(Clone, Debug, PartialEq)]
+struct CellRun<const D: usize> {
+    /// The run's first particle.
+    first: u32,
+    /// The storage index of its cell's lower corner node ([`Solver::run_nodes`]).
+    node: u32,
+    /// Its cell, as the locator found it: the later passes over the runs need not
+    /// locate their first particles again.
+    cell: [i64; D],
+}
+
 struct ChunkLocator<'a, const D: usize> {
     geom: &'a Geom<D>,
     index: kernel::SlabIndex,
@@ -670,7 +682,7 @@ struct ChunkLocator<'a, const D: usize> {
     base: usize,
     /// The cell of the particle located last (none at first).
     prev: [i64; D],
-    runs: &'a mut Vec<(u32, u32)>,
+    runs: &'a mut Vec<CellRun<D>>,
 }
 
 impl<'a, const D: usize> ChunkLocator<'a, D> {
@@ -678,7 +690,7 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
         geom: &'a Geom<D>,
         index: kernel::SlabIndex,
         chunk: usize,
-        runs: &'a mut Vec<(u32, u32)>,
+        runs: &'a mut Vec<CellRun<D>>,
     ) -> Self {
         runs.clear();
         ChunkLocator {
@@ -771,7 +783,11 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
         if any {
             for (l, &start) in starts.iter().enumerate() {
                 if start {
-                    self.runs.push(((self.base + p0 + l) as u32, 0));
+                    self.runs.push(CellRun {
+                        first: (self.base + p0 + l) as u32,
+                        node: 0,
+                        cell: std::array::from_fn(|a| c[a][l]),
+                    });
                 }
             }
             self.prev = std::array::from_fn(|a| c[a][L - 1]);
@@ -787,7 +803,11 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
         *slab = self.index.slab(c[D - 1]);
         if c != self.prev {
             self.prev = c;
-            self.runs.push(((self.base + p) as u32, 0));
+            self.runs.push(CellRun {
+                first: (self.base + p) as u32,
+                node: 0,
+                cell: c,
+            });
         }
     }
 }
@@ -1172,11 +1192,11 @@ impl<'c, const D: usize> Solver<'c, D> {
             .enumerate()
             .for_each(|(k, (tile, runs))| {
                 let base = k * LOCATE_CHUNK;
-                for (r, &(first, node)) in runs.iter().enumerate() {
+                for (r, run) in runs.iter().enumerate() {
                     let end = runs
                         .get(r + 1)
-                        .map_or(tile.len(), |e| (e.0 as usize) - base);
-                    tile[first as usize - base..end].fill(node);
+                        .map_or(tile.len(), |e| (e.first as usize) - base);
+                    tile[run.first as usize - base..end].fill(run.node);
                 }
             });
     }
@@ -1225,11 +1245,10 @@ impl<'c, const D: usize> Solver<'c, D> {
         (chunks, self.slabs.slabs_mut().0)
     }
 
-    /// The local cell of the first particle of a run (as the tile pass located it).
+    /// The local cell of a run.
     #[inline]
-    fn run_cell(geom: &Geom<D>, node_lo: &[i64; D], x: &Vector<D>) -> [i64; D] {
-        let (c, _) = geom.locate(&std::array::from_fn(|a| x[a]));
-        std::array::from_fn(|a| c[a] - node_lo[a])
+    fn run_cell(node_lo: &[i64; D], run: &CellRun<D>) -> [i64; D] {
+        std::array::from_fn(|a| run.cell[a] - node_lo[a])
     }
 
     /// Touch the tiles every run's nodes lie in: their keys gathered per chunk on
@@ -1241,7 +1260,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         if self.run_keys.len() < chunks {
             self.run_keys.resize_with(chunks, Vec::new);
         }
-        let (geom, tiles, x) = (&self.geom, &self.tiles, &self.parts.x);
+        let tiles = &self.tiles;
         let node_lo = &self.block.node_lo;
         self.cell_runs
             .par_iter()
@@ -1250,8 +1269,8 @@ impl<'c, const D: usize> Solver<'c, D> {
                 keys.clear();
                 let mut recent = [u64::MAX; 16];
                 let mut buf = [0u64; 8];
-                for &(first, _) in runs {
-                    let l = Self::run_cell(geom, node_lo, &x[first as usize]);
+                for run in runs {
+                    let l = Self::run_cell(node_lo, run);
                     let n =
                         tiles.keys_of_nodes(l.map(|v| v - below), l.map(|v| v + above), &mut buf);
                     for &k in &buf[..n] {
@@ -1272,18 +1291,18 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// on threads, once the active set holds every run's tile ([`Solver::touch_runs`],
     /// [`Tiles::finish`]).
     fn run_nodes(&mut self) {
-        let (geom, tiles, x) = (&self.geom, &self.tiles, &self.parts.x);
+        let tiles = &self.tiles;
         let node_lo = &self.block.node_lo;
         self.cell_runs.par_iter_mut().for_each(|runs| {
             let mut tile = (u64::MAX, 0u32);
             for run in runs.iter_mut() {
-                let l = Self::run_cell(geom, node_lo, &x[run.0 as usize]).map(|v| v as usize);
+                let l = Self::run_cell(node_lo, run).map(|v| v as usize);
                 let k = tiles.key_of(l);
                 if k != tile.0 {
                     tile = (k, tiles.slot_of_key(k));
                     assert!(tile.1 != 0, "a particle's cell's tile was touched");
                 }
-                run.1 = tiles.index_in(tile.1, l) as u32;
+                run.node = tiles.index_in(tile.1, l) as u32;
             }
         });
     }
