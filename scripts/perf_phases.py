@@ -221,8 +221,14 @@ def main():
     counts = collections.Counter()
     outside = collections.Counter()
     ordinal = 1
-    for lab, ext in final[first:]:
-        if lab in ("gather", "remap", "stress update", "material stress"):
+    steps = final[first:]
+    for i, (lab, ext) in enumerate(steps):
+        # A lone sample does not move the ordinal: helpers that several phases share
+        # are given the phase of most of their samples, which may be another one.
+        lone = all(steps[j][0] != lab for j in (i - 1, i + 1) if 0 <= j < len(steps))
+        if lone:
+            pass
+        elif lab in ("gather", "remap", "stress update", "material stress"):
             ordinal = 2
         elif lab in ("relocate", "tile pass", "sort", "rescue copy", "history totals"):
             ordinal = 1

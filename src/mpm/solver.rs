@@ -660,9 +660,6 @@ impl Update {
 
 const SORT_EVERY: u64 = 20;
 
-/// The tile pass's location of the particles of one chunk, in order: each one's local
-/// coordinate and slab, and in `runs` where a run of particles in one cell starts
-/// (the chunk's first particle starts one).
 /// A run of particles in one cell, as the tile pass finds it.
 #[derive(Clone, Debug, PartialEq)]
 struct CellRun<const D: usize> {
@@ -675,6 +672,9 @@ struct CellRun<const D: usize> {
     cell: [i64; D],
 }
 
+/// The tile pass's location of the particles of one chunk, in order: each one's local
+/// coordinate and slab, and in `runs` where a run of particles in one cell starts
+/// (the chunk's first particle starts one).
 struct ChunkLocator<'a, const D: usize> {
     geom: &'a Geom<D>,
     index: kernel::SlabIndex,
@@ -768,27 +768,26 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
             }
         }
         *slab = self.index.slabs(&c[D - 1]);
-        // A run starts where a lane's cell differs from the one before it.
-        let mut starts = [false; L];
-        let mut any = false;
+        // A run starts where a lane's cell differs from the one before it: a bit per
+        // lane (a mask register), visited bit by bit only where one is set.
+        let mut starts = 0u32;
         for l in 0..L {
             let mut differs = false;
             for a in 0..D {
                 let before = if l == 0 { self.prev[a] } else { c[a][l - 1] };
                 differs |= c[a][l] != before;
             }
-            starts[l] = differs;
-            any |= differs;
+            starts |= u32::from(differs) << l;
         }
-        if any {
-            for (l, &start) in starts.iter().enumerate() {
-                if start {
-                    self.runs.push(CellRun {
-                        first: (self.base + p0 + l) as u32,
-                        node: 0,
-                        cell: std::array::from_fn(|a| c[a][l]),
-                    });
-                }
+        if starts != 0 {
+            while starts != 0 {
+                let l = starts.trailing_zeros() as usize;
+                starts &= starts - 1;
+                self.runs.push(CellRun {
+                    first: (self.base + p0 + l) as u32,
+                    node: 0,
+                    cell: std::array::from_fn(|a| c[a][l]),
+                });
             }
             self.prev = std::array::from_fn(|a| c[a][L - 1]);
         }
