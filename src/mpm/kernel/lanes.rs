@@ -47,7 +47,7 @@ pub enum Pass<'a> {
 
 impl Pass<'_> {
     /// Whether the pass reports the fastest signal speed.
-    fn speed(self) -> bool {
+    pub fn speed(self) -> bool {
         match self {
             Pass::Stress(m) => m.speed,
             Pass::Gather(m) => m.speed,
@@ -56,8 +56,8 @@ impl Pass<'_> {
 }
 
 /// Pass `m` over `width` ([`LANES`] or [`HALF`]) particles from `p0`
-/// ([`deform_and_move`] or [`gather`]), with their signal speed if it reports one,
-/// accounted in `t`.
+/// ([`deform_and_move`] or [`gather`]), accounted in `t` (the signal speed is raised
+/// after the pass: `kernel::signal_speeds`).
 #[inline(always)]
 pub fn batch<const D: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
@@ -81,9 +81,6 @@ pub fn batch<const D: usize, const N: usize>(
             Pass::Stress(m) => deform_and_move::<D, N, B>(ctx, s, p0, nd, m),
             Pass::Gather(m) => gather::<D, N, B>(ctx, s, p0, nd, m, &mut t.work),
         };
-        if m.speed() {
-            t.max_speed = raise_speed::<D, B>(ctx, s, p0, t.max_speed);
-        }
     }
     if width == LANES {
         of::<D, N, LANES>(ctx, s, p0, nd, m, t)
@@ -579,7 +576,7 @@ pub fn raise_speed<const D: usize, const B: usize>(
 
 #[cfg(test)]
 mod tests {
-    use super::super::{gather_one, stress_one, Kern, Tally};
+    use super::super::{gather_one, raise_speed as speed_one, stress_one, Kern, Tally};
     use super::*;
     use crate::input::scene::Face;
     use crate::mpm::particles::Particles;
@@ -772,6 +769,8 @@ mod tests {
                             ctx.weights::<2, 4>(&sa.parts.x[p], None, &xi[p]);
                         stress_one(&ctx, &mut sa, p, &k, &nd, &m, &mut ta);
                     }
+                    // The signal speed, particle by particle after the pass.
+                    ta.max_speed = (0..width).fold(ta.max_speed, |v, p| speed_one(&ctx, &sa, p, v));
                     // A batch at a time.
                     let mut sb = Slices {
                         parts: b.slices(),
@@ -868,6 +867,7 @@ mod tests {
                             ctx.weights::<2, 4>(&sa.parts.x[p], None, &xi[p]);
                         gather_one(&ctx, &mut sa, p, &k, &nd, None, &m, &mut ta);
                     }
+                    ta.max_speed = (0..width).fold(ta.max_speed, |v, p| speed_one(&ctx, &sa, p, v));
                     let mut sb = Slices {
                         parts: b.slices(),
                         dx: &mut dx_b,
