@@ -241,16 +241,21 @@ impl<const D: usize, const N: usize, const B: usize> Batch<D, N, B> {
         for l in 0..B {
             vol[l] = vs[l] * j[l];
         }
-        let mut ok = true;
+        // Every lane has J > 0 and a finite volume and F, tested with numbers, not
+        // bools: `x − x` is +0 for a finite x and NaN otherwise, and a lane with
+        // J <= 0 (or NaN) adds a NaN, so the lanes' sum is 0 exactly when all pass.
+        // (Per-lane bools went through the mask registers bit by bit: a dozen
+        // moves and shifts per lane.)
+        let mut bad = [0.0; B];
         for l in 0..B {
-            let mut finite = vol[l].is_finite();
+            bad[l] = (vol[l] - vol[l]) + if j[l] > 0.0 { 0.0 } else { f64::NAN };
             for row in &fnew {
                 for x in row {
-                    finite &= x[l].is_finite();
+                    bad[l] += x[l] - x[l];
                 }
             }
-            ok &= j[l] > 0.0 && finite;
         }
+        let ok = bad.iter().sum::<f64>() == 0.0;
         *vs = vol;
         for l in 0..B {
             for i in 0..D {
