@@ -242,16 +242,16 @@ impl<const D: usize, const N: usize, const B: usize> Batch<D, N, B> {
             vol[l] = vs[l] * j[l];
         }
         // Every lane has J > 0 and a finite volume and F, tested with numbers, not
-        // bools: `x − x` is +0 for a finite x and NaN otherwise, and a lane with
-        // J <= 0 (or NaN) adds a NaN, so the lanes' sum is 0 exactly when all pass.
+        // bools: `0 x` is ±0 for a finite x and NaN otherwise, and a lane with
+        // J <= 0 (or NaN) adds a NaN, so the lanes' sum is ±0 exactly when all pass.
         // (Per-lane bools went through the mask registers bit by bit: a dozen
         // moves and shifts per lane.)
         let mut bad = [0.0; B];
         for l in 0..B {
-            bad[l] = (vol[l] - vol[l]) + if j[l] > 0.0 { 0.0 } else { f64::NAN };
+            bad[l] = vol[l] * 0.0 + if j[l] > 0.0 { 0.0 } else { f64::NAN };
             for row in &fnew {
                 for x in row {
-                    bad[l] += x[l] - x[l];
+                    bad[l] += x[l] * 0.0;
                 }
             }
         }
