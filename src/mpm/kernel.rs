@@ -1629,6 +1629,15 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
     let mut run = Run::<D, NA, N>::new();
     for &p in &slabs.order[slabs.start[first]..slabs.start[first + 1]] {
         let p = p as usize;
+        // The stress first: in 3D it is a call (`particles::stress_call`), and every
+        // vector register live across it is saved and reloaded; before the weights,
+        // few are.
+        let vs = if m.forces {
+            particles::stress_of(parts.stress, parts.def_grad, parts.mat, ctx.materials, p)
+                * parts.vol[p]
+        } else {
+            Mat::<D>::zeros()
+        };
         let half = if ctx.gimp { Some(&parts.half[p]) } else { None };
         let (k, below, _) = ctx.weights::<NA, N>(&parts.x[p], half, &parts.xi[p]);
         if run.is_new(parts.tile[p], below) {
@@ -1652,13 +1661,6 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
             parts.v[p] * mass
         };
         let vol = parts.vol[p];
-        // Formed here, where it is used, if the particles do not store it (no store
-        // and reload of D² numbers per particle and step); only forces use it.
-        let vs = if m.forces {
-            particles::stress_of(parts.stress, parts.def_grad, parts.mat, ctx.materials, p) * vol
-        } else {
-            Mat::<D>::zeros()
-        };
         let fe = if m.forces {
             ctx.accel_kept(parts.accel, parts.x0, p) * mass
         } else {
