@@ -7,12 +7,14 @@
 The release build's line tables carry the inlining chain of every address, so each
 sample of mpmcg's own code is resolved (addr2line -i) to the innermost function that is
 a phase of a step: `Solver::domain_weights`, `averaged_force`, `grid_velocity`,
-`averaged_velocity_gradient`, `relocate`, `sort`, `remap`,
+`averaged_velocity_gradient`, `relocate`, the tile pass (`wrap_and_flag`, the
+locators, `touch_runs`, `run_nodes`), `sort`, `remap`,
 `kernel::scatter_slabs`, `SlabOrder::build`, `kernel::gather`, `kernel::update_stress`
 (the material's stress, a function of its own, is shown apart), and the run loop's
 `totals` (history rows) and rescue copy. Phases that run twice in a step (the grid
 updates of MUSL, the scatters of USF or of MUSL with XPIC) are told apart by order: a
-scatter after a gather, a remap or a stress update is the second one. Samples outside mpmcg (libm's
+scatter after a gather, a remap or a stress update is the second one (a lone sample
+does not count; on small scenes, a few samples per step, add the two). Samples outside mpmcg (libm's
 `log`, `memset`, `memmove`, the kernel) count with the phase of the mpmcg sample next
 to them in time (the previous one), and so does a helper that is not inlined (in 3D,
 `Geom::locate`); `memset` is the scatter's clear of the node records, `memmove` outside
