@@ -241,21 +241,7 @@ impl<const D: usize, const N: usize, const B: usize> Batch<D, N, B> {
         for l in 0..B {
             vol[l] = vs[l] * j[l];
         }
-        // Every lane has J > 0 and a finite volume and F, tested with numbers, not
-        // bools: `0 x` is ±0 for a finite x and NaN otherwise, and a lane with
-        // J <= 0 (or NaN) adds a NaN, so the lanes' sum is ±0 exactly when all pass.
-        // (Per-lane bools went through the mask registers bit by bit: a dozen
-        // moves and shifts per lane.)
-        let mut bad = [0.0; B];
-        for l in 0..B {
-            bad[l] = vol[l] * 0.0 + if j[l] > 0.0 { 0.0 } else { f64::NAN };
-            for row in &fnew {
-                for x in row {
-                    bad[l] += x[l] * 0.0;
-                }
-            }
-        }
-        let ok = bad.iter().sum::<f64>() == 0.0;
+        let ok = all_physical(&j, &vol, &fnew);
         *vs = vol;
         for l in 0..B {
             for i in 0..D {
@@ -287,6 +273,28 @@ impl<const D: usize, const N: usize, const B: usize> Batch<D, N, B> {
         }
         u
     }
+}
+
+/// Whether every lane has J > 0 and a finite volume and `F`, tested with numbers, not
+/// bools: `0·x` is ±0 for a finite x and NaN otherwise, and a lane with J <= 0 (or
+/// NaN) adds a NaN, so the lanes' sum is ±0 exactly when all pass. (Per-lane bools
+/// went through the mask registers bit by bit: a dozen moves and shifts per lane.)
+#[inline(always)]
+fn all_physical<const D: usize, const B: usize>(
+    j: &[f64; B],
+    vol: &[f64; B],
+    f: &[[[f64; B]; D]; D],
+) -> bool {
+    let mut bad = [0.0; B];
+    for l in 0..B {
+        bad[l] = vol[l] * 0.0 + if j[l] > 0.0 { 0.0 } else { f64::NAN };
+        for row in f {
+            for x in row {
+                bad[l] += x[l] * 0.0;
+            }
+        }
+    }
+    bad.iter().sum::<f64>() == 0.0
 }
 
 /// `x += u dt` for particles `r` of `s`.
