@@ -779,18 +779,16 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
             }
             starts |= u32::from(differs) << l;
         }
-        if starts != 0 {
-            while starts != 0 {
-                let l = starts.trailing_zeros() as usize;
-                starts &= starts - 1;
-                self.runs.push(CellRun {
-                    first: (self.base + p0 + l) as u32,
-                    node: 0,
-                    cell: std::array::from_fn(|a| c[a][l]),
-                });
-            }
-            self.prev = std::array::from_fn(|a| c[a][L - 1]);
+        while starts != 0 {
+            let l = starts.trailing_zeros() as usize;
+            starts &= starts - 1;
+            self.runs.push(CellRun {
+                first: (self.base + p0 + l) as u32,
+                node: 0,
+                cell: std::array::from_fn(|a| c[a][l]),
+            });
         }
+        self.prev = std::array::from_fn(|a| c[a][L - 1]);
         true
     }
 
