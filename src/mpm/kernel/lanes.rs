@@ -1,5 +1,5 @@
 //! Particle loops eight particles of a run at a time ([`LANES`], or [`HALF`] where runs
-//! are shorter): the stress pass and the gather in 2D, MUSL's remap in 2D and 3D.
+//! are shorter): the stress pass, the gather and MUSL's remap, in 2D and 3D.
 //!
 //! Why: one particle's update is a chain of small matrix products (weights, velocity
 //! gradient, `F ← (I + L dt) F`, the move) that the compiler can only vectorise
@@ -30,12 +30,16 @@ pub const HALF: usize = 4;
 /// Whether the batch path can take this pass at all: hat functions, and particles
 /// whose stress is formed from `F` where it is used (neo-Hookean), so that
 /// deforming is `F` and the volume only, with no material update per particle.
-/// Only in 2D: in 3D a particle's lanes are three times as many numbers (24 shape
-/// gradient terms, nine-entry matrices), and eight lanes of them spilled to the
-/// stack (the 3D block drop 1.25× slower than one by one; four lanes, no faster).
+/// In 3D a batch's numbers do not fit the registers (24 shape-gradient terms and
+/// nine-entry matrices per lane) and part of them live on the stack, but the stack is
+/// L1: the 3D block drop's stress pass took 0.56× the time of one particle at a time
+/// (perf samples).
+/// (Only with the build's `prefer-no-gather` and `prefer-no-scatter`, .cargo/config.toml:
+/// without them LLVM vectorised the three-long loops over the axes with gathers and
+/// scatters, and the lanes were 1.3× slower than one by one.)
 #[inline(always)]
 pub fn applies<const D: usize>(gimp: bool, s: &Slices<'_, D>) -> bool {
-    D == 2 && !gimp && s.parts.stress.is_empty() && !s.parts.def_grad.is_empty()
+    !gimp && s.parts.stress.is_empty() && !s.parts.def_grad.is_empty()
 }
 
 /// A particle pass the lanes take in batches: the stress pass or the gather.
@@ -599,24 +603,29 @@ mod tests {
     use decomposition::splitmix::Rng;
     use decomposition::Tiles;
 
-    /// Eight particles of one cell with random local coordinates (among them ξ = 0,
-    /// where α = 0, and ξ = ½ on both axes, where α = 1), deformation gradients,
-    /// volumes on both sides of J = 1, velocities and positions; one lane with a
-    /// non-finite F.
-    fn particles(rng: &mut Rng, nan_lane: Option<usize>) -> (Particles<2>, Vec<[f64; 2]>) {
-        let mut p = Particles::<2>::default();
+    /// Eight particles of one cell with random local coordinates (among them ξ = 0
+    /// on the first axis, where α = 0, and ξ = ½ on all axes, where α = 1),
+    /// deformation gradients, volumes on both sides of J = 1, velocities and
+    /// positions; one lane with a non-finite F.
+    fn particles<const D: usize>(
+        rng: &mut Rng,
+        nan_lane: Option<usize>,
+    ) -> (Particles<D>, Vec<[f64; D]>) {
+        let mut p = Particles::<D>::default();
         let mut xi = Vec::new();
         for l in 0..LANES {
-            let c = match l {
-                0 => [0.0, rng.f64()],
-                1 => [0.5, 0.5],
-                _ => [rng.f64(), rng.f64()],
-            };
+            let mut c = [0.5; D];
+            if l != 1 {
+                c = std::array::from_fn(|_| rng.f64());
+            }
+            if l == 0 {
+                c[0] = 0.0;
+            }
             xi.push(c);
-            p.x.push(Vector::<2>::new(0.3 + 0.1 * c[0], 0.6 + 0.1 * c[1]));
-            p.v.push(Vector::<2>::new(rng.f64() - 0.5, rng.f64() - 0.5));
+            p.x.push(Vector::<D>::from_fn(|a, _| [0.3, 0.6, 0.4][a] + 0.1 * c[a]));
+            p.v.push(Vector::<D>::from_fn(|_, _| rng.f64() - 0.5));
             let mut f =
-                Mat::<2>::from_fn(|i, k| f64::from(u8::from(i == k)) + 0.2 * (rng.f64() - 0.5));
+                Mat::<D>::from_fn(|i, k| f64::from(u8::from(i == k)) + 0.2 * (rng.f64() - 0.5));
             if nan_lane == Some(l) {
                 f[(1, 0)] = f64::NAN;
             }
@@ -630,19 +639,19 @@ mod tests {
         (p, xi)
     }
 
-    /// A material, a grid and the context of a 2D pass with gradient `alpha`.
-    struct Setup {
-        geom: Geom<2>,
-        tiles: Tiles<2>,
+    /// A material, a grid and the context of a pass with gradient `alpha`.
+    struct Setup<const D: usize> {
+        geom: Geom<D>,
+        tiles: Tiles<D>,
         materials: [Material; 1],
     }
 
-    impl Setup {
+    impl<const D: usize> Setup<D> {
         fn new() -> Self {
             let (lambda, mu) = lame(1e3, 0.2);
             Setup {
-                geom: Geom::<2>::new([0.0; 2], [1.0; 2], [10, 10], [false; 2]),
-                tiles: Tiles::<2>::new([12, 12], [1, 1]),
+                geom: Geom::<D>::new([0.0; D], [1.0; D], [10; D], [false; D]),
+                tiles: Tiles::<D>::new([12; D], [1; D]),
                 materials: [Material::NeoHookean(NeoHookean {
                     lambda,
                     mu,
@@ -651,17 +660,17 @@ mod tests {
             }
         }
 
-        fn ctx(&self, alpha: Alpha) -> Ctx<'_, 2> {
+        fn ctx(&self, alpha: Alpha) -> Ctx<'_, D> {
             Ctx {
                 geom: &self.geom,
-                node_lo: [-1, -1],
+                node_lo: [-1; D],
                 tiles: &self.tiles,
                 gimp: false,
                 alpha,
                 materials: &self.materials,
-                gravity: Vector::<2>::new(0.0, -9.81),
+                gravity: Vector::<D>::from_fn(|a, _| if a == 1 { -9.81 } else { 0.0 }),
                 body_force: None,
-                faces: [[Face::Slip; 2]; 2],
+                faces: [[Face::Slip; 2]; D],
                 walls: false,
             }
         }
@@ -689,15 +698,19 @@ mod tests {
 
     /// Random node data of a run, velocities scaled by `steep`, with the
     /// differences of slot `slot`.
-    fn nodes(rng: &mut Rng, steep: f64, slot: usize) -> NodeData<2, 4> {
-        let mut nd = NodeData::<2, 4>::new();
-        for a in 0..2 {
-            for n in 0..4 {
+    fn nodes<const D: usize, const N: usize>(
+        rng: &mut Rng,
+        steep: f64,
+        slot: usize,
+    ) -> NodeData<D, N> {
+        let mut nd = NodeData::<D, N>::new();
+        for a in 0..D {
+            for n in 0..N {
                 for slot in 0..2 {
                     nd.v[slot][a][n] = steep * (rng.f64() - 0.5);
                 }
                 nd.vb[a][n] = rng.f64() - 0.5;
-                for b in 0..2 {
+                for b in 0..D {
                     nd.lb[a][b][n] = steep * (rng.f64() - 0.5);
                 }
             }
@@ -707,11 +720,11 @@ mod tests {
     }
 
     /// Both particle sets (and kept increments) hold the same bits.
-    fn same_bits(
-        a: &Particles<2>,
-        b: &Particles<2>,
-        dx: &[Vector<2>],
-        dx_b: &[Vector<2>],
+    fn same_bits<const D: usize>(
+        a: &Particles<D>,
+        b: &Particles<D>,
+        dx: &[Vector<D>],
+        dx_b: &[Vector<D>],
         what: &str,
     ) {
         for p in 0..LANES {
@@ -736,8 +749,18 @@ mod tests {
     /// two-step schemes, each way of moving, and the [`VARIANTS`].
     #[test]
     fn lanes_match_the_scalar_pass() {
-        let setup = Setup::new();
-        let mut rng = Rng::new(11);
+        stress_lanes_match::<2, 4>(11);
+    }
+
+    /// [`lanes_match_the_scalar_pass`] in 3D.
+    #[test]
+    fn lanes_match_the_scalar_pass_in_3d() {
+        stress_lanes_match::<3, 8>(13);
+    }
+
+    fn stress_lanes_match<const D: usize, const N: usize>(seed: u64) {
+        let setup = Setup::<D>::new();
+        let mut rng = Rng::new(seed);
         let (mut cases, mut inverted) = (0, 0);
         for alpha in ALPHAS {
             let ctx = setup.ctx(alpha);
@@ -749,7 +772,7 @@ mod tests {
             ] {
                 for (steep, max0, nan_lane, width) in VARIANTS {
                     let slot = rng.below(2);
-                    let nd = nodes(&mut rng, steep, slot);
+                    let nd = nodes::<D, N>(&mut rng, steep, slot);
                     let m = StressMode {
                         slot,
                         dt: 1e-3,
@@ -758,10 +781,10 @@ mod tests {
                         moves_kept,
                         speed: true,
                     };
-                    let (mut a, xi) = particles(&mut rng, nan_lane);
+                    let (mut a, xi) = particles::<D>(&mut rng, nan_lane);
                     let mut b = a.clone();
-                    let mut dx: Vec<Vector<2>> = (0..LANES)
-                        .map(|_| Vector::<2>::new(rng.f64(), rng.f64()) * 1e-3)
+                    let mut dx: Vec<Vector<D>> = (0..LANES)
+                        .map(|_| Vector::<D>::from_fn(|_, _| rng.f64()) * 1e-3)
                         .collect();
                     let mut dx_b = dx.clone();
                     let tile = vec![0u32; LANES];
@@ -778,8 +801,8 @@ mod tests {
                         ..Tally::ZERO
                     };
                     for p in 0..width {
-                        let (k, _, _): (Kern<2, 4>, _, _) =
-                            ctx.weights::<2, 4>(&sa.parts.x[p], None, &xi[p]);
+                        let (k, _, _): (Kern<D, N>, _, _) =
+                            ctx.weights::<2, N>(&sa.parts.x[p], None, &xi[p]);
                         stress_one(&ctx, &mut sa, p, &k, &nd, &m, &mut ta);
                     }
                     // The signal speed, particle by particle after the pass.
@@ -794,11 +817,11 @@ mod tests {
                     };
                     assert!(applies(false, &sb));
                     let (ok, top) = if width == LANES {
-                        let ok = deform_and_move::<2, 4, LANES>(&ctx, &mut sb, 0, &nd, &m);
-                        (ok, raise_speed::<2, LANES>(&ctx, &sb, 0, max0))
+                        let ok = deform_and_move::<D, N, LANES>(&ctx, &mut sb, 0, &nd, &m);
+                        (ok, raise_speed::<D, LANES>(&ctx, &sb, 0, max0))
                     } else {
-                        let ok = deform_and_move::<2, 4, HALF>(&ctx, &mut sb, 0, &nd, &m);
-                        (ok, raise_speed::<2, HALF>(&ctx, &sb, 0, max0))
+                        let ok = deform_and_move::<D, N, HALF>(&ctx, &mut sb, 0, &nd, &m);
+                        (ok, raise_speed::<D, HALF>(&ctx, &sb, 0, max0))
                     };
                     let what = format!(
                         "{width} lanes, {alpha:?}, two-step {two_step}, moves {moves}/{moves_kept}, steep {steep}, max {max0}, NaN {nan_lane:?}"
@@ -827,8 +850,18 @@ mod tests {
     /// the increment, FLIP, PIC and a blend, and the [`VARIANTS`].
     #[test]
     fn gather_lanes_match_the_scalar_gather() {
-        let setup = Setup::new();
-        let mut rng = Rng::new(12);
+        gather_lanes_match::<2, 4>(12);
+    }
+
+    /// [`gather_lanes_match_the_scalar_gather`] in 3D.
+    #[test]
+    fn gather_lanes_match_the_scalar_gather_in_3d() {
+        gather_lanes_match::<3, 8>(14);
+    }
+
+    fn gather_lanes_match<const D: usize, const N: usize>(seed: u64) {
+        let setup = Setup::<D>::new();
+        let mut rng = Rng::new(seed);
         let (mut cases, mut inverted) = (0, 0);
         for alpha in ALPHAS {
             let ctx = setup.ctx(alpha);
@@ -840,7 +873,7 @@ mod tests {
                 (false, false, true, false, 0.5),
             ] {
                 for (steep, max0, nan_lane, width) in VARIANTS {
-                    let nd = nodes(&mut rng, steep, UPDATED);
+                    let nd = nodes::<D, N>(&mut rng, steep, UPDATED);
                     let m = GatherMode {
                         dt: 1e-3,
                         flip,
@@ -850,14 +883,18 @@ mod tests {
                         recon,
                         speed: true,
                     };
-                    let (mut a, xi) = particles(&mut rng, nan_lane);
+                    let (mut a, xi) = particles::<D>(&mut rng, nan_lane);
                     let mut b = a.clone();
-                    let mut dx = vec![Vector::<2>::zeros(); LANES];
+                    let mut dx = vec![Vector::<D>::zeros(); LANES];
                     let mut dx_b = dx.clone();
                     // A kept body force in half the cases, gravity alone in the others.
-                    let accel: Vec<Vector<2>> = if cases % 2 == 0 {
+                    let accel: Vec<Vector<D>> = if cases % 2 == 0 {
                         (0..LANES)
-                            .map(|_| Vector::<2>::new(rng.f64(), rng.f64() - 10.0))
+                            .map(|_| {
+                                Vector::<D>::from_fn(|a, _| {
+                                    rng.f64() - if a == 1 { 10.0 } else { 0.0 }
+                                })
+                            })
                             .collect()
                     } else {
                         Vec::new()
@@ -876,8 +913,8 @@ mod tests {
                         ..Tally::ZERO
                     };
                     for p in 0..width {
-                        let (k, _, _): (Kern<2, 4>, _, _) =
-                            ctx.weights::<2, 4>(&sa.parts.x[p], None, &xi[p]);
+                        let (k, _, _): (Kern<D, N>, _, _) =
+                            ctx.weights::<2, N>(&sa.parts.x[p], None, &xi[p]);
                         gather_one(&ctx, &mut sa, p, &k, &nd, None, &m, &mut ta);
                     }
                     ta.max_speed = (0..width).fold(ta.max_speed, |v, p| speed_one(&ctx, &sa, p, v));
@@ -890,11 +927,11 @@ mod tests {
                     };
                     let mut work = 0.25;
                     let (ok, top) = if width == LANES {
-                        let ok = gather::<2, 4, LANES>(&ctx, &mut sb, 0, &nd, &m, &mut work);
-                        (ok, raise_speed::<2, LANES>(&ctx, &sb, 0, max0))
+                        let ok = gather::<D, N, LANES>(&ctx, &mut sb, 0, &nd, &m, &mut work);
+                        (ok, raise_speed::<D, LANES>(&ctx, &sb, 0, max0))
                     } else {
-                        let ok = gather::<2, 4, HALF>(&ctx, &mut sb, 0, &nd, &m, &mut work);
-                        (ok, raise_speed::<2, HALF>(&ctx, &sb, 0, max0))
+                        let ok = gather::<D, N, HALF>(&ctx, &mut sb, 0, &nd, &m, &mut work);
+                        (ok, raise_speed::<D, HALF>(&ctx, &sb, 0, max0))
                     };
                     let what = format!(
                         "{width} lanes, {alpha:?}, two-step {two_step}, recon {recon}, stress {stress}, move now {move_now}, flip {flip}, steep {steep}, max {max0}, NaN {nan_lane:?}"
