@@ -348,8 +348,8 @@ impl<const D: usize> NodeView<'_, D> {
     /// `0..PAD`): the tile's nodes and the layer one node wide around them, node
     /// `p − 1` of the tile, in the zero tile where that tile is not active. A node
     /// stencil reads what it needs of its neighbours into tile-local arrays once per
-    /// tile instead of looking every neighbour up for every node ([`NodeView::pad_nodes`],
-    /// [`NodeView::pad_cells`]). Each node's result depends only on what it reads, so
+    /// tile instead of looking every neighbour up for every node ([`NodeView::pad_rows`],
+    /// [`NodeView::row_cells`]). Each node's result depends only on what it reads, so
     /// it is the same on any number of threads.
     fn par_tiles<const NP: usize>(
         &self,
@@ -407,73 +407,121 @@ impl<const D: usize> NodeView<'_, D> {
         }
     }
 
-    /// [`NodeView::cells_around`] in a tile's padded arrays: for the node at padded
-    /// index `p` (local node `c`), each cell of non-zero weight in `cw` (cell weights
-    /// by the padded index of the cell's lower corner) with the node's corner number,
-    /// the padded index of the cell's lower corner and `w_c`, in the same order. The
-    /// cell's corner `r` is at `cell + pad_off::<D>(r)`.
+    /// For every row of [`TILE`] nodes along the first axis of tile `slot` that holds
+    /// an owned node: `f(o0, p0, own, cs)`, with `o0` the tile offset of the row's
+    /// first node, `p0` its index in the tile's padded arrays ([`NodeView::par_tiles`];
+    /// the row's node `x` is at `p0 + x`), which of the row's nodes are owned, and their
+    /// local coordinates. The node stencils work a row at a time, one node per lane.
     #[inline]
-    fn pad_cells<const NP: usize>(
+    fn pad_rows(
         &self,
-        cw: &[f64; NP],
-        c: &[usize; D],
-        p: usize,
-        mut f: impl FnMut(usize, usize, f64),
+        slot: usize,
+        mut f: impl FnMut(usize, usize, &[bool; TILE], &[[usize; D]; TILE]),
     ) {
-        for q in 0..(1 << D) {
-            if (0..D).any(|a| c[a] < (q >> a) & 1) {
-                continue; // no cell there: bounded grid face
+        for row in 0..TILE.pow(D as u32 - 1) {
+            let o0 = row * TILE;
+            let mut own = [false; TILE];
+            let mut cs = [[0usize; D]; TILE];
+            for x in 0..TILE {
+                if let Some(c) = self.tiles.local(slot, o0 + x) {
+                    own[x] = (0..D).all(|a| c[a] >= self.own_lo[a] && c[a] < self.own_hi[a]);
+                    cs[x] = c;
+                }
             }
-            let cell = p - pad_off::<D>(q);
-            let w = cw[cell];
-            if w > 0.0 {
-                f(q, cell, w);
+            if own.iter().any(|&o| o) {
+                let p0 = (0..D)
+                    .map(|a| (((o0 >> (TILE_LOG * a as u32)) & (TILE - 1)) + 1) * PAD.pow(a as u32))
+                    .sum();
+                f(o0, p0, &own, &cs);
             }
         }
     }
 
+    /// The cells around a row of [`pad_rows`](NodeView::pad_rows), one corner `q` at a
+    /// time (corners in order, as every node loop visits them): the
+    /// padded index of the lower corner of the cell whose corner `q` is the row's
+    /// first node (node `x`'s is `x` further on), and per node that cell's weight from
+    /// `cw` (cell weights by padded index), 0 where there is no cell (below a bounded
+    /// grid face). A stencil adds a cell's terms where its weight is positive.
+    #[inline(always)]
+    fn row_cells<const NP: usize>(
+        cw: &[f64; NP],
+        cs: &[[usize; D]; TILE],
+        p0: usize,
+        q: usize,
+    ) -> (usize, [f64; TILE]) {
+        let cell = p0 - pad_off::<D>(q);
+        let mut w = [0.0; TILE];
+        for x in 0..TILE {
+            if (0..D).all(|a| cs[x][a] >= (q >> a) & 1) {
+                w[x] = cw[cell + x];
+            }
+        }
+        (cell, w)
+    }
+
     /// The node → node force of [`Solver::averaged_force`] on every owned node, from
     /// `sigma` (σ̄ per node, [`AvgRecord`]) into the force slots of `scat`.
+    ///
+    /// A row of [`TILE`] nodes along the first axis at a time, one node per lane: the
+    /// row's neighbours are side by side in the padded arrays, so every product below
+    /// is one vector operation over the row. Each lane does its node's operations in
+    /// the node's order (`t` per cell, then `f += w_c t` over the cells in order), and a
+    /// cell the one-node loop skips (no cell there, or weight 0) adds an exact zero to
+    /// `f`, which never holds −0 (it starts at +0, and a sum of finite numbers is −0
+    /// only if both are): the same bits as one node at a time.
     fn force_tiles<const NP: usize>(&self, scat: &mut [f64], sw: usize, sigma: &[f64]) {
         let (dd, aw) = (D * D, AvgRecord::<D>::WIDTH);
         let cell_k = self.cell_k;
         self.par_tiles::<NP>(scat, sw, |slot, pad, recs| {
-            // Filled in place: `array::from_fn` built these in a temporary and copied
-            // it (a `memcpy` of 15 kB per tile in 3D), and `copy_from_slice` of a
-            // record was a `memcpy` call per padded node.
-            let mut sp = [[0.0; 9]; NP];
+            // Filled in place, component by component: a row's lanes are the
+            // neighbouring entries of one component. (`array::from_fn` built these in
+            // a temporary and copied it, a `memcpy` of 15 kB per tile in 3D.)
+            let mut sp = [[0.0; NP]; 9];
             let mut cw = [0.0; NP];
             for k in 0..NP {
                 let at = pad[k] * aw;
-                for (d, &x) in sp[k][..dd].iter_mut().zip(&sigma[at..at + dd]) {
-                    *d = x;
+                for d in 0..dd {
+                    sp[d][k] = sigma[at + d];
                 }
                 cw[k] = self.cell_w[pad[k]];
             }
-            self.pad_nodes(slot, recs, sw, |_, ci, pi, rec| {
-                let mut f = [0.0; D];
-                self.pad_cells(&cw, &ci, pi, |q, cell, wc| {
+            self.pad_rows(slot, |o0, p0, own, cs| {
+                let mut f = [[0.0; TILE]; D];
+                for q in 0..(1 << D) {
+                    let (cell, w) = Self::row_cells(&cw, cs, p0, q);
                     // `∫_c S_r ∂_b S_q` does not depend on `r_b` (a hat's derivative
                     // along b is constant across the cell): the corners r and r + e_b
                     // share it, so their stresses are added first, half the products.
-                    let mut t = [0.0; D];
+                    let mut t = [[0.0; TILE]; D];
                     for b in 0..D {
                         for i in 0..(1 << (D - 1)) {
                             let (r, r1) = kernel::pair(b, i);
                             let k = cell_k[r][q][b];
-                            let s0 = &sp[cell + pad_off::<D>(r)];
-                            let s1 = &sp[cell + pad_off::<D>(r1)];
+                            let (c0, c1) = (cell + pad_off::<D>(r), cell + pad_off::<D>(r1));
                             for a in 0..D {
-                                t[a] += k * (s0[a * D + b] + s1[a * D + b]);
+                                let s = &sp[a * D + b];
+                                let (s0, s1) = (&s[c0..c0 + TILE], &s[c1..c1 + TILE]);
+                                for x in 0..TILE {
+                                    t[a][x] += k * (s0[x] + s1[x]);
+                                }
                             }
                         }
                     }
                     for a in 0..D {
-                        f[a] += wc * t[a];
+                        for x in 0..TILE {
+                            let add = w[x] * t[a][x];
+                            f[a][x] += if w[x] > 0.0 { add } else { 0.0 };
+                        }
                     }
-                });
-                for a in 0..D {
-                    rec[NodeRecord::<D>::force(a)] -= f[a];
+                }
+                for x in 0..TILE {
+                    if own[x] {
+                        let rec = &mut recs[(o0 + x) * sw..(o0 + x + 1) * sw];
+                        for a in 0..D {
+                            rec[NodeRecord::<D>::force(a)] -= f[a][x];
+                        }
+                    }
                 }
             });
         });
@@ -491,74 +539,98 @@ impl<const D: usize> NodeView<'_, D> {
         let (dd, aw) = (D * D, AvgRecord::<D>::WIDTH);
         let (cell_k, cell_m, cell_md) = (self.cell_k, self.cell_m, self.cell_md);
         self.par_tiles::<NP>(avg, aw, |tile, pad, recs| {
-            // Filled in place (see `force_tiles`).
-            let mut vp = [[0.0; D]; NP];
+            // Filled in place, component by component (see `force_tiles`).
+            let mut vp = [[0.0; NP]; D];
             let mut cw = [0.0; NP];
             for k in 0..NP {
                 let at = VelRecord::<D>::at(pad[k], slot);
-                for (d, &x) in vp[k].iter_mut().zip(&grid_vel[at..at + D]) {
-                    *d = x;
+                for a in 0..D {
+                    vp[a][k] = grid_vel[at + a];
                 }
                 cw[k] = self.cell_w[pad[k]];
             }
-            self.pad_nodes(tile, recs, aw, |j, cj, pj, rec| {
-                let vol = node_vol[j];
-                if vol <= 0.0 {
-                    rec.iter_mut().for_each(|x| *x = 0.0);
-                    return;
-                }
+            // A row of TILE nodes at a time, one per lane, as in `force_tiles`: each
+            // lane does its node's operations in its order, and a skipped cell adds an
+            // exact zero to sums that never hold −0, so the same bits.
+            self.pad_rows(tile, |o0, p0, own, cs| {
                 // One visit of the cells: with m_ji = w_c ∫_c S_j S_i dv,
                 // Σ m_ji (v_i + L̄ (x_j − x_i)) = Σ m_ji v_i + L̄ Σ m_ji (x_j − x_i), and
                 // the last sum is Σ_c w_c `cell_md` of the node's corner: it needs no
                 // velocity, so v̄ needs no second visit once L̄ is known.
-                let mut l = [0.0; 9];
-                let mut mv = [0.0; 3];
-                let mut md = [0.0; 3];
-                self.pad_cells(&cw, &cj, pj, |q, cell, wc| {
-                    let mut mc = [0.0; D];
+                let mut l = [[0.0; TILE]; 9];
+                let mut mv = [[0.0; TILE]; D];
+                let mut md = [[0.0; TILE]; D];
+                for q in 0..(1 << D) {
+                    let (cell, w) = Self::row_cells(&cw, cs, p0, q);
+                    let mut mc = [[0.0; TILE]; D];
                     for r in 0..(1 << D) {
-                        let (m, v) = (cell_m[q][r], &vp[cell + pad_off::<D>(r)]);
+                        let (m, at) = (cell_m[q][r], cell + pad_off::<D>(r));
                         for a in 0..D {
-                            mc[a] += m * v[a];
+                            let v = &vp[a][at..at + TILE];
+                            for x in 0..TILE {
+                                mc[a][x] += m * v[x];
+                            }
                         }
                     }
                     // `∫_c S_q ∂_b S_r` changes only its sign with `r_b`: the corners
                     // r and r + e_b enter as the velocity's difference along b.
-                    let mut lc = [0.0; 9];
+                    let mut lc = [[0.0; TILE]; 9];
                     for b in 0..D {
                         for i in 0..(1 << (D - 1)) {
                             let (r, r1) = kernel::pair(b, i);
                             let k = cell_k[q][r1][b];
-                            let v0 = &vp[cell + pad_off::<D>(r)];
-                            let v1 = &vp[cell + pad_off::<D>(r1)];
+                            let (c0, c1) = (cell + pad_off::<D>(r), cell + pad_off::<D>(r1));
                             for a in 0..D {
-                                lc[a * D + b] += k * (v1[a] - v0[a]);
+                                let (v0, v1) = (&vp[a][c0..c0 + TILE], &vp[a][c1..c1 + TILE]);
+                                for x in 0..TILE {
+                                    lc[a * D + b][x] += k * (v1[x] - v0[x]);
+                                }
                             }
                         }
                     }
+                    let keep: [bool; TILE] = std::array::from_fn(|x| w[x] > 0.0);
                     for a in 0..D {
-                        mv[a] += wc * mc[a];
-                        md[a] += wc * cell_md[q][a];
+                        for x in 0..TILE {
+                            let add = w[x] * mc[a][x];
+                            mv[a][x] += if keep[x] { add } else { 0.0 };
+                            let add = w[x] * cell_md[q][a];
+                            md[a][x] += if keep[x] { add } else { 0.0 };
+                        }
                         for b in 0..D {
-                            l[a * D + b] += wc * lc[a * D + b];
+                            for x in 0..TILE {
+                                let add = w[x] * lc[a * D + b][x];
+                                l[a * D + b][x] += if keep[x] { add } else { 0.0 };
+                            }
                         }
                     }
-                });
-                for c in 0..dd {
-                    l[c] /= vol;
                 }
-                let mut vb = [0.0; 6];
-                for a in 0..D {
-                    let mut u = mv[a];
-                    for b in 0..D {
-                        u += l[a * D + b] * md[b];
+                for x in 0..TILE {
+                    if !own[x] {
+                        continue;
                     }
-                    vb[a] = u / vol;
-                    vb[D + a] = vb[a];
+                    let rec = &mut recs[(o0 + x) * aw..(o0 + x + 1) * aw];
+                    let vol = node_vol[tile * self.tiles.tile_nodes() + o0 + x];
+                    if vol <= 0.0 {
+                        rec.iter_mut().for_each(|x| *x = 0.0);
+                        continue;
+                    }
+                    let mut ln = [0.0; 9];
+                    for c in 0..dd {
+                        ln[c] = l[c][x] / vol;
+                    }
+                    let mut vb = [0.0; 6];
+                    for a in 0..D {
+                        let mut u = mv[a][x];
+                        for b in 0..D {
+                            u += ln[a * D + b] * md[b][x];
+                        }
+                        vb[a] = u / vol;
+                        vb[D + a] = vb[a];
+                    }
+                    self.apply_bc(cs[x], &mut vb[..2 * D]);
+                    rec[..dd].copy_from_slice(&ln[..dd]);
+                    rec[dd..].copy_from_slice(&vb[..D]);
                 }
-                self.apply_bc(cj, &mut vb[..2 * D]);
-                rec[..dd].copy_from_slice(&l[..dd]);
-                rec[dd..].copy_from_slice(&vb[..D]);
             });
         });
     }
@@ -1514,7 +1586,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         let mut vol = std::mem::take(&mut self.node_vol);
         let (nodes, cell_w) = (self.nodes(), &self.cell_w);
         nodes.par_owned(&mut vol, 1, |n, c, vol| {
-            // The cells around the node (as `cells_around` visits them).
+            // The cells around the node, corners in order (as `NodeView::row_cells`).
             let mut cells = [0; 8];
             nodes.tiles.octant(n, false, &mut cells);
             let mut v = 0.0;
