@@ -502,7 +502,7 @@ pub(crate) struct NodeData<const D: usize, const N: usize> {
     /// XPIC's field per node (`D` numbers a node), if any.
     pub x: [[f64; N]; D],
     /// Hat functions ([`hats`]): the velocity differences across the cell of the slot
-    /// [`NodeData::load_differences`] was given, `dv[a][b][m] = v_a(upper) − v_a(lower)`
+    /// [`NodeData::load_differences_from`] was given, `dv[a][b][m] = v_a(upper) − v_a(lower)`
     /// over the `m`-th pair of nodes along axis `b` ([`pair`]); `m < N / 2`.
     pub dv: [[[f64; N]; D]; D],
 }
@@ -532,11 +532,29 @@ impl<const D: usize, const N: usize> NodeData<D, N> {
         }
     }
 
-    /// With hat functions, [`NodeData::dv`] of velocity slot `slot` (after
-    /// [`NodeData::load`]): once per run, where each particle's velocity gradient
-    /// then needs half the products ([`velocity_gradient_at`]).
-    #[inline(always)]
+    /// [`NodeData::load_differences_from`] taken from [`NodeData::v`] (for tests, which
+    /// set `v` themselves).
+    #[cfg(test)]
     pub fn load_differences(&mut self, slot: usize) {
+        let v = self.v[slot];
+        self.differences(|n, a| v[a][n]);
+    }
+
+    /// With hat functions, [`NodeData::dv`] of velocity slot `slot`: once per run,
+    /// where each particle's velocity gradient then needs half the products
+    /// ([`velocity_gradient_at`]). Read from the velocity records `vel` of nodes `idx`
+    /// (as [`NodeData::load`] reads them), not from [`NodeData::v`]. Read back from `v`,
+    /// the node values that `load` had just stored one by one came out as whole vectors,
+    /// which cannot take their bytes from those stores in flight and wait for them to
+    /// complete (a fifth of the 3D stress pass's node loading waited there).
+    #[inline(always)]
+    pub fn load_differences_from(&mut self, idx: &[usize; N], vel: &[f64], slot: usize) {
+        self.differences(|n, a| vel[VelRecord::<D>::at(idx[n], slot) + a]);
+    }
+
+    /// `dv[a][b][m] = v(hi, a) − v(lo, a)` over the pairs ([`pair`]), with hat functions.
+    #[inline(always)]
+    fn differences(&mut self, v: impl Fn(usize, usize) -> f64) {
         if !hats::<D, N>() {
             return;
         }
@@ -544,7 +562,7 @@ impl<const D: usize, const N: usize> NodeData<D, N> {
             for b in 0..D {
                 for m in 0..N / 2 {
                     let (lo, hi) = pair(b, m);
-                    self.dv[a][b][m] = self.v[slot][a][hi] - self.v[slot][a][lo];
+                    self.dv[a][b][m] = v(hi, a) - v(lo, a);
                 }
             }
         }
@@ -932,7 +950,7 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
         let load = |nd: &mut NodeData<D, N>, idx: &[usize; N]| {
             nd.load(idx, vel, avg, xpic);
             if m.stress {
-                nd.load_differences(UPDATED);
+                nd.load_differences_from(idx, vel, UPDATED);
             }
         };
         by_runs::<D, NA, N>(
@@ -1165,7 +1183,7 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
         let batches = lanes::applies(ctx.gimp, &s);
         let load = |nd: &mut NodeData<D, N>, idx: &[usize; N]| {
             nd.load(idx, vel, avg, None);
-            nd.load_differences(m.slot);
+            nd.load_differences_from(idx, vel, m.slot);
         };
         by_runs::<D, NA, N>(
             ctx,
