@@ -1795,12 +1795,19 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
         type R<const D: usize> = NodeRecord<D>;
         let sw = m.sw;
         if m.forces && hats::<D, N>() {
+            // Each node is in one pair along each axis: it gets its pair's sum, plus at
+            // the lower node and minus at the upper (`x + (−p)` is `x − p` to the bit),
+            // spread over all nodes first so that the additions are whole vectors.
             for a in 0..D {
                 for b in 0..D {
-                    for m in 0..N / 2 {
-                        let (lo, hi) = pair(b, m);
-                        self.force[a][lo] += self.pairs[a][b][m];
-                        self.force[a][hi] -= self.pairs[a][b][m];
+                    let p = &self.pairs[a][b];
+                    let mut e = [0.0; N];
+                    for (n, e) in e.iter_mut().enumerate() {
+                        let m = ((n >> (b + 1)) << b) | (n & ((1 << b) - 1));
+                        *e = if (n >> b) & 1 == 0 { p[m] } else { -p[m] };
+                    }
+                    for n in 0..N {
+                        self.force[a][n] += e[n];
                     }
                 }
             }
