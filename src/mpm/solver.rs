@@ -2624,6 +2624,86 @@ particles_per_cell = 3
             }
         }
     }
+
+    /// MPMCG's node stencils in 3D (`force_tiles`, `gradient_tiles`: a row of four
+    /// nodes at a time) on the spinning box of the sparse-grid tests, its particles
+    /// jittered by up to 0.9 cells so that surface cells are partly filled: a linear
+    /// grid velocity gives every particle its gradient `W` to round-off, and the nodal
+    /// forces are the adjoint of the particles' velocity gradients for random
+    /// deformation gradients (neo-Hookean stress) and a random grid velocity.
+    #[test]
+    fn stencils_in_3d_are_exact_and_adjoint() {
+        let sc = scene::parse(&super::sparse_tests::text(3, 1.0, 16, "mpmcg"), "s3").unwrap();
+        let layout = Layout::choose([16; 3], [false; 3], 1).unwrap();
+        let mut s = Solver::<3>::new(&sc, &SerialComm, layout);
+        let mut rng = Rng(31);
+        let h = s.geom.h;
+        for p in 0..s.parts.len() {
+            for a in 0..3 {
+                s.parts.x[p][a] += 0.9 * h[a] * (rng.f64() - 0.5);
+            }
+            s.parts.def_grad[p] =
+                Mat::<3>::from_fn(|i, k| f64::from(u8::from(i == k)) + 0.2 * (rng.f64() - 0.5));
+        }
+        s.scatter(true, true);
+        s.averaged_force();
+        let mut owned = Vec::new();
+        s.for_owned(|n, c| owned.push((n, c)));
+        let w = [[0.3, -1.1, 0.4], [0.7, 0.2, -0.5], [-0.6, 0.9, 0.1]];
+        let mut worst = 0.0f64;
+        let mut sides = [0.0; 2];
+        for linear in [true, false] {
+            let mut vel = vec![0.0; s.tiles.nodes() * 6];
+            for &(n, ci) in &owned {
+                if s.scat[n * s.sw + NodeRecord::<3>::MASS] > s.mass_floor {
+                    let node = std::array::from_fn(|a| s.block.node_lo[a] + ci[a] as i64);
+                    let x = s.geom.node_position(node);
+                    for a in 0..3 {
+                        let v = if linear {
+                            w[a][0] * x[0] + w[a][1] * x[1] + w[a][2] * x[2] + 0.5
+                        } else {
+                            rng.f64() - 0.5
+                        };
+                        vel[n * 6 + a] = v;
+                        vel[n * 6 + 3 + a] = v;
+                    }
+                }
+            }
+            s.block.ghost_copy(s.comm, &mut vel, 6);
+            s.vel = vel;
+            s.averaged_velocity_gradient(1);
+            let ctx = ctx!(s);
+            let mut work = 0.0;
+            for p in 0..s.parts.len() {
+                let (k, idx) = ctx.kern::<2, 8>(&s.parts.x[p], None, s.ptile[p]);
+                let l = kernel::velocity_gradient(&k, &idx, &s.vel, &s.avg, 1, true);
+                if linear {
+                    for a in 0..3 {
+                        for b in 0..3 {
+                            worst = worst.max((l[(a, b)] - w[a][b]).abs());
+                        }
+                    }
+                } else {
+                    let sigma = s.materials[0].stress_of_def_grad(&s.parts.def_grad[p]);
+                    work -= s.parts.vol[p] * sigma.component_mul(&l).sum();
+                }
+            }
+            if !linear {
+                let mut fv = 0.0;
+                for &(n, _) in &owned {
+                    for a in 0..3 {
+                        fv += s.scat[n * s.sw + NodeRecord::<3>::force(a)] * s.vel[n * 6 + 3 + a];
+                    }
+                }
+                sides = [fv, work];
+            }
+        }
+        assert!(worst < 1e-12, "|L − W| = {worst:e}");
+        let [fv, work] = sides;
+        let rel = (fv - work).abs() / fv.abs().max(work.abs());
+        assert!(rel < 1e-12, "Σ f·v = {fv}, −Σ V σ:L = {work}");
+        assert!(fv.abs() > 1e-3, "a test with work in it: {fv}");
+    }
 }
 
 #[cfg(test)]
