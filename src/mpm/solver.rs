@@ -536,7 +536,7 @@ impl<const D: usize> NodeView<'_, D> {
         slot: usize,
         node_vol: &[f64],
     ) {
-        let (dd, aw) = (D * D, AvgRecord::<D>::WIDTH);
+        let aw = AvgRecord::<D>::WIDTH;
         let (cell_k, cell_m, cell_md) = (self.cell_k, self.cell_m, self.cell_md);
         self.par_tiles::<NP>(avg, aw, |tile, pad, recs| {
             // Filled in place, component by component (see `force_tiles`).
@@ -610,29 +610,49 @@ impl<const D: usize> NodeView<'_, D> {
                     }
                     let rec = &mut recs[(o0 + x) * aw..(o0 + x + 1) * aw];
                     let vol = node_vol[tile * self.tiles.tile_nodes() + o0 + x];
-                    if vol <= 0.0 {
-                        rec.iter_mut().for_each(|x| *x = 0.0);
-                        continue;
-                    }
-                    let mut ln = [0.0; 9];
-                    for c in 0..dd {
-                        ln[c] = l[c][x] / vol;
-                    }
-                    let mut vb = [0.0; 6];
-                    for a in 0..D {
-                        let mut u = mv[a][x];
-                        for b in 0..D {
-                            u += ln[a * D + b] * md[b][x];
-                        }
-                        vb[a] = u / vol;
-                        vb[D + a] = vb[a];
-                    }
-                    self.apply_bc(cs[x], &mut vb[..2 * D]);
-                    rec[..dd].copy_from_slice(&ln[..dd]);
-                    rec[dd..].copy_from_slice(&vb[..D]);
+                    let l: [f64; 9] = std::array::from_fn(|c| l[c][x]);
+                    let mv: [f64; D] = std::array::from_fn(|a| mv[a][x]);
+                    let md: [f64; D] = std::array::from_fn(|a| md[a][x]);
+                    self.gradient_record(rec, cs[x], vol, &l, &mv, &md);
                 }
             });
         });
+    }
+
+    /// A node's [`AvgRecord`] `rec` from its cell sums (`gradient_tiles`): `L̄ = l / V`
+    /// and `v̄ = (mv + L̄ md) / V` with the walls of local node `c`; zero where the
+    /// node's volume `vol` is not positive.
+    #[inline(always)]
+    fn gradient_record(
+        &self,
+        rec: &mut [f64],
+        c: [usize; D],
+        vol: f64,
+        l: &[f64; 9],
+        mv: &[f64; D],
+        md: &[f64; D],
+    ) {
+        let dd = D * D;
+        if vol <= 0.0 {
+            rec.iter_mut().for_each(|x| *x = 0.0);
+            return;
+        }
+        let mut ln = [0.0; 9];
+        for k in 0..dd {
+            ln[k] = l[k] / vol;
+        }
+        let mut vb = [0.0; 6];
+        for a in 0..D {
+            let mut u = mv[a];
+            for b in 0..D {
+                u += ln[a * D + b] * md[b];
+            }
+            vb[a] = u / vol;
+            vb[D + a] = vb[a];
+        }
+        self.apply_bc(c, &mut vb[..2 * D]);
+        rec[..dd].copy_from_slice(&ln[..dd]);
+        rec[dd..].copy_from_slice(&vb[..D]);
     }
 
     /// Fixed and slip faces on both velocity slots of a node.
