@@ -521,6 +521,12 @@ pub const fn pair(b: usize, m: usize) -> (usize, usize) {
     (lower, lower | 1 << b)
 }
 
+/// Which pair along axis `b` corner `n` is in ([`pair`]'s `m`): `n` with bit `b` taken out.
+#[inline(always)]
+pub const fn pair_of(b: usize, n: usize) -> usize {
+    ((n >> (b + 1)) << b) | (n & ((1 << b) - 1))
+}
+
 impl<const D: usize, const N: usize> NodeData<D, N> {
     pub fn new() -> Self {
         NodeData {
@@ -1827,7 +1833,7 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
                     let p = &self.pairs[a][b];
                     let mut e = [0.0; N];
                     for (n, e) in e.iter_mut().enumerate() {
-                        let m = ((n >> (b + 1)) << b) | (n & ((1 << b) - 1));
+                        let m = pair_of(b, n);
                         *e = if (n >> b) & 1 == 0 { p[m] } else { -p[m] };
                     }
                     for n in 0..N {
@@ -1909,6 +1915,28 @@ mod tests {
             }
         }
         assert_eq!(k, NodeRecord::<D>::SYM);
+    }
+
+    /// `pair_of` names the pair `pair` puts a corner in, along every axis of 3D.
+    #[test]
+    fn pair_of_inverts_pair() {
+        for b in 0..3 {
+            for n in 0..8 {
+                let (lo, hi) = pair(b, pair_of(b, n));
+                assert!(
+                    n == lo || n == hi,
+                    "corner {n}, axis {b}: pair ({lo}, {hi})"
+                );
+            }
+            for m in 0..4 {
+                let (lo, hi) = pair(b, m);
+                assert_eq!(
+                    (pair_of(b, lo), pair_of(b, hi)),
+                    (m, m),
+                    "axis {b}, pair {m}"
+                );
+            }
+        }
     }
 
     #[test]
