@@ -989,6 +989,7 @@ fn by_runs<const D: usize, const NA: usize, const N: usize>(
     let speed = pass.speed();
     let mut nd = NodeData::<D, N>::new();
     let mut run = Run::<D, NA, N>::new();
+    let mut marks = [0.0; LANES];
     let mut p = 0;
     while p < s.len() {
         let b = batch_width(batches, s.tile, p);
@@ -997,7 +998,7 @@ fn by_runs<const D: usize, const NA: usize, const N: usize>(
                 load(&mut nd, &run.idx);
             }
             if !run.at_wall {
-                lanes::batch(ctx, s, p, b, &nd, pass, &mut t);
+                lanes::batch(ctx, s, p, b, &nd, pass, &mut t, &mut marks);
                 p += b;
                 continue;
             }
@@ -1015,6 +1016,7 @@ fn by_runs<const D: usize, const NA: usize, const N: usize>(
         one(s, p, &k, &nd, &mut t);
         p += 1;
     }
+    t.ok &= lanes::physical(&marks);
     if speed {
         t.max_speed = signal_speeds(ctx, s, t.max_speed);
     }

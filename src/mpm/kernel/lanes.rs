@@ -60,8 +60,11 @@ impl Pass<'_> {
 }
 
 /// Pass `m` over `width` ([`LANES`] or [`HALF`]) particles from `p0`
-/// ([`deform_and_move`] or [`gather`]), accounted in `t` (the signal speed is raised
-/// after the pass: `kernel::signal_speeds`).
+/// ([`deform_and_move`] or [`gather`]), accounted in `t`, its lanes' marks of an
+/// unphysical state added into `marks` ([`unphysical`]; the caller tests them once,
+/// [`physical`], after its last batch), the signal speed raised after the pass
+/// (`kernel::signal_speeds`).
+#[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub fn batch<const D: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
@@ -71,6 +74,7 @@ pub fn batch<const D: usize, const N: usize>(
     nd: &NodeData<D, N>,
     m: Pass<'_>,
     t: &mut Tally,
+    marks: &mut [f64; LANES],
 ) {
     #[inline(always)]
     fn of<const D: usize, const N: usize, const B: usize>(
@@ -80,17 +84,28 @@ pub fn batch<const D: usize, const N: usize>(
         nd: &NodeData<D, N>,
         m: Pass<'_>,
         t: &mut Tally,
+        marks: &mut [f64; LANES],
     ) {
-        t.ok &= match m {
+        let bad = match m {
             Pass::Stress(m) => deform_and_move::<D, N, B>(ctx, s, p0, nd, m),
             Pass::Gather(m) => gather::<D, N, B>(ctx, s, p0, nd, m, &mut t.work),
         };
+        for l in 0..B {
+            marks[l] += bad[l];
+        }
     }
     if width == LANES {
-        of::<D, N, LANES>(ctx, s, p0, nd, m, t)
+        of::<D, N, LANES>(ctx, s, p0, nd, m, t, marks)
     } else {
-        of::<D, N, HALF>(ctx, s, p0, nd, m, t)
+        of::<D, N, HALF>(ctx, s, p0, nd, m, t, marks)
     }
+}
+
+/// Whether the lanes' marks ([`unphysical`], summed over any number of batches) say
+/// that every state they mark is physical.
+#[inline(always)]
+pub fn physical<const B: usize>(marks: &[f64; B]) -> bool {
+    marks.iter().sum::<f64>() == 0.0
 }
 
 /// A batch's weights and, for a two-step scheme, its interpolated nodal `L̄`
@@ -167,7 +182,8 @@ impl<const D: usize, const N: usize, const B: usize> Batch<D, N, B> {
     /// `velocity_gradient_at` with hat functions from the differences `nd.dv`:
     /// across the cell's pairs, times α, blended with (1 − α) L̄ for a two-step
     /// scheme; then `deform`: the increment I + L dt, its determinant J, the volume
-    /// and F ← (I + L dt) F of particles `r` of `s`. Returns whether all are physical.
+    /// and F ← (I + L dt) F of particles `r` of `s`. Returns the lanes' marks of an
+    /// unphysical state ([`unphysical`]).
     #[inline(always)]
     fn deform(
         &self,
@@ -176,7 +192,7 @@ impl<const D: usize, const N: usize, const B: usize> Batch<D, N, B> {
         nd: &NodeData<D, N>,
         two: bool,
         dt: f64,
-    ) -> bool {
+    ) -> [f64; B] {
         let alpha = &self.alpha;
         let mut lg = [[[0.0; B]; D]; D];
         for a in 0..D {
@@ -245,7 +261,7 @@ impl<const D: usize, const N: usize, const B: usize> Batch<D, N, B> {
         for l in 0..B {
             vol[l] = vs[l] * j[l];
         }
-        let ok = all_physical(&j, &vol, &fnew);
+        let bad = unphysical(&j, &vol, &fnew);
         *vs = vol;
         for l in 0..B {
             for i in 0..D {
@@ -254,7 +270,7 @@ impl<const D: usize, const N: usize, const B: usize> Batch<D, N, B> {
                 }
             }
         }
-        ok
+        bad
     }
 
     /// `moving_velocity` away from walls: Σ_n S_n v̄_n plus the L̄ terms.
@@ -279,16 +295,20 @@ impl<const D: usize, const N: usize, const B: usize> Batch<D, N, B> {
     }
 }
 
-/// Whether every lane has J > 0 and a finite volume and `F`, tested with numbers, not
-/// bools: `0·x` is ±0 for a finite x and NaN otherwise, and a lane with J <= 0 (or
-/// NaN) adds a NaN, so the lanes' sum is ±0 exactly when all pass. (Per-lane bools
-/// went through the mask registers bit by bit: a dozen moves and shifts per lane.)
+/// Per lane, a mark that is ±0 where J > 0 and the volume and `F` are finite, else
+/// NaN: numbers, not bools, since `0·x` is ±0 for a finite x and NaN otherwise and a
+/// lane with J <= 0 (or NaN) adds a NaN. Sums of marks stay ±0 exactly while every
+/// state they mark is physical, so a pass adds each batch's marks into running ones
+/// and tests them once ([`physical`]). (Per-lane bools went through the mask
+/// registers bit by bit, a dozen moves and shifts per lane; and a test per batch
+/// summed the lanes at the end of the batch's longest chain, where its samples
+/// gathered: a quarter of the 2D stress pass's.)
 #[inline(always)]
-fn all_physical<const D: usize, const B: usize>(
+fn unphysical<const D: usize, const B: usize>(
     j: &[f64; B],
     vol: &[f64; B],
     f: &[[[f64; B]; D]; D],
-) -> bool {
+) -> [f64; B] {
     let mut bad = [0.0; B];
     for l in 0..B {
         bad[l] = vol[l] * 0.0 + if j[l] > 0.0 { 0.0 } else { f64::NAN };
@@ -298,7 +318,7 @@ fn all_physical<const D: usize, const B: usize>(
             }
         }
     }
-    bad.iter().sum::<f64>() == 0.0
+    bad
 }
 
 /// `x += u dt` for particles `r` of `s`.
@@ -321,8 +341,9 @@ fn advance<const D: usize, const B: usize>(
 /// their nodes, whose data `nd` holds (loaded, with the differences of slot
 /// `m.slot`), and none of which gives weight to a wall's node: the scalar pass's
 /// velocity gradient, deformation, volume, and the move with the reconstruction of
-/// slot `m.slot` (`m.moves`) or by the kept increment (`m.moves_kept`). Returns
-/// whether every new state is physical; the signal speed is left to the caller.
+/// slot `m.slot` (`m.moves`) or by the kept increment (`m.moves_kept`). Returns the
+/// lanes' marks of an unphysical state ([`unphysical`]); the signal speed is left to
+/// the caller.
 #[inline(always)]
 pub fn deform_and_move<const D: usize, const N: usize, const B: usize>(
     ctx: &Ctx<'_, D>,
@@ -330,10 +351,10 @@ pub fn deform_and_move<const D: usize, const N: usize, const B: usize>(
     p0: usize,
     nd: &NodeData<D, N>,
     m: &StressMode,
-) -> bool {
+) -> [f64; B] {
     let r = p0..p0 + B;
     let batch = Batch::<D, N, B>::new(ctx, s, r.clone(), nd, m.two_step);
-    let ok = batch.deform(s, r.clone(), nd, m.two_step, m.dt);
+    let bad = batch.deform(s, r.clone(), nd, m.two_step, m.dt);
     if m.moves {
         let u = batch.moving_velocity(ctx, nd);
         advance(s, r, &u, m.dt);
@@ -342,7 +363,7 @@ pub fn deform_and_move<const D: usize, const N: usize, const B: usize>(
             s.parts.x[p] += s.dx[p];
         }
     }
-    ok
+    bad
 }
 
 /// The gather ([`super::gather`]) of particles `p0 .. p0 + B` of `s`, which share
@@ -350,8 +371,9 @@ pub fn deform_and_move<const D: usize, const N: usize, const B: usize>(
 /// `m.stress`), none of which gives weight to a wall's node, without XPIC: the new
 /// velocity (FLIP/PIC blend), the external work into `t.work` particle by particle
 /// in order, the velocity gradient and deformation (`m.stress`), the move or the
-/// kept increment. The same bits as the scalar gather; returns whether every new
-/// state is physical (the signal speed is left to the caller).
+/// kept increment. The same bits as the scalar gather; returns the lanes' marks of an
+/// unphysical state, a non-finite velocity included ([`unphysical`]; the signal speed
+/// is left to the caller).
 #[inline(always)]
 pub fn gather<const D: usize, const N: usize, const B: usize>(
     ctx: &Ctx<'_, D>,
@@ -360,14 +382,14 @@ pub fn gather<const D: usize, const N: usize, const B: usize>(
     nd: &NodeData<D, N>,
     m: &GatherMode,
     work: &mut f64,
-) -> bool {
+) -> [f64; B] {
     let r = p0..p0 + B;
     let batch = Batch::<D, N, B>::new(ctx, s, r.clone(), nd, m.two_step && (m.recon || m.stress));
     let (vn, dv) = interpolate(&batch.sh, nd);
     let vs: &mut [Vector<D>; B] = (&mut s.parts.v[r.clone()])
         .try_into()
         .expect("a full batch");
-    let mut ok = true;
+    let mut bad = [0.0; B];
     for l in 0..B {
         let old = vs[l];
         let mut new = Vector::<D>::zeros();
@@ -382,10 +404,15 @@ pub fn gather<const D: usize, const N: usize, const B: usize>(
         let acc = ctx.accel_kept(s.accel, s.parts.x0, p);
         *work += m.dt * mass * acc.dot(&(old + new)) * 0.5;
         vs[l] = new;
-        ok &= new.iter().all(|x| x.is_finite());
+        for a in 0..D {
+            bad[l] += new[a] * 0.0;
+        }
     }
     if m.stress {
-        ok &= batch.deform(s, r.clone(), nd, m.two_step, m.dt);
+        let deformed = batch.deform(s, r.clone(), nd, m.two_step, m.dt);
+        for l in 0..B {
+            bad[l] += deformed[l];
+        }
     }
     let u = if m.recon {
         batch.moving_velocity(ctx, nd)
@@ -401,7 +428,7 @@ pub fn gather<const D: usize, const N: usize, const B: usize>(
             }
         }
     }
-    ok
+    bad
 }
 
 /// The remap's share of a batch ([`crate::mpm::remap`]): for particles with local
@@ -817,10 +844,12 @@ mod tests {
                     };
                     assert!(applies(false, &sb));
                     let (ok, top) = if width == LANES {
-                        let ok = deform_and_move::<D, N, LANES>(&ctx, &mut sb, 0, &nd, &m);
+                        let ok =
+                            physical(&deform_and_move::<D, N, LANES>(&ctx, &mut sb, 0, &nd, &m));
                         (ok, raise_speed::<D, LANES>(&ctx, &sb, 0, max0))
                     } else {
-                        let ok = deform_and_move::<D, N, HALF>(&ctx, &mut sb, 0, &nd, &m);
+                        let ok =
+                            physical(&deform_and_move::<D, N, HALF>(&ctx, &mut sb, 0, &nd, &m));
                         (ok, raise_speed::<D, HALF>(&ctx, &sb, 0, max0))
                     };
                     let what = format!(
@@ -840,6 +869,58 @@ mod tests {
         assert_eq!(cases, 112);
         // The comparison covered inverted states, not only physical ones.
         assert!(inverted >= 8, "{inverted} cases inverted a particle");
+    }
+
+    /// A pass tests its lanes' marks once, after its last batch ([`batch`] adds each
+    /// batch's into running ones): a batch with an unphysical lane (a NaN in `F`, or
+    /// a particle inverted by a steep gradient) leaves them unphysical through
+    /// physical batches of either width after it, and physical batches alone leave
+    /// them physical.
+    #[test]
+    fn marks_keep_a_failure_through_later_batches() {
+        let setup = Setup::<2>::new();
+        let ctx = setup.ctx(Alpha::ProductOfShapes);
+        let mut rng = Rng::new(21);
+        let m = StressMode {
+            slot: 0,
+            dt: 1e-3,
+            two_step: true,
+            moves: true,
+            moves_kept: false,
+            speed: false,
+        };
+        let mut pass = |marks: &mut [f64; LANES], nan_lane, steep, width| {
+            let nd = nodes::<2, 4>(&mut rng, steep, 0);
+            let (mut p, xi) = particles::<2>(&mut rng, nan_lane);
+            let mut dx = vec![Vector::<2>::zeros(); LANES];
+            let tile = vec![0u32; LANES];
+            let mut s = Slices {
+                parts: p.slices(),
+                dx: &mut dx,
+                tile: &tile,
+                xi: &xi,
+                accel: &[],
+            };
+            let mut t = Tally::ZERO;
+            batch(&ctx, &mut s, 0, width, &nd, Pass::Stress(&m), &mut t, marks);
+        };
+        let mut marks = [0.0; LANES];
+        for width in [LANES, HALF, LANES] {
+            pass(&mut marks, None, 1.0, width);
+        }
+        assert!(physical(&marks));
+        for (nan_lane, steep, width) in [(Some(3), 1.0, LANES), (None, 1e5, HALF)] {
+            let mut marks = [0.0; LANES];
+            pass(&mut marks, nan_lane, steep, width);
+            assert!(
+                !physical(&marks),
+                "NaN {nan_lane:?}, steep {steep}: the batch itself"
+            );
+            for width in [HALF, LANES, HALF] {
+                pass(&mut marks, None, 1.0, width);
+            }
+            assert!(!physical(&marks), "NaN {nan_lane:?}, steep {steep}");
+        }
     }
 
     /// The gather's lanes give its scalar body's bits: velocities, the external
@@ -927,10 +1008,12 @@ mod tests {
                     };
                     let mut work = 0.25;
                     let (ok, top) = if width == LANES {
-                        let ok = gather::<D, N, LANES>(&ctx, &mut sb, 0, &nd, &m, &mut work);
+                        let ok =
+                            physical(&gather::<D, N, LANES>(&ctx, &mut sb, 0, &nd, &m, &mut work));
                         (ok, raise_speed::<D, LANES>(&ctx, &sb, 0, max0))
                     } else {
-                        let ok = gather::<D, N, HALF>(&ctx, &mut sb, 0, &nd, &m, &mut work);
+                        let ok =
+                            physical(&gather::<D, N, HALF>(&ctx, &mut sb, 0, &nd, &m, &mut work));
                         (ok, raise_speed::<D, HALF>(&ctx, &sb, 0, max0))
                     };
                     let what = format!(
