@@ -1032,11 +1032,13 @@ fn by_runs<const D: usize, const NA: usize, const N: usize>(
 #[inline(always)]
 fn signal_speeds<const D: usize>(ctx: &Ctx<'_, D>, s: &Slices<'_, D>, max: f64) -> f64 {
     let mut top = max;
+    let mut per_lane = [f64::NEG_INFINITY; LANES];
     let mut p = 0;
     while p + LANES <= s.len() {
-        top = lanes::raise_speed::<D, LANES>(ctx, s, p, top);
+        top = lanes::raise_speed::<D, LANES>(ctx, s, p, top, &mut per_lane);
         p += LANES;
     }
+    top = lanes::fold(top, &per_lane);
     (p..s.len()).fold(top, |m, p| raise_speed(ctx, s, p, m))
 }
 

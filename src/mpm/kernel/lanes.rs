@@ -553,25 +553,30 @@ fn det_lanes<const D: usize, const B: usize>(m: &[[[f64; B]; D]; D]) -> [f64; B]
 }
 
 /// The running maximum `max` of the signal speed raised by particles
-/// `p0 .. p0 + B` of `s` ([`super::raise_speed`] for each in turn): the same
-/// maximum, bit for bit. Where the eight share a material whose speed for J >= 1
-/// needs no logarithm ([`crate::physics::material::Material::stretched_wave_speed`]),
-/// the stretched ones' speeds go as vector operations (a comparison, a choice and
-/// a maximum by halves), and each compressed one, marked in a bit mask, through
+/// `p0 .. p0 + B` of `s` ([`super::raise_speed`] for each in turn), with `lanes`:
+/// [`fold`] of the two is the same maximum, bit for bit. Where the eight share a
+/// material whose speed for J >= 1 needs no logarithm
+/// ([`crate::physics::material::Material::stretched_wave_speed`]), the stretched
+/// ones' speeds go as vector operations (a comparison, a choice and a maximum per
+/// lane into `lanes`, which a pass keeps over all its batches and folds once), and
+/// each compressed one, marked in a bit mask, through
 /// [`crate::physics::material::Material::raise_signal_speed`] after them (its skip
-/// test, else its speed). The maximum of a set does not depend on the order it is
-/// taken in, and a particle skipped against the maximum so far cannot raise a later,
-/// larger one, so this is the maximum the particle-by-particle loop forms.
+/// test against the maximum so far, else its speed). The maximum of a set does not
+/// depend on the order it is taken in, and a particle skipped against a maximum so
+/// far cannot raise the final one, so this is the maximum the particle-by-particle
+/// loop forms.
 ///
 /// (A loop over the lanes that tested each lane's side of J = 1 and then skipped or
 /// formed its speed stayed a loop of branches, one lane at a time: 4 % of the 2D
-/// step.)
+/// step. Folding the lanes at the end of every batch put a chain of maxima across
+/// the lanes between each batch and the next.)
 #[inline(always)]
 pub fn raise_speed<const D: usize, const B: usize>(
     ctx: &Ctx<'_, D>,
     s: &Slices<'_, D>,
     p0: usize,
     max: f64,
+    lanes: &mut [f64; B],
 ) -> f64 {
     let mat = s.parts.mat[p0];
     let material = &ctx.materials[mat as usize];
@@ -594,14 +599,36 @@ pub fn raise_speed<const D: usize, const B: usize>(
         v[l] = vs[l].norm();
     }
     let mut compressed = 0u32;
-    let mut c = [0.0; B];
     for l in 0..B {
         // (A NaN counts as compressed: `raise_signal_speed` passes it over.)
         let stretched = j[l] >= 1.0;
         compressed |= u32::from(!stretched) << l;
-        c[l] = if stretched { quick + v[l] } else { max };
+        lanes[l] = lanes[l].max(if stretched {
+            quick + v[l]
+        } else {
+            f64::NEG_INFINITY
+        });
     }
-    // The lanes' maximum by halves: a few vector operations, not a chain of eight.
+    let mut top = max;
+    if compressed != 0 {
+        // The skip test passes over fewer particles against a smaller maximum: the
+        // lanes' so far too.
+        top = fold(top, lanes);
+    }
+    while compressed != 0 {
+        let l = compressed.trailing_zeros() as usize;
+        compressed &= compressed - 1;
+        top = material.raise_signal_speed(j[l], v[l], top);
+    }
+    top
+}
+
+/// The larger of `max` and the largest of `lanes` ([`raise_speed`]'s): by halves, a
+/// few vector operations, not a chain of eight. (`f64::max` passes a NaN over, as the
+/// particle-by-particle maximum does.)
+#[inline(always)]
+pub fn fold<const B: usize>(max: f64, lanes: &[f64; B]) -> f64 {
+    let mut c = *lanes;
     let mut width = B;
     while width > 1 {
         width /= 2;
@@ -609,13 +636,7 @@ pub fn raise_speed<const D: usize, const B: usize>(
             c[l] = c[l].max(c[l + width]);
         }
     }
-    let mut top = max.max(c[0]);
-    while compressed != 0 {
-        let l = compressed.trailing_zeros() as usize;
-        compressed &= compressed - 1;
-        top = material.raise_signal_speed(j[l], v[l], top);
-    }
-    top
+    max.max(c[0])
 }
 
 #[cfg(test)]
@@ -846,11 +867,15 @@ mod tests {
                     let (ok, top) = if width == LANES {
                         let ok =
                             physical(&deform_and_move::<D, N, LANES>(&ctx, &mut sb, 0, &nd, &m));
-                        (ok, raise_speed::<D, LANES>(&ctx, &sb, 0, max0))
+                        let mut lanes = [f64::NEG_INFINITY; LANES];
+                        let top = raise_speed::<D, LANES>(&ctx, &sb, 0, max0, &mut lanes);
+                        (ok, fold(top, &lanes))
                     } else {
                         let ok =
                             physical(&deform_and_move::<D, N, HALF>(&ctx, &mut sb, 0, &nd, &m));
-                        (ok, raise_speed::<D, HALF>(&ctx, &sb, 0, max0))
+                        let mut lanes = [f64::NEG_INFINITY; HALF];
+                        let top = raise_speed::<D, HALF>(&ctx, &sb, 0, max0, &mut lanes);
+                        (ok, fold(top, &lanes))
                     };
                     let what = format!(
                         "{width} lanes, {alpha:?}, two-step {two_step}, moves {moves}/{moves_kept}, steep {steep}, max {max0}, NaN {nan_lane:?}"
@@ -869,6 +894,59 @@ mod tests {
         assert_eq!(cases, 112);
         // The comparison covered inverted states, not only physical ones.
         assert!(inverted >= 8, "{inverted} cases inverted a particle");
+    }
+
+    /// A pass's signal speed (`kernel::signal_speeds`: eight particles at a time,
+    /// the stretched ones' speeds kept per lane over all batches and folded once)
+    /// is the particle-by-particle maximum, bit for bit: 3 full batches and 5 more,
+    /// stretched and compressed, from maxima below, among and above theirs.
+    #[test]
+    fn signal_speeds_are_the_particle_by_particle_maximum() {
+        let setup = Setup::<2>::new();
+        let ctx = setup.ctx(Alpha::ProductOfShapes);
+        let mut rng = Rng::new(31);
+        let mut p = Particles::<2>::default();
+        let n = 3 * LANES + 5;
+        for k in 0..n {
+            p.x.push(Vector::<2>::from_fn(|_, _| 0.3 + 0.4 * rng.f64()));
+            // Fast particles in the second batch, the third (the fastest; that batch
+            // is all stretched, so its lanes are folded with the others only at the
+            // end) and the rest.
+            let fast = [(LANES + 3, 10.0), (2 * LANES + 5, 20.0), (n - 2, 15.0)];
+            p.v.push(match fast.iter().find(|f| f.0 == k) {
+                Some(&(_, v)) => Vector::<2>::new(0.0, v),
+                None => Vector::<2>::from_fn(|_, _| rng.f64() - 0.5),
+            });
+            p.def_grad.push(Mat::<2>::identity());
+            let vol0 = 1e-4;
+            p.vol0.push(vol0);
+            let stretched = (2 * LANES..3 * LANES).contains(&k);
+            let j = if stretched { 1.0 } else { 0.8 } + 0.2 * rng.f64();
+            p.vol.push(vol0 * j);
+            p.mass.push(vol0);
+            p.mat.push(0);
+        }
+        let xi = vec![[0.5; 2]; n];
+        let mut dx = vec![Vector::<2>::zeros(); n];
+        let tile = vec![0u32; n];
+        let s = Slices {
+            parts: p.slices(),
+            dx: &mut dx,
+            tile: &tile,
+            xi: &xi,
+            accel: &[],
+        };
+        let one_by_one = |max: f64| (0..n).fold(max, |m, q| speed_one(&ctx, &s, q, m));
+        let all = one_by_one(0.0);
+        let (mut below, mut above) = (0, 0);
+        for max in [0.0, 0.5 * all, 0.999 * all, 2.0 * all] {
+            let lanes = super::super::signal_speeds(&ctx, &s, max);
+            assert_eq!(lanes.to_bits(), one_by_one(max).to_bits(), "from {max}");
+            below += usize::from(lanes > max);
+            above += usize::from(lanes == max);
+        }
+        // The particles raised the maximum from below and left it from above.
+        assert_eq!((below, above), (3, 1));
     }
 
     /// A pass tests its lanes' marks once, after its last batch ([`batch`] adds each
@@ -1010,11 +1088,15 @@ mod tests {
                     let (ok, top) = if width == LANES {
                         let ok =
                             physical(&gather::<D, N, LANES>(&ctx, &mut sb, 0, &nd, &m, &mut work));
-                        (ok, raise_speed::<D, LANES>(&ctx, &sb, 0, max0))
+                        let mut lanes = [f64::NEG_INFINITY; LANES];
+                        let top = raise_speed::<D, LANES>(&ctx, &sb, 0, max0, &mut lanes);
+                        (ok, fold(top, &lanes))
                     } else {
                         let ok =
                             physical(&gather::<D, N, HALF>(&ctx, &mut sb, 0, &nd, &m, &mut work));
-                        (ok, raise_speed::<D, HALF>(&ctx, &sb, 0, max0))
+                        let mut lanes = [f64::NEG_INFINITY; HALF];
+                        let top = raise_speed::<D, HALF>(&ctx, &sb, 0, max0, &mut lanes);
+                        (ok, fold(top, &lanes))
                     };
                     let what = format!(
                         "{width} lanes, {alpha:?}, two-step {two_step}, recon {recon}, stress {stress}, move now {move_now}, flip {flip}, steep {steep}, max {max0}, NaN {nan_lane:?}"
