@@ -767,6 +767,18 @@ mod tests {
         nd
     }
 
+    /// The signal speed of the batch at the start of `s`, from `max` ([`raise_speed`]
+    /// and its lanes' [`fold`]).
+    fn batch_speed<const D: usize, const B: usize>(
+        ctx: &Ctx<'_, D>,
+        s: &Slices<'_, D>,
+        max: f64,
+    ) -> f64 {
+        let mut lanes = [f64::NEG_INFINITY; B];
+        let top = raise_speed::<D, B>(ctx, s, 0, max, &mut lanes);
+        fold(top, &lanes)
+    }
+
     /// Both particle sets (and kept increments) hold the same bits.
     fn same_bits<const D: usize>(
         a: &Particles<D>,
@@ -867,15 +879,11 @@ mod tests {
                     let (ok, top) = if width == LANES {
                         let ok =
                             physical(&deform_and_move::<D, N, LANES>(&ctx, &mut sb, 0, &nd, &m));
-                        let mut lanes = [f64::NEG_INFINITY; LANES];
-                        let top = raise_speed::<D, LANES>(&ctx, &sb, 0, max0, &mut lanes);
-                        (ok, fold(top, &lanes))
+                        (ok, batch_speed::<D, LANES>(&ctx, &sb, max0))
                     } else {
                         let ok =
                             physical(&deform_and_move::<D, N, HALF>(&ctx, &mut sb, 0, &nd, &m));
-                        let mut lanes = [f64::NEG_INFINITY; HALF];
-                        let top = raise_speed::<D, HALF>(&ctx, &sb, 0, max0, &mut lanes);
-                        (ok, fold(top, &lanes))
+                        (ok, batch_speed::<D, HALF>(&ctx, &sb, max0))
                     };
                     let what = format!(
                         "{width} lanes, {alpha:?}, two-step {two_step}, moves {moves}/{moves_kept}, steep {steep}, max {max0}, NaN {nan_lane:?}"
@@ -1088,15 +1096,11 @@ mod tests {
                     let (ok, top) = if width == LANES {
                         let ok =
                             physical(&gather::<D, N, LANES>(&ctx, &mut sb, 0, &nd, &m, &mut work));
-                        let mut lanes = [f64::NEG_INFINITY; LANES];
-                        let top = raise_speed::<D, LANES>(&ctx, &sb, 0, max0, &mut lanes);
-                        (ok, fold(top, &lanes))
+                        (ok, batch_speed::<D, LANES>(&ctx, &sb, max0))
                     } else {
                         let ok =
                             physical(&gather::<D, N, HALF>(&ctx, &mut sb, 0, &nd, &m, &mut work));
-                        let mut lanes = [f64::NEG_INFINITY; HALF];
-                        let top = raise_speed::<D, HALF>(&ctx, &sb, 0, max0, &mut lanes);
-                        (ok, fold(top, &lanes))
+                        (ok, batch_speed::<D, HALF>(&ctx, &sb, max0))
                     };
                     let what = format!(
                         "{width} lanes, {alpha:?}, two-step {two_step}, recon {recon}, stress {stress}, move now {move_now}, flip {flip}, steep {steep}, max {max0}, NaN {nan_lane:?}"
