@@ -346,7 +346,7 @@ pub fn split_mut<T>(s: &mut [T], mid: usize) -> (&mut [T], &mut [T]) {
 /// Reorder a (possibly absent, i.e. empty) array in place, cycle by cycle: no copy
 /// of the array (a copy of the widest one, `F` or σ, would be 72 bytes per particle
 /// in 3D, held from the first sort on). `done` marks the positions already written.
-fn permute<T: Copy>(v: &mut [T], perm: &[u32], done: &mut Vec<u64>) {
+pub(crate) fn permute<T: Copy>(v: &mut [T], perm: &[u32], done: &mut Vec<u64>) {
     if v.is_empty() {
         return;
     }

@@ -2300,6 +2300,13 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.perm.sort_unstable_by_key(|&p| key(p));
         let perm = std::mem::take(&mut self.perm);
         self.parts.permute(&perm, &mut self.permuted);
+        // A benchmark's memo goes with its particles where it has one entry each:
+        // formed again, its factors cost an `atan2` and sines per particle (the
+        // vortex), and a sort moves most particles.
+        let memo = self.memo.entries_mut();
+        if memo.len() == perm.len() {
+            particles::permute(memo, &perm, &mut self.permuted);
+        }
         self.perm = perm;
     }
 

@@ -218,9 +218,16 @@ pub struct Memo<const D: usize>(Vec<MemoEntry<D>>);
 /// One particle's [`Memo`] entry: the reference position it was made for, its
 /// factors, and for the vortex the sine and cosine of its current polar angle at the
 /// time `phase[0]` (NaN: none), kept by [`Memo::keep_phase`].
-type MemoEntry<const D: usize> = (Vector<D>, Factors, [f64; 3]);
+pub(crate) type MemoEntry<const D: usize> = (Vector<D>, Factors, [f64; 3]);
 
 impl<const D: usize> Memo<D> {
+    /// The entries, one per particle where [`Memo::refresh`] made them: a sort moves
+    /// them with their particles (an entry is a function of its reference position,
+    /// so moved it is what `refresh` would form again).
+    pub(crate) fn entries_mut(&mut self) -> &mut [MemoEntry<D>] {
+        &mut self.0
+    }
+
     /// Make the memo hold the factors of every particle of reference positions `x0`,
     /// forming only those whose entry was made for another position.
     pub fn refresh(&mut self, b: &Benchmark<D>, x0: &[Vector<D>]) {
@@ -890,6 +897,36 @@ mod tests {
             memo.keep_phase(&b.at(t), &moved);
             moved.reverse();
             check(&memo, &moved);
+        }
+    }
+
+    /// A sort moves the memo's entries with their particles (`Solver::sort`): moved,
+    /// they are bit for bit the entries `refresh` forms for the reordered particles.
+    #[test]
+    fn moved_memo_is_the_refreshed_one() {
+        let b = published_vortex();
+        let x0: Vec<Vector<2>> = (0..40)
+            .map(|k| {
+                let a = 0.37 * k as f64;
+                Vector::<2>::new((0.8 + 0.01 * k as f64) * a.cos(), 0.9 * a.sin())
+            })
+            .collect();
+        // New position k holds old particle perm[k]: cycles of several lengths.
+        let perm: Vec<u32> = (0..40u32).map(|k| (k * 7 + 3) % 40).collect();
+        let sorted: Vec<Vector<2>> = perm.iter().map(|&p| x0[p as usize]).collect();
+        let mut moved = Memo::default();
+        moved.refresh(&b, &x0);
+        moved.keep_phase(&b.at(0.25), &x0);
+        crate::mpm::particles::permute(moved.entries_mut(), &perm, &mut Vec::new());
+        let mut formed = Memo::default();
+        formed.refresh(&b, &sorted);
+        formed.keep_phase(&b.at(0.25), &sorted);
+        assert_eq!(moved.0.len(), formed.0.len());
+        for (k, (m, f)) in moved.0.iter().zip(&formed.0).enumerate() {
+            assert!(same(&m.0, &f.0), "position {k}");
+            for (x, y) in m.1 .0.iter().chain(&m.2).zip(f.1 .0.iter().chain(&f.2)) {
+                assert_eq!(x.to_bits(), y.to_bits(), "entry {k}");
+            }
         }
     }
 }
