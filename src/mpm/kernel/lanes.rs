@@ -767,6 +767,23 @@ mod tests {
         nd
     }
 
+    /// A pass's view of the test particles `p` and its per-particle arrays.
+    fn slices<'a, const D: usize>(
+        p: &'a mut Particles<D>,
+        dx: &'a mut [Vector<D>],
+        tile: &'a [u32],
+        xi: &'a [[f64; D]],
+        accel: &'a [Vector<D>],
+    ) -> Slices<'a, D> {
+        Slices {
+            parts: p.slices(),
+            dx,
+            tile,
+            xi,
+            accel,
+        }
+    }
+
     /// The signal speed of the batch at the start of `s`, from `max` ([`raise_speed`]
     /// and its lanes' [`fold`]).
     fn batch_speed<const D: usize, const B: usize>(
@@ -849,13 +866,7 @@ mod tests {
                     let mut dx_b = dx.clone();
                     let tile = vec![0u32; LANES];
                     // One by one: the scalar pass's body.
-                    let mut sa = Slices {
-                        parts: a.slices(),
-                        dx: &mut dx,
-                        tile: &tile,
-                        xi: &xi,
-                        accel: &[],
-                    };
+                    let mut sa = slices(&mut a, &mut dx, &tile, &xi, &[]);
                     let mut ta = Tally {
                         max_speed: max0,
                         ..Tally::ZERO
@@ -868,13 +879,7 @@ mod tests {
                     // The signal speed, particle by particle after the pass.
                     ta.max_speed = (0..width).fold(ta.max_speed, |v, p| speed_one(&ctx, &sa, p, v));
                     // A batch at a time.
-                    let mut sb = Slices {
-                        parts: b.slices(),
-                        dx: &mut dx_b,
-                        tile: &tile,
-                        xi: &xi,
-                        accel: &[],
-                    };
+                    let mut sb = slices(&mut b, &mut dx_b, &tile, &xi, &[]);
                     assert!(applies(false, &sb));
                     let (ok, top) = if width == LANES {
                         let ok =
@@ -937,13 +942,7 @@ mod tests {
         let xi = vec![[0.5; 2]; n];
         let mut dx = vec![Vector::<2>::zeros(); n];
         let tile = vec![0u32; n];
-        let s = Slices {
-            parts: p.slices(),
-            dx: &mut dx,
-            tile: &tile,
-            xi: &xi,
-            accel: &[],
-        };
+        let s = slices(&mut p, &mut dx, &tile, &xi, &[]);
         let one_by_one = |max: f64| (0..n).fold(max, |m, q| speed_one(&ctx, &s, q, m));
         let all = one_by_one(0.0);
         let (mut below, mut above) = (0, 0);
@@ -980,13 +979,7 @@ mod tests {
             let (mut p, xi) = particles::<2>(&mut rng, nan_lane);
             let mut dx = vec![Vector::<2>::zeros(); LANES];
             let tile = vec![0u32; LANES];
-            let mut s = Slices {
-                parts: p.slices(),
-                dx: &mut dx,
-                tile: &tile,
-                xi: &xi,
-                accel: &[],
-            };
+            let mut s = slices(&mut p, &mut dx, &tile, &xi, &[]);
             let mut t = Tally::ZERO;
             batch(&ctx, &mut s, 0, width, &nd, Pass::Stress(&m), &mut t, marks);
         };
@@ -1067,13 +1060,7 @@ mod tests {
                         Vec::new()
                     };
                     let tile = vec![0u32; LANES];
-                    let mut sa = Slices {
-                        parts: a.slices(),
-                        dx: &mut dx,
-                        tile: &tile,
-                        xi: &xi,
-                        accel: &accel,
-                    };
+                    let mut sa = slices(&mut a, &mut dx, &tile, &xi, &accel);
                     let mut ta = Tally {
                         max_speed: max0,
                         work: 0.25,
@@ -1085,13 +1072,7 @@ mod tests {
                         gather_one(&ctx, &mut sa, p, &k, &nd, None, &m, &mut ta);
                     }
                     ta.max_speed = (0..width).fold(ta.max_speed, |v, p| speed_one(&ctx, &sa, p, v));
-                    let mut sb = Slices {
-                        parts: b.slices(),
-                        dx: &mut dx_b,
-                        tile: &tile,
-                        xi: &xi,
-                        accel: &accel,
-                    };
+                    let mut sb = slices(&mut b, &mut dx_b, &tile, &xi, &accel);
                     let mut work = 0.25;
                     let (ok, top) = if width == LANES {
                         let ok =
