@@ -43,8 +43,14 @@ pub struct Tiles<const D: usize> {
     tdims: [usize; D],
     /// Key of the tile in each slot (slot 0: the zero tile, `u64::MAX`).
     keys: Vec<u64>,
-    /// (key, slot) ascending by key, for look-ups.
+    /// (key, slot) of each active tile in an open-addressed hash table, a power of two
+    /// at least twice the active count, linear probing, `(u64::MAX, 0)` where empty:
+    /// [`Tiles::slot_of_key`] in one or two probes. A binary search over the sorted
+    /// keys was a chain of a dozen unpredictable branches per look-up (2 % of the
+    /// vortex's step, whose runs change tile often).
     lookup: Vec<(u64, u32)>,
+    /// `64 − log2(lookup.len())`: the shift that keeps a hash's top bits.
+    lookup_shift: u32,
     /// Per slot: tile coordinates times TILE (in shifted node units).
     origin: Vec<[usize; D]>,
     /// Per slot: the storage index of the first node of each neighbouring tile (its
@@ -74,6 +80,7 @@ impl<const D: usize> Tiles<D> {
             tdims,
             keys: Vec::new(),
             lookup: Vec::new(),
+            lookup_shift: 64,
             origin: Vec::new(),
             nbr: Vec::new(),
             touched: Vec::new(),
@@ -248,17 +255,21 @@ impl<const D: usize> Tiles<D> {
         self.keys.clear();
         self.keys.push(u64::MAX);
         self.keys.extend_from_slice(&self.active);
-        self.lookup.clear();
-        self.lookup.extend(
-            self.active
-                .iter()
-                .enumerate()
-                .map(|(j, &k)| (k, (1 + j) as u32)),
-        );
         assert!(
             self.keys.len() < u32::MAX as usize,
             "more active tiles than a u32 slot can name"
         );
+        let size = (2 * self.active.len()).next_power_of_two().max(2);
+        self.lookup_shift = 64 - size.trailing_zeros();
+        self.lookup.clear();
+        self.lookup.resize(size, (u64::MAX, 0));
+        for (j, &k) in self.active.iter().enumerate() {
+            let mut i = self.home(k);
+            while self.lookup[i].0 != u64::MAX {
+                i = (i + 1) & (size - 1);
+            }
+            self.lookup[i] = (k, (1 + j) as u32);
+        }
         self.origin.clear();
         self.nbr.clear();
         self.origin.push([0; D]);
@@ -286,12 +297,29 @@ impl<const D: usize> Tiles<D> {
         }
     }
 
+    /// Where key `k`'s probe sequence starts in [`Tiles::lookup`] (Fibonacci hashing:
+    /// neighbouring keys land far apart).
+    #[inline(always)]
+    fn home(&self, k: u64) -> usize {
+        (k.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> self.lookup_shift) as usize
+    }
+
     /// Slot of a tile key, 0 if not active.
     #[inline]
     pub fn slot_of_key(&self, k: u64) -> u32 {
-        match self.lookup.binary_search_by_key(&k, |e| e.0) {
-            Ok(i) => self.lookup[i].1,
-            Err(_) => 0,
+        // The table is at most half full, so every probe sequence reaches an empty
+        // entry (key `u64::MAX`, which no tile has: keys are below the tile count).
+        let mask = self.lookup.len() - 1;
+        let mut i = self.home(k);
+        loop {
+            let (key, slot) = self.lookup[i];
+            if key == k {
+                return slot;
+            }
+            if key == u64::MAX {
+                return 0;
+            }
+            i = (i + 1) & mask;
         }
     }
 
@@ -546,6 +574,33 @@ mod tests {
         assert!(count > 0 && count <= t.active() * t.tile_nodes());
         assert!(t.index([5, 3, 2]).is_some() && t.index([12, 10, 5]).is_some());
         assert!(t.index([0, 10, 5]).is_none());
+    }
+
+    /// The hash table names the slot of every active tile (its rank among the active
+    /// keys, plus one: slots follow increasing key) and 0 for every other key of the
+    /// box, for sets from empty to every tile, where probe sequences collide and wrap.
+    #[test]
+    fn slot_of_key_is_the_rank_among_active_keys() {
+        let dims = [41usize, 37];
+        let mut rng = crate::splitmix::Rng::new(3);
+        for share in [0.0, 0.01, 0.2, 0.5, 0.9, 1.0] {
+            let mut t = Tiles::<2>::new(dims, [1, 2]);
+            t.begin();
+            for x in 0..t.tdims[0] {
+                for y in 0..t.tdims[1] {
+                    if rng.f64() < share {
+                        t.touch_key(t.key([x, y]));
+                    }
+                }
+            }
+            t.finish();
+            let all = (t.tdims[0] * t.tdims[1]) as u64;
+            for k in 0..all + 3 {
+                let want = t.active.binary_search(&k).map_or(0, |i| 1 + i as u32);
+                assert_eq!(t.slot_of_key(k), want, "key {k}, share {share}");
+            }
+            assert_eq!(t.slot_of_key(u64::MAX), 0);
+        }
     }
 
     /// Keys of a 4096³ box's node box do not overflow, and a touched tile far out is

@@ -137,7 +137,11 @@ mod tests {
         }
         let mut rng = decomposition::splitmix::Rng::new(7);
         // λ ln J − μ of both signs: μ small against λ, and μ large.
-        for (lambda, mu) in [(5.0, 3.0), (500.0, 1e-3), (1e3 / 3.6 * 0.2 / 0.6, 1e3 / 2.4)] {
+        for (lambda, mu) in [
+            (5.0, 3.0),
+            (500.0, 1e-3),
+            (1e3 / 3.6 * 0.2 / 0.6, 1e3 / 2.4),
+        ] {
             let m = NeoHookean {
                 lambda,
                 mu,
