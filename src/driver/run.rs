@@ -1031,7 +1031,7 @@ impl<'a, const D: usize> Run<'a, D> {
         if self.solver.benchmark.is_none() {
             return;
         }
-        self.st.last_err = self.solver.errors();
+        self.st.last_err = self.solver.errors_keeping_forces();
         if let Some((u, v)) = self.st.last_err {
             self.st.max_err.0 = self.st.max_err.0.max(u);
             self.st.max_err.1 = self.st.max_err.1.max(v);

@@ -215,6 +215,8 @@ pub struct Solver<'c, const D: usize> {
     /// The benchmark's factors of each particle's reference position (benchmarks
     /// only), refreshed at the start of a step.
     memo: Memo<D>,
+    /// Per chunk of particles, the sums of [`Solver::errors_keeping_forces`].
+    error_sums: Vec<[f64; 3]>,
     /// The tile pass's runs of particles in one cell, per chunk of [`LOCATE_CHUNK`]
     /// particles.
     cell_runs: Vec<Vec<CellRun<D>>>,
@@ -1111,6 +1113,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             run_keys: Vec::new(),
             accel: Vec::new(),
             memo: Memo::default(),
+            error_sums: Vec::new(),
             flagged: Vec::new(),
             located: false,
             permuted: Vec::new(),
@@ -1824,10 +1827,6 @@ impl<'c, const D: usize> Solver<'c, D> {
         if self.step.is_multiple_of(SORT_EVERY) {
             self.sort();
         }
-        if let Some(b) = &self.benchmark {
-            // For the error norms now and the next step's body force, both at `t`.
-            self.memo.keep_phase(&b.at(self.t), &self.parts.x0);
-        }
         Ok(())
     }
 
@@ -2381,6 +2380,43 @@ impl<'c, const D: usize> Solver<'c, D> {
             s
         };
         let mut s = tree_sum(0, parts.len().div_ceil(LOCATE_CHUNK), &chunk);
+        self.comm.sum_f64(&mut s);
+        Some(((s[0] / s[2]).sqrt(), (s[1] / s[2]).sqrt()))
+    }
+
+    /// [`Solver::errors`], the same numbers, in a pass that also keeps in the memo
+    /// each particle's body force at the current time where it shares the exact
+    /// solution's work ([`crate::physics::benchmark::At::exact_keeping_force`]): after a step, that is the next
+    /// step's body force, which its scatter then reads. Collective.
+    pub fn errors_keeping_forces(&mut self) -> Option<(f64, f64)> {
+        let b = self.benchmark.as_ref()?;
+        let at = b.at(self.t);
+        let parts = &self.parts;
+        let n = parts.len();
+        let chunks = n.div_ceil(LOCATE_CHUNK);
+        self.error_sums.resize(chunks, [0.0; 3]);
+        // Each chunk's sums as `errors` forms them, then the same tree.
+        self.memo
+            .entries_for(n)
+            .par_chunks_mut(LOCATE_CHUNK)
+            .zip(self.error_sums.par_iter_mut())
+            .enumerate()
+            .for_each(|(k, (memo, sums))| {
+                let mut s = [0.0; 3];
+                for (i, e) in memo.iter_mut().enumerate() {
+                    let p = k * LOCATE_CHUNK + i;
+                    let (u, v) = at.exact_keeping_force(&parts.x0[p], e);
+                    let eu = parts.x[p] - parts.x0[p] - u;
+                    let ev = parts.v[p] - v;
+                    let w = parts.vol[p];
+                    s[0] += w * eu.norm_squared();
+                    s[1] += w * ev.norm_squared();
+                    s[2] += w;
+                }
+                *sums = s;
+            });
+        let sums = &self.error_sums;
+        let mut s = tree_sum(0, chunks, &|k| sums[k]);
         self.comm.sum_f64(&mut s);
         Some(((s[0] / s[2]).sqrt(), (s[1] / s[2]).sqrt()))
     }
@@ -3484,5 +3520,61 @@ mod locate_tests {
         }
         check::<2>([40, 25], [5, 3], [31, 22], 0x1a9e);
         check::<3>([9, 10, 11], [0, 2, 4], [9, 8, 11], 0x3d);
+    }
+}
+
+#[cfg(test)]
+mod kept_force_tests {
+    use super::*;
+    use crate::input::scene;
+    use decomposition::{Layout, SerialComm};
+
+    /// The error pass that keeps the vortex's body force for the next step
+    /// (`errors_keeping_forces`) gives `errors`' norms to the bit after every step, and
+    /// the steps that read the kept forces (a sort among them, which moves them with
+    /// their particles) end with the same particles, bit for bit, as steps that formed
+    /// their forces in the scatter.
+    #[test]
+    fn kept_body_forces_change_no_bit() {
+        let text = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/inputs/generalized_vortex.toml"
+        ))
+        .unwrap()
+        .replace("cells = [64, 64]", "cells = [24, 24]");
+        let sc = scene::parse(&text, "vortex").unwrap();
+        let layout = Layout::choose([24; 2], [false; 2], 1).unwrap();
+        let mut kept = Solver::<2>::new(&sc, &SerialComm, layout.clone());
+        let mut formed = Solver::<2>::new(&sc, &SerialComm, layout);
+        for step in 0..25 {
+            kept.advance().unwrap();
+            formed.advance().unwrap();
+            let (a, b) = (kept.errors_keeping_forces(), formed.errors());
+            let bits = |e: Option<(f64, f64)>| e.map(|(u, v)| (u.to_bits(), v.to_bits()));
+            assert_eq!(bits(a), bits(b), "step {step}");
+            // The forces are kept, for this time, and only where asked for.
+            let t = kept.t.to_bits();
+            assert!(kept.memo.entries_mut().iter().all(|e| e.2.to_bits() == t));
+            assert!(formed.memo.entries_mut().iter().all(|e| e.2.is_nan()));
+        }
+        assert!(kept.step > SORT_EVERY, "a sort among the steps");
+        assert_eq!(kept.parts.len(), formed.parts.len());
+        for p in 0..kept.parts.len() {
+            for (a, b) in [
+                (kept.parts.x[p], formed.parts.x[p]),
+                (kept.parts.v[p], formed.parts.v[p]),
+            ] {
+                assert!(
+                    a.iter()
+                        .zip(b.iter())
+                        .all(|(x, y)| x.to_bits() == y.to_bits()),
+                    "particle {p}: {a:?} vs {b:?}"
+                );
+            }
+        }
+        let turned = (0..kept.parts.len())
+            .map(|p| (kept.parts.x[p] - kept.parts.x0[p]).norm())
+            .fold(0.0, f64::max);
+        assert!(turned > 1e-4, "the ring turned ({turned:e})");
     }
 }

@@ -216,9 +216,14 @@ pub struct Factors([f64; 6]);
 pub struct Memo<const D: usize>(Vec<MemoEntry<D>>);
 
 /// One particle's [`Memo`] entry: the reference position it was made for, its
-/// factors, and for the vortex the sine and cosine of its current polar angle at the
-/// time `phase[0]` (NaN: none), kept by [`Memo::keep_phase`].
-pub(crate) type MemoEntry<const D: usize> = (Vector<D>, Factors, [f64; 3]);
+/// factors, and for the vortex a time (NaN: none) with the body force at that time,
+/// kept by [`At::exact_keeping_force`].
+pub(crate) type MemoEntry<const D: usize> = (Vector<D>, Factors, f64, Vector<D>);
+
+/// An entry made for reference position `x0`, nothing kept.
+fn fresh<const D: usize>(b: &Benchmark<D>, x0: &Vector<D>) -> MemoEntry<D> {
+    (*x0, b.factors(x0), f64::NAN, Vector::zeros())
+}
 
 impl<const D: usize> Memo<D> {
     /// The entries, one per particle where [`Memo::refresh`] made them: a sort moves
@@ -228,50 +233,38 @@ impl<const D: usize> Memo<D> {
         &mut self.0
     }
 
-    /// Make the memo hold the factors of every particle of reference positions `x0`,
-    /// forming only those whose entry was made for another position.
-    pub fn refresh(&mut self, b: &Benchmark<D>, x0: &[Vector<D>]) {
-        const CHUNK: usize = 4096;
-        let n = x0.len();
+    /// `n` entries, those added made for no position (formed where first used).
+    pub(crate) fn entries_for(&mut self, n: usize) -> &mut [MemoEntry<D>] {
         if self.0.capacity() < n {
             // As the particle arrays grow (`particles::reserve`): not to twice the count.
             self.0.reserve_exact(n + n / 16 - self.0.len());
         }
         self.0.resize(
-            x0.len(),
+            n,
             (
                 Vector::from_element(f64::NAN),
                 Factors::default(),
-                [f64::NAN; 3],
+                f64::NAN,
+                Vector::zeros(),
             ),
         );
-        self.0
+        &mut self.0
+    }
+
+    /// Make the memo hold the factors of every particle of reference positions `x0`,
+    /// forming only those whose entry was made for another position.
+    pub fn refresh(&mut self, b: &Benchmark<D>, x0: &[Vector<D>]) {
+        const CHUNK: usize = 4096;
+        self.entries_for(x0.len())
             .par_chunks_mut(CHUNK)
             .zip(x0.par_chunks(CHUNK))
             .for_each(|(m, x0)| {
                 for (m, x) in m.iter_mut().zip(x0) {
                     if !same(&m.0, x) {
-                        *m = (*x, b.factors(x), [f64::NAN; 3]);
+                        *m = fresh(b, x);
                     }
                 }
             });
-    }
-
-    /// [`Memo::refresh`], and for the vortex each particle's sine and cosine of its
-    /// current polar angle at the time of `at`: the error norms at the end of a step
-    /// and the body force of the next step are at that same time, and share them
-    /// (one `sincos` per particle and step instead of two; the same numbers).
-    pub fn keep_phase(&mut self, at: &At<'_, D>, x0: &[Vector<D>]) {
-        if !matches!(at.b, Benchmark::GeneralizedVortex { .. }) {
-            return;
-        }
-        self.refresh(at.b, x0);
-        self.0.par_chunks_mut(4096).for_each(|m| {
-            for (_, f, phase) in m.iter_mut() {
-                let (s, c) = at.vortex_angle(&f.0);
-                *phase = [at.t, s, c];
-            }
-        });
     }
 }
 
@@ -306,13 +299,13 @@ impl<'a, const D: usize> At<'a, D> {
     }
 
     /// The factors of particle `p`, whose reference position is `x0[p]`, and the
-    /// sine and cosine of its vortex angle at this time where the memo keeps them.
+    /// body force at this time where the memo keeps it.
     #[inline(always)]
-    fn factors_of(&self, x0: &[Vector<D>], p: usize) -> (Factors, Option<[f64; 2]>) {
+    fn factors_of(&self, x0: &[Vector<D>], p: usize) -> (Factors, Option<Vector<D>>) {
         match self.memo.get(p) {
-            Some((x, f, ph)) if same(x, &x0[p]) => {
-                let kept = ph[0].to_bits() == self.t.to_bits();
-                (*f, kept.then_some([ph[1], ph[2]]))
+            Some((x, f, t, force)) if same(x, &x0[p]) => {
+                let kept = t.to_bits() == self.t.to_bits();
+                (*f, kept.then_some(*force))
             }
             _ => (self.b.factors(&x0[p]), None),
         }
@@ -320,15 +313,41 @@ impl<'a, const D: usize> At<'a, D> {
 
     /// Exact displacement and velocity of particle `p`, reference position `x0[p]`.
     pub fn exact_of(&self, x0: &[Vector<D>], p: usize) -> (Vector<D>, Vector<D>) {
-        let (f, angle) = self.factors_of(x0, p);
-        self.exact_with(&x0[p], &f, angle)
+        let (f, _) = self.factors_of(x0, p);
+        self.exact_with(&x0[p], &f, None)
     }
 
     /// Body force per unit mass on particle `p`, reference position `x0[p]`.
     #[inline]
     pub fn body_force_of(&self, x0: &[Vector<D>], p: usize) -> Vector<D> {
-        let (f, angle) = self.factors_of(x0, p);
-        self.body_force_with(&f, angle)
+        match self.factors_of(x0, p) {
+            (_, Some(kept)) => kept,
+            (f, None) => self.body_force_with(&f, None),
+        }
+    }
+
+    /// [`At::exact`] of the particle at reference position `x0` whose memo entry is
+    /// `e` (made for `x0` first if it was not). For the vortex it also keeps in `e`
+    /// the body force at this time, which shares the exact solution's terms and
+    /// current polar angle: the error norms after a step and the next step's body
+    /// force are at the same time, and one pass forms both (the same numbers as
+    /// [`At::exact`] and [`At::body_force`]).
+    #[inline]
+    pub(crate) fn exact_keeping_force(
+        &self,
+        x0: &Vector<D>,
+        e: &mut MemoEntry<D>,
+    ) -> (Vector<D>, Vector<D>) {
+        if !same(&e.0, x0) {
+            *e = fresh(self.b, x0);
+        }
+        if !matches!(self.b, Benchmark::GeneralizedVortex { .. }) {
+            return self.exact_with(x0, &e.1, None);
+        }
+        // All inlined: the compiler forms the terms once for the three.
+        let (s, c) = self.vortex_angle(&e.1 .0);
+        (e.2, e.3) = (self.t, self.vortex_force(&e.1 .0, Some([s, c])));
+        self.exact_with(x0, &e.1, Some([s, c]))
     }
 
     /// Exact displacement and velocity at reference position `x0`.
@@ -387,17 +406,27 @@ impl<'a, const D: usize> At<'a, D> {
                 // ln J of the diagonal F, one logarithm for all axes.
                 b = self.mms_force(&u, &fii, j.ln());
             }
-            Benchmark::GeneralizedVortex { mu, rho0, .. } => {
-                let (r, st, ct, al, al_t, al_tt, al_r, al_rr) = self.vortex_terms(f);
-                let g = mu / rho0;
-                let br = -r * al_t * al_t + g * r * al_r * al_r;
-                let bt = r * al_tt - g * (r * al_rr + 3.0 * al_r);
-                // Of the current polar angle Θ + α.
-                let (sp, cp) = angle.map_or_else(|| rotated_unkept(st, ct, al), |[s, c]| (s, c));
-                b[0] = br * cp - bt * sp;
-                b[1] = br * sp + bt * cp;
-            }
+            Benchmark::GeneralizedVortex { .. } => b = self.vortex_force(f, angle),
         }
+        b
+    }
+
+    /// The vortex's body force at a reference point of factors `f` (and the sine and
+    /// cosine of its current polar angle, if known).
+    #[inline(always)]
+    fn vortex_force(&self, f: &[f64; 6], angle: Option<[f64; 2]>) -> Vector<D> {
+        let Benchmark::GeneralizedVortex { mu, rho0, .. } = *self.b else {
+            unreachable!()
+        };
+        let (r, st, ct, al, al_t, al_tt, al_r, al_rr) = self.vortex_terms(f);
+        let g = mu / rho0;
+        let br = -r * al_t * al_t + g * r * al_r * al_r;
+        let bt = r * al_tt - g * (r * al_rr + 3.0 * al_r);
+        // Of the current polar angle Θ + α.
+        let (sp, cp) = angle.map_or_else(|| rotated_unkept(st, ct, al), |[s, c]| (s, c));
+        let mut b = Vector::<D>::zeros();
+        b[0] = br * cp - bt * sp;
+        b[1] = br * sp + bt * cp;
         b
     }
 
@@ -486,6 +515,7 @@ impl<'a, const D: usize> At<'a, D> {
     /// (R, Θ, α, α_t, α_tt, α_R, α_RR) of the vortex at a reference point of factors
     /// `f`, with sin Θ and cos Θ after R.
     #[allow(clippy::type_complexity)]
+    #[inline(always)]
     fn vortex_terms(&self, f: &[f64; 6]) -> (f64, f64, f64, f64, f64, f64, f64, f64) {
         let Benchmark::GeneralizedVortex { a, c, .. } = *self.b else {
             unreachable!()
@@ -507,6 +537,7 @@ impl<'a, const D: usize> At<'a, D> {
 
     /// Sine and cosine of the vortex's current polar angle Θ + α at a reference point
     /// of factors `f`.
+    #[inline(always)]
     fn vortex_angle(&self, f: &[f64; 6]) -> (f64, f64) {
         let (_, st, ct, al, ..) = self.vortex_terms(f);
         rotated(st, ct, al)
@@ -888,14 +919,32 @@ mod tests {
             moved.truncate(5);
             memo.refresh(&b, &moved);
             check(&memo, &moved);
-            // The vortex angle kept for this time, for another time (not to be used),
-            // and with the particles reordered since.
-            memo.keep_phase(&b.at(t), &moved);
+            // The vortex's body force kept for this time, for another time (not to be
+            // used), and with the particles reordered since; the exact solution the
+            // keeping pass gives is the one formed from the position, and the kept
+            // force is the body force.
+            let keep = |memo: &mut Memo<2>, x0: &[Vector<2>], t: f64| {
+                let at = b.at(t);
+                for (x, e) in x0.iter().zip(memo.entries_for(x0.len())) {
+                    let (u, v) = at.exact_keeping_force(x, e);
+                    let (ue, ve) = b.exact(x, t);
+                    assert!(same(&u, &ue) && same(&v, &ve), "{b:?} keeping, {x:?}");
+                    if matches!(b, Benchmark::GeneralizedVortex { .. }) {
+                        assert_eq!(e.2.to_bits(), t.to_bits());
+                        assert!(same(&e.3, &b.body_force(x, t)), "kept force at {x:?}");
+                    }
+                }
+            };
+            keep(&mut memo, &moved, t);
             check(&memo, &moved);
-            memo.keep_phase(&b.at(0.5 * t), &moved);
+            keep(&mut memo, &moved, 0.5 * t);
             check(&memo, &moved);
-            memo.keep_phase(&b.at(t), &moved);
+            keep(&mut memo, &moved, t);
             moved.reverse();
+            check(&memo, &moved);
+            // Entries made for other positions are formed again by the keeping pass.
+            moved.push(Vector::<2>::new(0.2, 0.4));
+            keep(&mut memo, &moved, t);
             check(&memo, &moved);
         }
     }
@@ -916,15 +965,21 @@ mod tests {
         let sorted: Vec<Vector<2>> = perm.iter().map(|&p| x0[p as usize]).collect();
         let mut moved = Memo::default();
         moved.refresh(&b, &x0);
-        moved.keep_phase(&b.at(0.25), &x0);
+        let at = b.at(0.25);
+        for (x, e) in x0.iter().zip(moved.entries_mut()) {
+            at.exact_keeping_force(x, e);
+        }
         crate::mpm::particles::permute(moved.entries_mut(), &perm, &mut Vec::new());
         let mut formed = Memo::default();
         formed.refresh(&b, &sorted);
-        formed.keep_phase(&b.at(0.25), &sorted);
+        for (x, e) in sorted.iter().zip(formed.entries_mut()) {
+            at.exact_keeping_force(x, e);
+        }
         assert_eq!(moved.0.len(), formed.0.len());
         for (k, (m, f)) in moved.0.iter().zip(&formed.0).enumerate() {
-            assert!(same(&m.0, &f.0), "position {k}");
-            for (x, y) in m.1 .0.iter().chain(&m.2).zip(f.1 .0.iter().chain(&f.2)) {
+            assert!(same(&m.0, &f.0) && same(&m.3, &f.3), "position {k}");
+            assert_eq!(m.2.to_bits(), f.2.to_bits(), "entry {k}");
+            for (x, y) in m.1 .0.iter().zip(f.1 .0.iter()) {
                 assert_eq!(x.to_bits(), y.to_bits(), "entry {k}");
             }
         }
