@@ -1580,20 +1580,35 @@ impl GridPtr {
     /// hint, no access (an address outside the storage is never touched).
     #[inline(always)]
     pub(crate) fn prefetch(self, at: usize, width: usize) {
-        #[cfg(target_arch = "x86_64")]
-        {
-            use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-            let first = self.ptr.wrapping_add(at) as usize;
-            let last = self.ptr.wrapping_add(at + width - 1) as usize;
-            let mut line = first & !63;
-            while line <= last {
-                // SAFETY: a prefetch is a hint: it never faults, whatever the
-                // address, and changes no memory; its SSE is in every x86-64 CPU.
-                unsafe { _mm_prefetch::<_MM_HINT_T0>(line as *const i8) };
-                line += 64;
-            }
+        prefetch_lines(self.ptr.wrapping_add(at), width);
+    }
+}
+
+/// Ask for the cache lines of `field[at..at + width]` ahead of their use: a hint, no
+/// access (a range outside the field is never touched).
+#[inline(always)]
+pub(crate) fn prefetch(field: &[f64], at: usize, width: usize) {
+    prefetch_lines(field.as_ptr().wrapping_add(at), width);
+}
+
+/// Prefetch the cache lines of the `width` numbers from `first`: only an address, never
+/// dereferenced.
+#[inline(always)]
+fn prefetch_lines(first: *const f64, width: usize) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        let last = first.wrapping_add(width - 1) as usize;
+        let mut line = first as usize & !63;
+        while line <= last {
+            // SAFETY: a prefetch is a hint: it never faults, whatever the address, and
+            // changes no memory; its SSE is in every x86-64 CPU.
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(line as *const i8) };
+            line += 64;
         }
     }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (first, width);
 }
 
 // SAFETY: a `GridPtr` is only made in `scatter` from a `&mut [f64]` that it holds for

@@ -353,10 +353,17 @@ impl<const D: usize> NodeView<'_, D> {
     /// tile instead of looking every neighbour up for every node ([`NodeView::pad_rows`],
     /// [`NodeView::row_cells`]). Each node's result depends only on what it reads, so
     /// it is the same on any number of threads.
+    ///
+    /// `ahead(n)` is called for the storage index `n` of every padded node of the next
+    /// slot's tile before `f` works on this one, to prefetch what `f` will read of it:
+    /// the padded nodes lie in up to `3^D` tiles scattered over the storage, and the
+    /// stencils' fills of their arrays waited on those loads (a third of the 3D
+    /// averaged force's time).
     fn par_tiles<const NP: usize>(
         &self,
         out: &mut [f64],
         width: usize,
+        ahead: impl Fn(usize) + Sync,
         f: impl Fn(usize, &[usize; NP], &mut [f64]) + Sync,
     ) {
         debug_assert_eq!(NP, PAD.pow(D as u32));
@@ -375,6 +382,12 @@ impl<const D: usize> NodeView<'_, D> {
             *m = (t, within);
         }
         self.each_tile(out, width, |slot, recs| {
+            if slot + 1 < self.tiles.slots() {
+                let nbr = self.tiles.neighbours(slot + 1);
+                for &(t, within) in &map {
+                    ahead(nbr[t] + within);
+                }
+            }
             let nbr = self.tiles.neighbours(slot);
             let mut pad = [0; NP];
             for (p, &(t, within)) in pad.iter_mut().zip(&map) {
@@ -475,7 +488,11 @@ impl<const D: usize> NodeView<'_, D> {
     fn force_tiles<const NP: usize>(&self, scat: &mut [f64], sw: usize, sigma: &[f64]) {
         let (dd, aw) = (D * D, AvgRecord::<D>::WIDTH);
         let cell_k = self.cell_k;
-        self.par_tiles::<NP>(scat, sw, |slot, pad, recs| {
+        let ahead = |n: usize| {
+            kernel::prefetch(sigma, n * aw, dd);
+            kernel::prefetch(self.cell_w, n, 1);
+        };
+        self.par_tiles::<NP>(scat, sw, ahead, |slot, pad, recs| {
             // Filled in place, component by component: a row's lanes are the
             // neighbouring entries of one component. (`array::from_fn` built these in
             // a temporary and copied it, a `memcpy` of 15 kB per tile in 3D.)
@@ -540,7 +557,11 @@ impl<const D: usize> NodeView<'_, D> {
     ) {
         let aw = AvgRecord::<D>::WIDTH;
         let (cell_k, cell_m, cell_md) = (self.cell_k, self.cell_m, self.cell_md);
-        self.par_tiles::<NP>(avg, aw, |tile, pad, recs| {
+        let ahead = |n: usize| {
+            kernel::prefetch(grid_vel, VelRecord::<D>::at(n, slot), D);
+            kernel::prefetch(self.cell_w, n, 1);
+        };
+        self.par_tiles::<NP>(avg, aw, ahead, |tile, pad, recs| {
             // Filled in place, component by component (see `force_tiles`).
             let mut vp = [[0.0; NP]; D];
             let mut cw = [0.0; NP];
