@@ -136,15 +136,18 @@ def main():
                 src = f
     if src:
         try:
+            # Every top-level function starts a span (a closure of `scatter_slabs` is
+            # not in `update_stress`'s), and those of the two are kept.
             starts = [
                 (i + 1, m.group(1))
                 for i, l in enumerate(open(src))
-                for m in [re.match(r"pub fn (gather|update_stress)\b", l)]
+                for m in [re.match(r"(?:pub(?:\(crate\))? )?fn (\w+)", l)]
                 if m
             ]
             for k, (ln, name) in enumerate(starts):
                 end = starts[k + 1][0] if k + 1 < len(starts) else 10**9
-                spans.append((ln, end, "gather" if name == "gather" else "stress update"))
+                if name in ("gather", "update_stress"):
+                    spans.append((ln, end, "gather" if name == "gather" else "stress update"))
         except OSError:
             pass
 
