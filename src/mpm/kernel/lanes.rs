@@ -134,51 +134,49 @@ impl<const D: usize, const N: usize, const B: usize> Batch<D, N, B> {
         // `array::from_fn`'s closures were left as calls, with the lanes spilled
         // around them.)
         let xs: &[[f64; D]; B] = s.xi[r].try_into().expect("a full batch");
-        // One local, filled in place and returned: assembled from separate arrays
-        // (the weights' returned by value), the batch was copied field by field into
-        // the struct, 3.4 kB of vector moves in 3D that the next loads waited on
-        // (the 3D stress pass 0.96x the time this way).
-        let mut b = Batch {
-            xi: [[0.0; B]; D],
-            sh: [[0.0; B]; N],
-            g: [[[0.0; B]; N]; D],
-            alpha: [0.0; B],
-            all: [[[0.0; B]; D]; D],
-            upper: [[[0.0; B]; D]; D],
-        };
+        let mut xi = [[0.0; B]; D];
         for l in 0..B {
             for a in 0..D {
-                b.xi[a][l] = xs[l][a];
+                xi[a][l] = xs[l][a];
             }
         }
-        weights::<D, N, B>(ctx, &b.xi, &mut b.sh, &mut b.g, &mut b.alpha);
+        let (sh, g, alpha) = weights::<D, N, B>(ctx, &xi);
         // `lbar_at`: the nodal L̄ at the particle, all nodes and the upper side per
         // column.
+        let mut all = [[[0.0; B]; D]; D];
+        let mut upper = [[[0.0; B]; D]; D];
         if two {
             for a in 0..D {
-                for c in 0..D {
+                for b in 0..D {
                     let mut lo = [0.0; B];
                     let mut hi = [0.0; B];
                     for n in 0..N {
-                        let v = nd.lb[a][c][n];
-                        if (n >> c) & 1 == 1 {
+                        let c = nd.lb[a][b][n];
+                        if (n >> b) & 1 == 1 {
                             for l in 0..B {
-                                hi[l] += b.sh[n][l] * v;
+                                hi[l] += sh[n][l] * c;
                             }
                         } else {
                             for l in 0..B {
-                                lo[l] += b.sh[n][l] * v;
+                                lo[l] += sh[n][l] * c;
                             }
                         }
                     }
                     for l in 0..B {
-                        b.all[a][c][l] = lo[l] + hi[l];
+                        all[a][b][l] = lo[l] + hi[l];
                     }
-                    b.upper[a][c] = hi;
+                    upper[a][b] = hi;
                 }
             }
         }
-        b
+        Batch {
+            xi,
+            sh,
+            g,
+            alpha,
+            all,
+            upper,
+        }
     }
 
     /// `velocity_gradient_at` with hat functions from the differences `nd.dv`:
@@ -444,8 +442,7 @@ pub(crate) fn velocities<const D: usize, const N: usize, const B: usize>(
     xi: &[[f64; B]; D],
     nd: &NodeData<D, N>,
 ) -> ([[f64; B]; D], [[f64; B]; D], [[f64; B]; N]) {
-    let (mut sh, mut g, mut alpha) = ([[0.0; B]; N], [[[0.0; B]; N]; D], [0.0; B]);
-    weights::<D, N, B>(ctx, xi, &mut sh, &mut g, &mut alpha);
+    let (sh, _, _) = weights::<D, N, B>(ctx, xi);
     let (vn, dv) = interpolate(&sh, nd);
     (vn, dv, sh)
 }
@@ -475,16 +472,13 @@ fn interpolate<const D: usize, const N: usize, const B: usize>(
 }
 
 /// [`Ctx::weights`] with hat functions, lane by lane: the shape functions `sh[n]`,
-/// their gradients `g[d][n]` and α of particles with local coordinates `xi[a]`, into
-/// the caller's arrays.
+/// their gradients `g[d][n]` and α of particles with local coordinates `xi[a]`.
+#[allow(clippy::type_complexity)]
 #[inline(always)]
 fn weights<const D: usize, const N: usize, const B: usize>(
     ctx: &Ctx<'_, D>,
     xi: &[[f64; B]; D],
-    sh: &mut [[f64; B]; N],
-    g: &mut [[[f64; B]; N]; D],
-    alpha: &mut [f64; B],
-) {
+) -> ([[f64; B]; N], [[[f64; B]; N]; D], [f64; B]) {
     // Hat functions (`shape::hat`): weights 1 − ξ and ξ, derivatives ∓ 1/h.
     let mut w = [[[0.0; B]; 2]; D];
     let mut dw = [[0.0; 2]; D];
@@ -495,7 +489,7 @@ fn weights<const D: usize, const N: usize, const B: usize>(
         w[a][1] = xi[a];
         dw[a] = [-ctx.geom.inv_h[a], ctx.geom.inv_h[a]];
     }
-    *alpha = match ctx.alpha {
+    let alpha: [f64; B] = match ctx.alpha {
         // `shape::bubble`: Π_a 4 ξ_a (1 − ξ_a).
         Alpha::ProductOfShapes => {
             let mut b = [1.0; B];
@@ -509,6 +503,8 @@ fn weights<const D: usize, const N: usize, const B: usize>(
         Alpha::Constant(c) => [c; B],
     };
     // `Ctx::weights`: shape functions and gradients over the cell's corners.
+    let mut sh = [[0.0; B]; N];
+    let mut g = [[[0.0; B]; N]; D];
     for n in 0..N {
         let mut o = [0; D];
         for (a, o) in o.iter_mut().enumerate() {
@@ -533,6 +529,7 @@ fn weights<const D: usize, const N: usize, const B: usize>(
             g[d][n] = p;
         }
     }
+    (sh, g, alpha)
 }
 
 /// [`crate::physics::tensor::det`] lane by lane, term for term.
