@@ -1689,67 +1689,51 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
     // the 2D block drop 0.93x the time, 3D the same.
     let acc = std::hint::black_box(&mut acc);
     let mut run = Run::<D, NA, N>::new();
-    // In 3D, V σ of the next eight particles, formed in a loop of their own before
-    // their sums: from `F` it is a chain (det → ln → σ, in a call) that each particle
-    // waited on inside the long loop below, while there the chains of eight particles
-    // overlap (3D scatter 0.90x). In 2D, inlined in the loop, that was 1.05x slower.
-    const AHEAD: usize = 8;
-    let ahead = m.forces && D == 3;
-    let vs_of = |p: usize| {
-        let (s, f, mat, vol) = (parts.stress, parts.def_grad, parts.mat, parts.vol[p]);
-        particles::volume_stress_of(s, f, mat, ctx.materials, vol, p)
-    };
-    let mut vs_ahead = [Mat::<D>::zeros(); AHEAD];
-    for group in slabs.order[slabs.start[first]..slabs.start[first + 1]].chunks(AHEAD) {
-        if ahead {
-            for (vs, &p) in vs_ahead.iter_mut().zip(group) {
-                *vs = vs_of(p as usize);
+    for &p in &slabs.order[slabs.start[first]..slabs.start[first + 1]] {
+        let p = p as usize;
+        // The stress first: in 3D it is a call (`particles::volume_stress_call`), and every
+        // vector register live across it is saved and reloaded; before the weights,
+        // few are.
+        let vs = if m.forces {
+            let (s, f, mat, vol) = (parts.stress, parts.def_grad, parts.mat, parts.vol[p]);
+            particles::volume_stress_of(s, f, mat, ctx.materials, vol, p)
+        } else {
+            Mat::<D>::zeros()
+        };
+        let half = if ctx.gimp { Some(&parts.half[p]) } else { None };
+        let (k, below, _) = ctx.weights::<NA, N>(&parts.x[p], half, &parts.xi[p]);
+        if run.is_new(parts.tile[p], below) {
+            if run.started() {
+                acc.flush(ctx, grid, &run.idx, m);
+            }
+            run.enter(ctx, parts.tile[p], below);
+            // The run's records are added into at its end, after its particles:
+            // fetched meanwhile, not waited for then.
+            for &n in &run.idx {
+                grid.prefetch(n * m.sw, m.sw);
             }
         }
-        for (j, &p) in group.iter().enumerate() {
-            let p = p as usize;
-            let vs = if ahead {
-                vs_ahead[j]
-            } else if m.forces {
-                vs_of(p)
-            } else {
-                Mat::<D>::zeros()
-            };
-            let half = if ctx.gimp { Some(&parts.half[p]) } else { None };
-            let (k, below, _) = ctx.weights::<NA, N>(&parts.x[p], half, &parts.xi[p]);
-            if run.is_new(parts.tile[p], below) {
-                if run.started() {
-                    acc.flush(ctx, grid, &run.idx, m);
-                }
-                run.enter(ctx, parts.tile[p], below);
-                // The run's records are added into at its end, after its particles:
-                // fetched meanwhile, not waited for then.
-                for &n in &run.idx {
-                    grid.prefetch(n * m.sw, m.sw);
+        let idx = &run.idx;
+        let mass = parts.mass[p];
+        let mv = if m.from_grid {
+            let mut u = Vector::<D>::zeros();
+            for n in 0..N {
+                let at = idx[n] * D;
+                for a in 0..D {
+                    u[a] += k.s[n] * parts.src[at + a];
                 }
             }
-            let idx = &run.idx;
-            let mass = parts.mass[p];
-            let mv = if m.from_grid {
-                let mut u = Vector::<D>::zeros();
-                for n in 0..N {
-                    let at = idx[n] * D;
-                    for a in 0..D {
-                        u[a] += k.s[n] * parts.src[at + a];
-                    }
-                }
-                u * mass
-            } else {
-                parts.v[p] * mass
-            };
-            let vol = parts.vol[p];
-            let fe = if m.forces {
-                ctx.accel_kept(parts.accel, parts.x0, p) * mass
-            } else {
-                Vector::<D>::zeros()
-            };
-            acc.add(&k, mass, &mv, vol, &vs, &fe, m);
-        }
+            u * mass
+        } else {
+            parts.v[p] * mass
+        };
+        let vol = parts.vol[p];
+        let fe = if m.forces {
+            ctx.accel_kept(parts.accel, parts.x0, p) * mass
+        } else {
+            Vector::<D>::zeros()
+        };
+        acc.add(&k, mass, &mv, vol, &vs, &fe, m);
     }
     if run.started() {
         acc.flush(ctx, grid, &run.idx, m);
