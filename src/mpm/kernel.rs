@@ -1691,12 +1691,12 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
     let mut run = Run::<D, NA, N>::new();
     for &p in &slabs.order[slabs.start[first]..slabs.start[first + 1]] {
         let p = p as usize;
-        // The stress first: in 3D it is a call (`particles::volume_stress_call`), and every
+        // The stress first: in 3D it is a call (`particles::stress_call`), and every
         // vector register live across it is saved and reloaded; before the weights,
         // few are.
         let vs = if m.forces {
-            let (s, f, mat, vol) = (parts.stress, parts.def_grad, parts.mat, parts.vol[p]);
-            particles::volume_stress_of(s, f, mat, ctx.materials, vol, p)
+            particles::stress_of(parts.stress, parts.def_grad, parts.mat, ctx.materials, p)
+                * parts.vol[p]
         } else {
             Mat::<D>::zeros()
         };

@@ -288,42 +288,26 @@ pub fn stress_of<const D: usize>(
     p: usize,
 ) -> Mat<D> {
     if stress.is_empty() {
-        materials[mat[p] as usize].stress_of_def_grad(&def_grad[p])
+        let m = &materials[mat[p] as usize];
+        if D == 3 {
+            stress_call(m, &def_grad[p])
+        } else {
+            m.stress_of_def_grad(&def_grad[p])
+        }
     } else {
         stress[p]
     }
 }
 
-/// `V σ` of particle `p`, its volume `vol` times [`stress_of`] (the same numbers), for
-/// the scatter.
-#[inline(always)]
-pub fn volume_stress_of<const D: usize>(
-    stress: &[Mat<D>],
-    def_grad: &[Mat<D>],
-    mat: &[u16],
-    materials: &[Material],
-    vol: f64,
-    p: usize,
-) -> Mat<D> {
-    if stress.is_empty() && D == 3 {
-        volume_stress_call(&materials[mat[p] as usize], &def_grad[p], vol)
-    } else {
-        stress_of(stress, def_grad, mat, materials, p) * vol
-    }
-}
-
-/// [`Material::stress_of_def_grad`] times `vol` as a call of its own, for the 3D
-/// scatter. Inlined into that loop, the 3D block drop ran 1.05× slower than with the
-/// call (paired runs against the build of `12f3fd6`, where the compiler had chosen the
-/// call by itself after an unrelated change; the builds before inlined it). In 2D the
-/// compiler inlines it, and that is as fast. Pinned here so that another unrelated
-/// change cannot flip the choice. The product with `vol` is inside: the caller's
-/// vector load of the returned matrix, formed from the callee's single stores, missed
-/// store-to-load forwarding and waited for them to retire (a fifth of the 3D
-/// scatter's samples, on the instructions after the call).
+/// [`Material::stress_of_def_grad`] as a call of its own, for the 3D scatter. Inlined
+/// into that loop, the 3D block drop ran 1.05× slower than with the call (paired runs
+/// against the build of `12f3fd6`, where the compiler had chosen the call by itself
+/// after an unrelated change; the builds before inlined it). In 2D the compiler
+/// inlines it, and that is as fast. Pinned here so that another unrelated change
+/// cannot flip the choice.
 #[inline(never)]
-fn volume_stress_call<const D: usize>(m: &Material, f: &Mat<D>, vol: f64) -> Mat<D> {
-    m.stress_of_def_grad(f) * vol
+fn stress_call<const D: usize>(m: &Material, f: &Mat<D>) -> Mat<D> {
+    m.stress_of_def_grad(f)
 }
 
 /// `dst` made a copy of `src`, reusing its allocation: on threads when the lengths
