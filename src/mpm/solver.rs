@@ -1006,6 +1006,23 @@ fn tree_sum<const N: usize>(
     }
 }
 
+/// Add particle `p`'s volume-weighted squared errors against the exact displacement
+/// and velocity `(u, v)`, and its volume, into the sums `s` of [`Solver::errors`].
+#[inline(always)]
+fn add_errors<const D: usize>(
+    s: &mut [f64; 3],
+    parts: &Particles<D>,
+    p: usize,
+    (u, v): (Vector<D>, Vector<D>),
+) {
+    let eu = parts.x[p] - parts.x0[p] - u;
+    let ev = parts.v[p] - v;
+    let w = parts.vol[p];
+    s[0] += w * eu.norm_squared();
+    s[1] += w * ev.norm_squared();
+    s[2] += w;
+}
+
 /// Particles per chunk of the tile pass's parallel locate (fixed, so that its runs do
 /// not depend on the thread count).
 const LOCATE_CHUNK: usize = 4096;
@@ -2390,25 +2407,26 @@ impl<'c, const D: usize> Solver<'c, D> {
         let chunk = |k: usize| {
             let mut s = [0.0; 3];
             for p in k * LOCATE_CHUNK..parts.len().min((k + 1) * LOCATE_CHUNK) {
-                let (u, v) = b.exact_of(&parts.x0, p);
-                let eu = parts.x[p] - parts.x0[p] - u;
-                let ev = parts.v[p] - v;
-                let w = parts.vol[p];
-                s[0] += w * eu.norm_squared();
-                s[1] += w * ev.norm_squared();
-                s[2] += w;
+                add_errors(&mut s, parts, p, b.exact_of(&parts.x0, p));
             }
             s
         };
-        let mut s = tree_sum(0, parts.len().div_ceil(LOCATE_CHUNK), &chunk);
+        let s = tree_sum(0, parts.len().div_ceil(LOCATE_CHUNK), &chunk);
+        Some(self.error_norms(s))
+    }
+
+    /// The L2 norms of [`Solver::errors`] from this rank's sums (`add_errors`), over
+    /// all ranks.
+    fn error_norms(&self, mut s: [f64; 3]) -> (f64, f64) {
         self.comm.sum_f64(&mut s);
-        Some(((s[0] / s[2]).sqrt(), (s[1] / s[2]).sqrt()))
+        ((s[0] / s[2]).sqrt(), (s[1] / s[2]).sqrt())
     }
 
     /// [`Solver::errors`], the same numbers, in a pass that also keeps in the memo
     /// each particle's body force at the current time where it shares the exact
-    /// solution's work ([`crate::physics::benchmark::At::exact_keeping_force`]): after a step, that is the next
-    /// step's body force, which its scatter then reads. Collective.
+    /// solution's work ([`crate::physics::benchmark::At::exact_keeping_force`]):
+    /// after a step, that is the next step's body force, which its scatter then
+    /// reads. Collective.
     pub fn errors_keeping_forces(&mut self) -> Option<(f64, f64)> {
         let b = self.benchmark.as_ref()?;
         let at = b.at(self.t);
@@ -2426,20 +2444,13 @@ impl<'c, const D: usize> Solver<'c, D> {
                 let mut s = [0.0; 3];
                 for (i, e) in memo.iter_mut().enumerate() {
                     let p = k * LOCATE_CHUNK + i;
-                    let (u, v) = at.exact_keeping_force(&parts.x0[p], e);
-                    let eu = parts.x[p] - parts.x0[p] - u;
-                    let ev = parts.v[p] - v;
-                    let w = parts.vol[p];
-                    s[0] += w * eu.norm_squared();
-                    s[1] += w * ev.norm_squared();
-                    s[2] += w;
+                    add_errors(&mut s, parts, p, at.exact_keeping_force(&parts.x0[p], e));
                 }
                 *sums = s;
             });
         let sums = &self.error_sums;
-        let mut s = tree_sum(0, chunks, &|k| sums[k]);
-        self.comm.sum_f64(&mut s);
-        Some(((s[0] / s[2]).sqrt(), (s[1] / s[2]).sqrt()))
+        let s = tree_sum(0, chunks, &|k| sums[k]);
+        Some(self.error_norms(s))
     }
 
     pub fn done(&self) -> bool {
