@@ -2442,10 +2442,11 @@ impl<'c, const D: usize> Solver<'c, D> {
             .enumerate()
             .for_each(|(k, (memo, sums))| {
                 let mut s = [0.0; 3];
-                for (i, e) in memo.iter_mut().enumerate() {
-                    let p = k * LOCATE_CHUNK + i;
-                    add_errors(&mut s, parts, p, at.exact_keeping_force(&parts.x0[p], e));
-                }
+                let first = k * LOCATE_CHUNK;
+                let x0 = &parts.x0[first..first + memo.len()];
+                at.exact_keeping_forces(x0, memo, |i, exact| {
+                    add_errors(&mut s, parts, first + i, exact)
+                });
                 *sums = s;
             });
         let sums = &self.error_sums;

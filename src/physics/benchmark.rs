@@ -350,6 +350,90 @@ impl<'a, const D: usize> At<'a, D> {
         self.exact_with(x0, &e.1, Some([s, c]))
     }
 
+    /// [`At::exact_keeping_force`] of particles `k = 0 ..` at reference positions
+    /// `x0[k]` with memo entries `e[k]`, handed to `each(k, (u, v))` in that order.
+    ///
+    /// The vortex's terms, angle, force and motion are pure arithmetic, but a particle
+    /// at a time they are a chain (the angle's series, then the force) that left the
+    /// core waiting: the error pass was a seventh of the vortex's step. Here eight
+    /// particles go through each stage together, lane by lane, by the same
+    /// expressions as the functions `exact_keeping_force` inlines, so the numbers are
+    /// the same to the bit; only the rare angle beyond ±π/4 takes libm's call.
+    #[inline]
+    pub(crate) fn exact_keeping_forces(
+        &self,
+        x0: &[Vector<D>],
+        e: &mut [MemoEntry<D>],
+        mut each: impl FnMut(usize, (Vector<D>, Vector<D>)),
+    ) {
+        const N: usize = 8;
+        let Benchmark::GeneralizedVortex {
+            mu, rho0, center, ..
+        } = *self.b
+        else {
+            for (k, (x, e)) in x0.iter().zip(e.iter_mut()).enumerate() {
+                each(k, self.exact_keeping_force(x, e));
+            }
+            return;
+        };
+        let g = mu / rho0;
+        let mut x_batches = x0.chunks_exact(N);
+        let mut e_batches = e.chunks_exact_mut(N);
+        for (b, (x0, e)) in (&mut x_batches).zip(&mut e_batches).enumerate() {
+            for (x, e) in x0.iter().zip(e.iter_mut()) {
+                if !same(&e.0, x) {
+                    *e = fresh(self.b, x);
+                }
+            }
+            let terms: [_; N] = std::array::from_fn(|k| self.vortex_terms(&e[k].1 .0));
+            // `rotated`, with the series in every lane and libm's call where it is due.
+            let mut sc = [(0.0, 0.0); N];
+            for (sc, t) in sc.iter_mut().zip(&terms) {
+                *sc = small_sin_cos(t.3);
+            }
+            for (sc, t) in sc.iter_mut().zip(&terms) {
+                // (NaN too, as in `rotated`.)
+                if t.3.abs() <= FRAC_PI_4 {
+                    continue;
+                }
+                *sc = libm_sin_cos(t.3);
+            }
+            let mut out = [(Vector::<D>::zeros(), Vector::<D>::zeros()); N];
+            for k in 0..N {
+                let (r, st, ct, _, al_t, al_tt, al_r, al_rr) = terms[k];
+                let (sa, ca) = sc[k];
+                let (sp, cp) = (st * ca + ct * sa, ct * ca - st * sa);
+                // `vortex_force`.
+                let br = -r * al_t * al_t + g * r * al_r * al_r;
+                let bt = r * al_tt - g * (r * al_rr + 3.0 * al_r);
+                let mut f = Vector::<D>::zeros();
+                f[0] = br * cp - bt * sp;
+                f[1] = br * sp + bt * cp;
+                (e[k].2, e[k].3) = (self.t, f);
+                // `vortex_motion` and `exact_with`.
+                let mut x = Vector::<D>::zeros();
+                x[0] = center[0] + r * cp;
+                x[1] = center[1] + r * sp;
+                let (u, v) = &mut out[k];
+                *u = x - x0[k];
+                v[0] = -al_t * r * sp;
+                v[1] = al_t * r * cp;
+            }
+            for (k, o) in out.into_iter().enumerate() {
+                each(b * N + k, o);
+            }
+        }
+        let done = x0.len() - x_batches.remainder().len();
+        for (k, (x, e)) in x_batches
+            .remainder()
+            .iter()
+            .zip(e_batches.into_remainder())
+            .enumerate()
+        {
+            each(done + k, self.exact_keeping_force(x, e));
+        }
+    }
+
     /// Exact displacement and velocity at reference position `x0`.
     pub fn exact(&self, x0: &Vector<D>) -> (Vector<D>, Vector<D>) {
         self.exact_with(x0, &self.b.factors(x0), None)
@@ -947,6 +1031,91 @@ mod tests {
             keep(&mut memo, &moved, t);
             check(&memo, &moved);
         }
+    }
+
+    /// `exact_keeping_forces` (eight particles at a time) hands out, in particle order,
+    /// what `exact_keeping_force` gives one at a time, and leaves the memo the same to
+    /// the bit: for full batches and a partial one, entries made for these positions
+    /// or for others, angles within ±π/4 (the series) and beyond (libm), and each
+    /// kind of benchmark.
+    #[test]
+    fn batched_keeping_is_the_one_at_a_time() {
+        // A spiral over the ring and a little beyond; 8 · 5 + 3 particles.
+        let x0: Vec<Vector<2>> = (0..43)
+            .map(|k| {
+                let (r, a) = (0.7 + 0.6 * k as f64 / 42.0, 2.39996 * k as f64);
+                Vector::<2>::new(r * a.cos(), r * a.sin())
+            })
+            .collect();
+        let (lambda, mu) = lame(1e4, 0.3);
+        let mms = Benchmark::<2>::AxisAlignedMms {
+            a: 0.05,
+            c: 100.0,
+            mu,
+            lambda,
+            rho0: 1.0,
+        };
+        let bits = |v: &Vector<2>| v.map(f64::to_bits);
+        let (mut series, mut libm) = (0, 0);
+        for b in [published_vortex(), mms] {
+            // At t = 0.5 the published vortex turns by α = h(R), beyond π/4 near R = 1.
+            for t in [0.0123, 0.5] {
+                let at = b.at(t);
+                let mut memo = Memo::default();
+                // Every third entry made for another position.
+                memo.refresh(&b, &x0.iter().map(|x| x * 1.5).collect::<Vec<_>>());
+                memo.refresh(
+                    &b,
+                    &x0.iter()
+                        .enumerate()
+                        .map(|(k, x)| if k % 3 == 0 { x * 1.5 } else { *x })
+                        .collect::<Vec<_>>(),
+                );
+                let mut one = memo.clone();
+                let mut batched = memo;
+                let want: Vec<_> = x0
+                    .iter()
+                    .zip(one.entries_mut())
+                    .map(|(x, e)| at.exact_keeping_force(x, e))
+                    .collect();
+                let mut got = Vec::new();
+                at.exact_keeping_forces(&x0, batched.entries_mut(), |k, uv| got.push((k, uv)));
+                assert_eq!(got.len(), x0.len());
+                for (k, ((i, (u, v)), (uw, vw))) in got.iter().zip(&want).enumerate() {
+                    assert_eq!(*i, k, "{b:?} t = {t}: order");
+                    assert!(
+                        bits(u) == bits(uw) && bits(v) == bits(vw),
+                        "{b:?} t = {t}, {k}"
+                    );
+                }
+                for (k, (m, o)) in batched.0.iter().zip(&one.0).enumerate() {
+                    assert!(
+                        bits(&m.0) == bits(&o.0) && bits(&m.3) == bits(&o.3),
+                        "entry {k}"
+                    );
+                    assert_eq!(m.2.to_bits(), o.2.to_bits(), "entry {k}");
+                    assert_eq!(
+                        m.1 .0.map(f64::to_bits),
+                        o.1 .0.map(f64::to_bits),
+                        "entry {k}"
+                    );
+                }
+                if let Benchmark::GeneralizedVortex { .. } = b {
+                    for e in &one.0 {
+                        let (_, _, _, al, ..) = at.vortex_terms(&e.1 .0);
+                        *if al.abs() <= FRAC_PI_4 {
+                            &mut series
+                        } else {
+                            &mut libm
+                        } += 1;
+                    }
+                }
+            }
+        }
+        assert!(
+            series > 0 && libm > 0,
+            "angles {series} within π/4, {libm} beyond"
+        );
     }
 
     /// A sort moves the memo's entries with their particles (`Solver::sort`): moved,
