@@ -27,7 +27,7 @@ use decomposition::tiles::{Tiles, NEIGHBOURS, TILE, TILE_LOG};
 use rayon::prelude::*;
 
 pub(crate) mod lanes;
-use lanes::{HALF, LANES};
+use lanes::{HALF, LANES, QUARTER};
 
 /// Slab thickness in cells for the coloured scatter (see [`scatter`] for why
 /// same-coloured slabs never share a node): a particle with hat functions writes the
@@ -1129,9 +1129,9 @@ fn gather_one<const D: usize, const N: usize>(
     }
 }
 
-/// How many particles from `p` the particle loops take at once: [`LANES`] or
-/// [`HALF`] where as many in a row share the cell corner `tile[p]` (and `batches`,
-/// the lanes apply to the pass), else 1.
+/// How many particles from `p` the particle loops take at once: [`LANES`], [`HALF`]
+/// or [`QUARTER`] where as many in a row share the cell corner `tile[p]` (and
+/// `batches`, the lanes apply to the pass), else 1.
 #[inline(always)]
 fn batch_width(batches: bool, tile: &[u32], p: usize) -> usize {
     let same = |b: usize| p + b <= tile.len() && tile[p + 1..p + b].iter().all(|&c| c == tile[p]);
@@ -1141,6 +1141,8 @@ fn batch_width(batches: bool, tile: &[u32], p: usize) -> usize {
         LANES
     } else if same(HALF) {
         HALF
+    } else if same(QUARTER) {
+        QUARTER
     } else {
         1
     }

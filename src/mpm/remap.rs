@@ -12,7 +12,7 @@
 //! (same formulas); the nodal momenta are summed per run of particles that share their
 //! nodes, as in `kernel::scatter`, so they equal the two passes' to round-off.
 
-use crate::mpm::kernel::lanes::{self, HALF, LANES};
+use crate::mpm::kernel::lanes::{self, HALF, LANES, QUARTER};
 use crate::mpm::kernel::{self, clip_at_slip_walls, Ctx, GridPtr, Kern, NodeData, Run, SlabOrder};
 use crate::physics::tensor::Vector;
 
@@ -142,7 +142,7 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
     let mut sum = [[0.0; N]; D];
     let mut run = Run::<D, NA, N>::new();
     let order = &slabs.order[slabs.start[first]..slabs.start[first + 1]];
-    // Hat functions: eight (or four) particles of a run at a time, their weights
+    // Hat functions: eight (or four, or two) particles of a run at a time, their weights
     // and interpolated velocities over lanes (`kernel::lanes`), the rest of each
     // particle's update one by one in order, so the same bits. (In 3D too: unlike
     // the stress pass, the remap's lanes are few numbers, the nodes' weights and two
@@ -150,7 +150,7 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
     let batches = !ctx.gimp;
     let mut i = 0;
     while i < order.len() {
-        if batches && i + HALF <= order.len() {
+        if batches && i + QUARTER <= order.len() {
             let tile = parts.tile[order[i] as usize];
             let same = |b: usize| {
                 i + b <= order.len()
@@ -162,6 +162,8 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
                 LANES
             } else if same(HALF) {
                 HALF
+            } else if same(QUARTER) {
+                QUARTER
             } else {
                 1
             };
@@ -175,10 +177,16 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
                 }
                 if !run.at_wall() {
                     let ps = &order[i..i + b];
-                    if b == LANES {
-                        remap_lanes::<D, N, LANES>(ctx, parts, pp, ps, &nd, m, &mut sum, &mut t);
-                    } else {
-                        remap_lanes::<D, N, HALF>(ctx, parts, pp, ps, &nd, m, &mut sum, &mut t);
+                    match b {
+                        LANES => {
+                            remap_lanes::<D, N, LANES>(ctx, parts, pp, ps, &nd, m, &mut sum, &mut t)
+                        }
+                        HALF => {
+                            remap_lanes::<D, N, HALF>(ctx, parts, pp, ps, &nd, m, &mut sum, &mut t)
+                        }
+                        _ => remap_lanes::<D, N, QUARTER>(
+                            ctx, parts, pp, ps, &nd, m, &mut sum, &mut t,
+                        ),
                     }
                     i += b;
                     continue;
@@ -365,6 +373,7 @@ mod tests {
                     (LANES, false, false),
                     (LANES, true, false),
                     (HALF, true, false),
+                    (QUARTER, true, false),
                     (LANES, false, true),
                 ] {
                     let n = LANES;
@@ -437,14 +446,16 @@ mod tests {
                     }
                     let pb = ptr(&mut vb, &mut dxb);
                     let ps: Vec<u32> = (0..width as u32).collect();
-                    if width == LANES {
-                        remap_lanes::<D, N, LANES>(
+                    match width {
+                        LANES => remap_lanes::<D, N, LANES>(
                             &ctx, &parts, pb, &ps, &nd, m, &mut sumb, &mut tb,
-                        );
-                    } else {
-                        remap_lanes::<D, N, HALF>(
+                        ),
+                        HALF => remap_lanes::<D, N, HALF>(
                             &ctx, &parts, pb, &ps, &nd, m, &mut sumb, &mut tb,
-                        );
+                        ),
+                        _ => remap_lanes::<D, N, QUARTER>(
+                            &ctx, &parts, pb, &ps, &nd, m, &mut sumb, &mut tb,
+                        ),
                     }
                     let what = format!(
                         "{D}D, {width} lanes, flip {flip}, keep dx {keep_dx}, body force {body}, infinite node {nan}"
@@ -467,7 +478,7 @@ mod tests {
                 }
             }
         }
-        assert_eq!(cases, 24);
+        assert_eq!(cases, 30);
     }
 
     #[test]

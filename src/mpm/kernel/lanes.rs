@@ -1,5 +1,6 @@
-//! Particle loops eight particles of a run at a time ([`LANES`], or [`HALF`] where runs
-//! are shorter): the stress pass, the gather and MUSL's remap, in 2D and 3D.
+//! Particle loops eight particles of a run at a time ([`LANES`], or [`HALF`] or
+//! [`QUARTER`] where runs are shorter): the stress pass, the gather and MUSL's remap,
+//! in 2D and 3D.
 //!
 //! Why: one particle's update is a chain of small matrix products (weights, velocity
 //! gradient, `F ← (I + L dt) F`, the move) that the compiler can only vectorise
@@ -26,6 +27,10 @@ use std::ops::Range;
 pub const LANES: usize = 8;
 /// The short batch: half a register.
 pub const HALF: usize = 4;
+/// The shortest: a quarter. Where particles cross cells (the vortex between its
+/// sorts), runs of 2 and 3 are common; one at a time, they were the dearer half of the
+/// stress pass.
+pub const QUARTER: usize = 2;
 
 /// Whether the batch path can take this pass at all: hat functions, and particles
 /// whose stress is formed from `F` where it is used (neo-Hookean), so that
@@ -94,10 +99,10 @@ pub fn batch<const D: usize, const N: usize>(
             marks[l] += bad[l];
         }
     }
-    if width == LANES {
-        of::<D, N, LANES>(ctx, s, p0, nd, m, t, marks)
-    } else {
-        of::<D, N, HALF>(ctx, s, p0, nd, m, t, marks)
+    match width {
+        LANES => of::<D, N, LANES>(ctx, s, p0, nd, m, t, marks),
+        HALF => of::<D, N, HALF>(ctx, s, p0, nd, m, t, marks),
+        _ => of::<D, N, QUARTER>(ctx, s, p0, nd, m, t, marks),
     }
 }
 
@@ -734,7 +739,7 @@ mod tests {
     /// Velocity gradient scale, starting maximum of the signal speed, lane with a
     /// non-finite F, batch width: gentle and steep (inverting) gradients, maxima
     /// below and above the particles' speeds, both widths.
-    const VARIANTS: [(f64, f64, Option<usize>, usize); 7] = [
+    const VARIANTS: [(f64, f64, Option<usize>, usize); 10] = [
         (1.0, 0.0, None, LANES),
         (1.0, 1e3, None, LANES),
         (1e5, 0.0, None, LANES),
@@ -742,6 +747,9 @@ mod tests {
         (1.0, 0.0, None, HALF),
         (1e5, 0.0, None, HALF),
         (1.0, 0.0, Some(2), HALF),
+        (1.0, 0.0, None, QUARTER),
+        (1e5, 0.0, None, QUARTER),
+        (1.0, 0.0, Some(1), QUARTER),
     ];
 
     /// Random node data of a run, velocities scaled by `steep`, with the
@@ -881,14 +889,20 @@ mod tests {
                     // A batch at a time.
                     let mut sb = slices(&mut b, &mut dx_b, &tile, &xi, &[]);
                     assert!(applies(false, &sb));
-                    let (ok, top) = if width == LANES {
-                        let ok =
-                            physical(&deform_and_move::<D, N, LANES>(&ctx, &mut sb, 0, &nd, &m));
-                        (ok, batch_speed::<D, LANES>(&ctx, &sb, max0))
-                    } else {
-                        let ok =
-                            physical(&deform_and_move::<D, N, HALF>(&ctx, &mut sb, 0, &nd, &m));
-                        (ok, batch_speed::<D, HALF>(&ctx, &sb, max0))
+                    fn one_batch<const D: usize, const N: usize, const B: usize>(
+                        ctx: &Ctx<'_, D>,
+                        sb: &mut Slices<'_, D>,
+                        nd: &NodeData<D, N>,
+                        m: &StressMode,
+                        max0: f64,
+                    ) -> (bool, f64) {
+                        let ok = physical(&deform_and_move::<D, N, B>(ctx, sb, 0, nd, m));
+                        (ok, batch_speed::<D, B>(ctx, sb, max0))
+                    }
+                    let (ok, top) = match width {
+                        LANES => one_batch::<D, N, LANES>(&ctx, &mut sb, &nd, &m, max0),
+                        HALF => one_batch::<D, N, HALF>(&ctx, &mut sb, &nd, &m, max0),
+                        _ => one_batch::<D, N, QUARTER>(&ctx, &mut sb, &nd, &m, max0),
                     };
                     let what = format!(
                         "{width} lanes, {alpha:?}, two-step {two_step}, moves {moves}/{moves_kept}, steep {steep}, max {max0}, NaN {nan_lane:?}"
@@ -904,7 +918,7 @@ mod tests {
                 }
             }
         }
-        assert_eq!(cases, 112);
+        assert_eq!(cases, 160);
         // The comparison covered inverted states, not only physical ones.
         assert!(inverted >= 8, "{inverted} cases inverted a particle");
     }
@@ -984,11 +998,15 @@ mod tests {
             batch(&ctx, &mut s, 0, width, &nd, Pass::Stress(&m), &mut t, marks);
         };
         let mut marks = [0.0; LANES];
-        for width in [LANES, HALF, LANES] {
+        for width in [LANES, HALF, QUARTER, LANES] {
             pass(&mut marks, None, 1.0, width);
         }
         assert!(physical(&marks));
-        for (nan_lane, steep, width) in [(Some(3), 1.0, LANES), (None, 1e5, HALF)] {
+        for (nan_lane, steep, width) in [
+            (Some(3), 1.0, LANES),
+            (None, 1e5, HALF),
+            (Some(1), 1.0, QUARTER),
+        ] {
             let mut marks = [0.0; LANES];
             pass(&mut marks, nan_lane, steep, width);
             assert!(
@@ -1074,14 +1092,21 @@ mod tests {
                     ta.max_speed = (0..width).fold(ta.max_speed, |v, p| speed_one(&ctx, &sa, p, v));
                     let mut sb = slices(&mut b, &mut dx_b, &tile, &xi, &accel);
                     let mut work = 0.25;
-                    let (ok, top) = if width == LANES {
-                        let ok =
-                            physical(&gather::<D, N, LANES>(&ctx, &mut sb, 0, &nd, &m, &mut work));
-                        (ok, batch_speed::<D, LANES>(&ctx, &sb, max0))
-                    } else {
-                        let ok =
-                            physical(&gather::<D, N, HALF>(&ctx, &mut sb, 0, &nd, &m, &mut work));
-                        (ok, batch_speed::<D, HALF>(&ctx, &sb, max0))
+                    fn one_batch<const D: usize, const N: usize, const B: usize>(
+                        ctx: &Ctx<'_, D>,
+                        sb: &mut Slices<'_, D>,
+                        nd: &NodeData<D, N>,
+                        m: &GatherMode,
+                        max0: f64,
+                        work: &mut f64,
+                    ) -> (bool, f64) {
+                        let ok = physical(&gather::<D, N, B>(ctx, sb, 0, nd, m, work));
+                        (ok, batch_speed::<D, B>(ctx, sb, max0))
+                    }
+                    let (ok, top) = match width {
+                        LANES => one_batch::<D, N, LANES>(&ctx, &mut sb, &nd, &m, max0, &mut work),
+                        HALF => one_batch::<D, N, HALF>(&ctx, &mut sb, &nd, &m, max0, &mut work),
+                        _ => one_batch::<D, N, QUARTER>(&ctx, &mut sb, &nd, &m, max0, &mut work),
                     };
                     let what = format!(
                         "{width} lanes, {alpha:?}, two-step {two_step}, recon {recon}, stress {stress}, move now {move_now}, flip {flip}, steep {steep}, max {max0}, NaN {nan_lane:?}"
@@ -1097,7 +1122,7 @@ mod tests {
                 }
             }
         }
-        assert_eq!(cases, 140);
+        assert_eq!(cases, 200);
         assert!(inverted >= 8, "{inverted} cases inverted a particle");
     }
 }
