@@ -385,39 +385,53 @@ impl<'a, const D: usize> At<'a, D> {
                     *e = fresh(self.b, x);
                 }
             }
-            let terms: [_; N] = std::array::from_fn(|k| self.vortex_terms(&e[k].1 .0));
-            // `rotated`, with the series in every lane and libm's call where it is due.
-            let mut sc = [(0.0, 0.0); N];
-            for (sc, t) in sc.iter_mut().zip(&terms) {
-                *sc = small_sin_cos(t.3);
+            // Each term in an array of its own, so that every loop below is whole
+            // vector operations (arrays of tuples left the series half scalar).
+            let [mut r, mut st, mut ct, mut al, mut al_t, mut al_tt, mut al_r, mut al_rr] =
+                [[0.0; N]; 8];
+            for k in 0..N {
+                (
+                    r[k], st[k], ct[k], al[k], al_t[k], al_tt[k], al_r[k], al_rr[k],
+                ) = self.vortex_terms(&e[k].1 .0);
             }
-            for (sc, t) in sc.iter_mut().zip(&terms) {
+            // `rotated`, with the series in every lane and libm's call where it is due.
+            let (mut sa, mut ca) = ([0.0; N], [0.0; N]);
+            for k in 0..N {
+                (sa[k], ca[k]) = small_sin_cos(al[k]);
+            }
+            for k in 0..N {
                 // (NaN too, as in `rotated`.)
-                if t.3.abs() <= FRAC_PI_4 {
+                if al[k].abs() <= FRAC_PI_4 {
                     continue;
                 }
-                *sc = libm_sin_cos(t.3);
+                (sa[k], ca[k]) = libm_sin_cos(al[k]);
+            }
+            let [mut f0, mut f1, mut x0s, mut x1s, mut v0, mut v1] = [[0.0; N]; 6];
+            for k in 0..N {
+                let (sp, cp) = (st[k] * ca[k] + ct[k] * sa[k], ct[k] * ca[k] - st[k] * sa[k]);
+                // `vortex_force`.
+                let (r, al_t, al_r) = (r[k], al_t[k], al_r[k]);
+                let br = -r * al_t * al_t + g * r * al_r * al_r;
+                let bt = r * al_tt[k] - g * (r * al_rr[k] + 3.0 * al_r);
+                f0[k] = br * cp - bt * sp;
+                f1[k] = br * sp + bt * cp;
+                // `vortex_motion`.
+                x0s[k] = center[0] + r * cp;
+                x1s[k] = center[1] + r * sp;
+                v0[k] = -al_t * r * sp;
+                v1[k] = al_t * r * cp;
             }
             let mut out = [(Vector::<D>::zeros(), Vector::<D>::zeros()); N];
             for k in 0..N {
-                let (r, st, ct, _, al_t, al_tt, al_r, al_rr) = terms[k];
-                let (sa, ca) = sc[k];
-                let (sp, cp) = (st * ca + ct * sa, ct * ca - st * sa);
-                // `vortex_force`.
-                let br = -r * al_t * al_t + g * r * al_r * al_r;
-                let bt = r * al_tt - g * (r * al_rr + 3.0 * al_r);
                 let mut f = Vector::<D>::zeros();
-                f[0] = br * cp - bt * sp;
-                f[1] = br * sp + bt * cp;
+                (f[0], f[1]) = (f0[k], f1[k]);
                 (e[k].2, e[k].3) = (self.t, f);
-                // `vortex_motion` and `exact_with`.
+                // `exact_with`.
                 let mut x = Vector::<D>::zeros();
-                x[0] = center[0] + r * cp;
-                x[1] = center[1] + r * sp;
+                (x[0], x[1]) = (x0s[k], x1s[k]);
                 let (u, v) = &mut out[k];
                 *u = x - x0[k];
-                v[0] = -al_t * r * sp;
-                v[1] = al_t * r * cp;
+                (v[0], v[1]) = (v0[k], v1[k]);
             }
             for (k, o) in out.into_iter().enumerate() {
                 each(b * N + k, o);
