@@ -332,7 +332,10 @@ impl<'a, const D: usize> At<'a, D> {
     /// current polar angle: the error norms after a step and the next step's body
     /// force are at the same time, and one pass forms both (the same numbers as
     /// [`At::exact`] and [`At::body_force`]).
-    #[inline]
+    // Always: out of line, its result came back through memory, and the loads that
+    // read it waited on the stores (store forwarding failed): the MMS's error pass
+    // took 2.4× its share of the step.
+    #[inline(always)]
     pub(crate) fn exact_keeping_force(
         &self,
         x0: &Vector<D>,
