@@ -1582,25 +1582,28 @@ impl GridPtr {
     /// hint, no access (an address outside the storage is never touched).
     #[inline(always)]
     pub(crate) fn prefetch(self, at: usize, width: usize) {
-        prefetch_lines(self.ptr.wrapping_add(at), width);
+        prefetch_lines(self.ptr.wrapping_add(at).cast(), width * size_of::<f64>());
     }
 }
 
 /// Ask for the cache lines of `field[at..at + width]` ahead of their use: a hint, no
 /// access (a range outside the field is never touched).
 #[inline(always)]
-pub(crate) fn prefetch(field: &[f64], at: usize, width: usize) {
-    prefetch_lines(field.as_ptr().wrapping_add(at), width);
+pub(crate) fn prefetch<T>(field: &[T], at: usize, width: usize) {
+    prefetch_lines(
+        field.as_ptr().wrapping_add(at).cast(),
+        width * size_of::<T>(),
+    );
 }
 
-/// Prefetch the cache lines of the `width` numbers from `first`: only an address, never
+/// Prefetch the cache lines of the `bytes` bytes from `first`: only an address, never
 /// dereferenced.
 #[inline(always)]
-fn prefetch_lines(first: *const f64, width: usize) {
+fn prefetch_lines(first: *const u8, bytes: usize) {
     #[cfg(target_arch = "x86_64")]
-    {
+    if bytes > 0 {
         use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-        let last = first.wrapping_add(width - 1) as usize;
+        let last = first.wrapping_add(bytes - 1) as usize;
         let mut line = first as usize & !63;
         while line <= last {
             // SAFETY: a prefetch is a hint: it never faults, whatever the address, and
@@ -1610,7 +1613,7 @@ fn prefetch_lines(first: *const f64, width: usize) {
         }
     }
     #[cfg(not(target_arch = "x86_64"))]
-    let _ = (first, width);
+    let _ = (first, bytes);
 }
 
 // SAFETY: a `GridPtr` is only made in `scatter` from a `&mut [f64]` that it holds for

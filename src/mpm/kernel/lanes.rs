@@ -27,6 +27,8 @@ use std::ops::Range;
 pub const LANES: usize = 8;
 /// The short batch: half a register.
 pub const HALF: usize = 4;
+/// How many particles past a batch's last its `F` is prefetched.
+const AHEAD: usize = 16;
 /// The shortest: a quarter. Where particles cross cells (the vortex between its
 /// sorts), runs of 2 and 3 are common; one at a time, they were the dearer half of the
 /// stress pass.
@@ -234,6 +236,11 @@ impl<const D: usize, const N: usize, const B: usize> Batch<D, N, B> {
             }
         }
         let j = det_lanes(&inc);
+        // `F`, the widest array the pass streams (72 bytes a particle in 3D), asked for
+        // ahead: its loads here waited on memory (a sixth of the 3D stress pass).
+        let fs = &s.parts.def_grad;
+        let ahead = (r.end + AHEAD).min(fs.len());
+        super::prefetch(fs, ahead.saturating_sub(B).max(r.end), B.min(ahead - r.end));
         let fs: &mut [Mat<D>; B] = (&mut s.parts.def_grad[r.clone()])
             .try_into()
             .expect("a full batch");
