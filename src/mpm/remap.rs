@@ -107,6 +107,20 @@ pub fn remap<const D: usize, const NA: usize, const N: usize>(
     t
 }
 
+/// How many of the particles `order` names, from its first, the remap takes at once:
+/// [`LANES`], [`HALF`] or [`QUARTER`] where as many in a row share the cell corner
+/// `tile` of the first, else 1 (`kernel::batch_width`, through the slab order).
+#[inline(always)]
+fn run_width(tile: &[u32], order: &[u32]) -> usize {
+    let first = tile[order[0] as usize];
+    let same =
+        |b: usize| b <= order.len() && order[1..b].iter().all(|&q| tile[q as usize] == first);
+    [LANES, HALF, QUARTER]
+        .into_iter()
+        .find(|&b| same(b))
+        .unwrap_or(1)
+}
+
 #[allow(clippy::too_many_arguments)]
 fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
@@ -152,21 +166,7 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
     while i < order.len() {
         if batches && i + QUARTER <= order.len() {
             let tile = parts.tile[order[i] as usize];
-            let same = |b: usize| {
-                i + b <= order.len()
-                    && order[i + 1..i + b]
-                        .iter()
-                        .all(|&q| parts.tile[q as usize] == tile)
-            };
-            let b = if same(LANES) {
-                LANES
-            } else if same(HALF) {
-                HALF
-            } else if same(QUARTER) {
-                QUARTER
-            } else {
-                1
-            };
+            let b = run_width(parts.tile, &order[i..]);
             if b > 1 {
                 if run.is_new(tile, [0; D]) {
                     if run.started() {

@@ -801,6 +801,18 @@ mod tests {
         assert!(worst <= 3.0 * f64::EPSILON, "{worst}");
     }
 
+    /// An axis-aligned MMS whose particles cross cells (A = 0.05, c = 100, E = 1e4).
+    fn test_mms() -> Benchmark<2> {
+        let (lambda, mu) = lame(1e4, 0.3);
+        Benchmark::AxisAlignedMms {
+            a: 0.05,
+            c: 100.0,
+            mu,
+            lambda,
+            rho0: 1.0,
+        }
+    }
+
     /// The vortex with the published parameters: E = 1000, ν = 0.3, ρ0 = 1000, A = c = 1.
     fn published_vortex() -> Benchmark<2> {
         let (_, mu) = lame(1000.0, 0.3);
@@ -962,14 +974,7 @@ mod tests {
     /// body force formed from the position itself, for each kind of benchmark.
     #[test]
     fn memo_changes_no_bit() {
-        let (lambda, mu) = lame(1e4, 0.3);
-        let mms = Benchmark::<2>::AxisAlignedMms {
-            a: 0.05,
-            c: 100.0,
-            mu,
-            lambda,
-            rho0: 1.0,
-        };
+        let mms = test_mms();
         let bar = Benchmark::<2>::VibratingBar {
             v0: 0.1,
             beta: 1.3,
@@ -1064,14 +1069,7 @@ mod tests {
                 Vector::<2>::new(r * a.cos(), r * a.sin())
             })
             .collect();
-        let (lambda, mu) = lame(1e4, 0.3);
-        let mms = Benchmark::<2>::AxisAlignedMms {
-            a: 0.05,
-            c: 100.0,
-            mu,
-            lambda,
-            rho0: 1.0,
-        };
+        let mms = test_mms();
         let bits = |v: &Vector<2>| v.map(f64::to_bits);
         let (mut series, mut libm) = (0, 0);
         for b in [published_vortex(), mms] {
