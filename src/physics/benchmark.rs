@@ -411,18 +411,10 @@ impl<'a, const D: usize> At<'a, D> {
             }
             let [mut f0, mut f1, mut x0s, mut x1s, mut v0, mut v1] = [[0.0; N]; 6];
             for k in 0..N {
-                let (sp, cp) = (st[k] * ca[k] + ct[k] * sa[k], ct[k] * ca[k] - st[k] * sa[k]);
-                // `vortex_force`.
-                let (r, al_t, al_r) = (r[k], al_t[k], al_r[k]);
-                let br = -r * al_t * al_t + g * r * al_r * al_r;
-                let bt = r * al_tt[k] - g * (r * al_rr[k] + 3.0 * al_r);
-                f0[k] = br * cp - bt * sp;
-                f1[k] = br * sp + bt * cp;
-                // `vortex_motion`.
-                x0s[k] = center[0] + r * cp;
-                x1s[k] = center[1] + r * sp;
-                v0[k] = -al_t * r * sp;
-                v1[k] = al_t * r * cp;
+                let angle = (st[k] * ca[k] + ct[k] * sa[k], ct[k] * ca[k] - st[k] * sa[k]);
+                let terms = [r[k], al_t[k], al_tt[k], al_r[k], al_rr[k]];
+                [f0[k], f1[k]] = vortex_force_of(g, terms, angle);
+                ([x0s[k], x1s[k]], [v0[k], v1[k]]) = vortex_motion_of(center, r[k], al_t[k], angle);
             }
             let mut out = [(Vector::<D>::zeros(), Vector::<D>::zeros()); N];
             for k in 0..N {
@@ -520,14 +512,10 @@ impl<'a, const D: usize> At<'a, D> {
             unreachable!()
         };
         let (r, st, ct, al, al_t, al_tt, al_r, al_rr) = self.vortex_terms(f);
-        let g = mu / rho0;
-        let br = -r * al_t * al_t + g * r * al_r * al_r;
-        let bt = r * al_tt - g * (r * al_rr + 3.0 * al_r);
         // Of the current polar angle Θ + α.
-        let (sp, cp) = angle.map_or_else(|| rotated_unkept(st, ct, al), |[s, c]| (s, c));
+        let angle = angle.map_or_else(|| rotated_unkept(st, ct, al), |[s, c]| (s, c));
         let mut b = Vector::<D>::zeros();
-        b[0] = br * cp - bt * sp;
-        b[1] = br * sp + bt * cp;
+        [b[0], b[1]] = vortex_force_of(mu / rho0, [r, al_t, al_tt, al_r, al_rr], angle);
         b
     }
 
@@ -652,15 +640,40 @@ impl<'a, const D: usize> At<'a, D> {
         // (Without a kept angle, from the terms at hand: `vortex_angle` would form
         // them again.)
         let (r, st, ct, al, al_t, ..) = self.vortex_terms(f);
-        let (sp, cp) = angle.map_or_else(|| rotated_unkept(st, ct, al), |[s, c]| (s, c));
+        let angle = angle.map_or_else(|| rotated_unkept(st, ct, al), |[s, c]| (s, c));
         let mut x = Vector::<D>::zeros();
         let mut v = Vector::<D>::zeros();
-        x[0] = center[0] + r * cp;
-        x[1] = center[1] + r * sp;
-        v[0] = -al_t * r * sp;
-        v[1] = al_t * r * cp;
+        ([x[0], x[1]], [v[0], v[1]]) = vortex_motion_of(center, r, al_t, angle);
         (x, v)
     }
+}
+
+/// The vortex's body force per unit mass from its terms (R, α_t, α_tt, α_R, α_RR of
+/// `At::vortex_terms`), `g = μ/ρ0` and the sine and cosine of the current polar angle.
+#[inline(always)]
+fn vortex_force_of(
+    g: f64,
+    [r, al_t, al_tt, al_r, al_rr]: [f64; 5],
+    (sp, cp): (f64, f64),
+) -> [f64; 2] {
+    let br = -r * al_t * al_t + g * r * al_r * al_r;
+    let bt = r * al_tt - g * (r * al_rr + 3.0 * al_r);
+    [br * cp - bt * sp, br * sp + bt * cp]
+}
+
+/// The vortex's current position and velocity at radius `r` turning at `α_t`, from the
+/// sine and cosine of the current polar angle.
+#[inline(always)]
+fn vortex_motion_of(
+    center: [f64; 2],
+    r: f64,
+    al_t: f64,
+    (sp, cp): (f64, f64),
+) -> ([f64; 2], [f64; 2]) {
+    (
+        [center[0] + r * cp, center[1] + r * sp],
+        [-al_t * r * sp, al_t * r * cp],
+    )
 }
 
 /// Sine and cosine of Θ + α from those of Θ (a particle's reference polar angle,
