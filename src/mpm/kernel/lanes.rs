@@ -799,6 +799,39 @@ mod tests {
         }
     }
 
+    /// One batch of `width` particles from the first of `sb` through pass `m` (the
+    /// gather's external work into `work`): whether every state is physical, and the
+    /// signal speed raised from `max0` after it.
+    fn one_batch<const D: usize, const N: usize>(
+        ctx: &Ctx<'_, D>,
+        sb: &mut Slices<'_, D>,
+        width: usize,
+        nd: &NodeData<D, N>,
+        m: Pass<'_>,
+        max0: f64,
+        work: &mut f64,
+    ) -> (bool, f64) {
+        fn of<const D: usize, const N: usize, const B: usize>(
+            ctx: &Ctx<'_, D>,
+            sb: &mut Slices<'_, D>,
+            nd: &NodeData<D, N>,
+            m: Pass<'_>,
+            max0: f64,
+            work: &mut f64,
+        ) -> (bool, f64) {
+            let bad = match m {
+                Pass::Stress(m) => deform_and_move::<D, N, B>(ctx, sb, 0, nd, m),
+                Pass::Gather(m) => gather::<D, N, B>(ctx, sb, 0, nd, m, work),
+            };
+            (physical(&bad), batch_speed::<D, B>(ctx, sb, max0))
+        }
+        match width {
+            LANES => of::<D, N, LANES>(ctx, sb, nd, m, max0, work),
+            HALF => of::<D, N, HALF>(ctx, sb, nd, m, max0, work),
+            _ => of::<D, N, QUARTER>(ctx, sb, nd, m, max0, work),
+        }
+    }
+
     /// The signal speed of the batch at the start of `s`, from `max` ([`raise_speed`]
     /// and its lanes' [`fold`]).
     fn batch_speed<const D: usize, const B: usize>(
@@ -896,21 +929,8 @@ mod tests {
                     // A batch at a time.
                     let mut sb = slices(&mut b, &mut dx_b, &tile, &xi, &[]);
                     assert!(applies(false, &sb));
-                    fn one_batch<const D: usize, const N: usize, const B: usize>(
-                        ctx: &Ctx<'_, D>,
-                        sb: &mut Slices<'_, D>,
-                        nd: &NodeData<D, N>,
-                        m: &StressMode,
-                        max0: f64,
-                    ) -> (bool, f64) {
-                        let ok = physical(&deform_and_move::<D, N, B>(ctx, sb, 0, nd, m));
-                        (ok, batch_speed::<D, B>(ctx, sb, max0))
-                    }
-                    let (ok, top) = match width {
-                        LANES => one_batch::<D, N, LANES>(&ctx, &mut sb, &nd, &m, max0),
-                        HALF => one_batch::<D, N, HALF>(&ctx, &mut sb, &nd, &m, max0),
-                        _ => one_batch::<D, N, QUARTER>(&ctx, &mut sb, &nd, &m, max0),
-                    };
+                    let (ok, top) =
+                        one_batch(&ctx, &mut sb, width, &nd, Pass::Stress(&m), max0, &mut 0.0);
                     let what = format!(
                         "{width} lanes, {alpha:?}, two-step {two_step}, moves {moves}/{moves_kept}, steep {steep}, max {max0}, NaN {nan_lane:?}"
                     );
@@ -1099,22 +1119,8 @@ mod tests {
                     ta.max_speed = (0..width).fold(ta.max_speed, |v, p| speed_one(&ctx, &sa, p, v));
                     let mut sb = slices(&mut b, &mut dx_b, &tile, &xi, &accel);
                     let mut work = 0.25;
-                    fn one_batch<const D: usize, const N: usize, const B: usize>(
-                        ctx: &Ctx<'_, D>,
-                        sb: &mut Slices<'_, D>,
-                        nd: &NodeData<D, N>,
-                        m: &GatherMode,
-                        max0: f64,
-                        work: &mut f64,
-                    ) -> (bool, f64) {
-                        let ok = physical(&gather::<D, N, B>(ctx, sb, 0, nd, m, work));
-                        (ok, batch_speed::<D, B>(ctx, sb, max0))
-                    }
-                    let (ok, top) = match width {
-                        LANES => one_batch::<D, N, LANES>(&ctx, &mut sb, &nd, &m, max0, &mut work),
-                        HALF => one_batch::<D, N, HALF>(&ctx, &mut sb, &nd, &m, max0, &mut work),
-                        _ => one_batch::<D, N, QUARTER>(&ctx, &mut sb, &nd, &m, max0, &mut work),
-                    };
+                    let (ok, top) =
+                        one_batch(&ctx, &mut sb, width, &nd, Pass::Gather(&m), max0, &mut work);
                     let what = format!(
                         "{width} lanes, {alpha:?}, two-step {two_step}, recon {recon}, stress {stress}, move now {move_now}, flip {flip}, steep {steep}, max {max0}, NaN {nan_lane:?}"
                     );
