@@ -238,9 +238,8 @@ impl<const D: usize, const N: usize, const B: usize> Batch<D, N, B> {
         let j = det_lanes(&inc);
         // `F`, the widest array the pass streams (72 bytes a particle in 3D), asked for
         // ahead: its loads here waited on memory (a sixth of the 3D stress pass).
-        let fs = &s.parts.def_grad;
-        let ahead = (r.end + AHEAD).min(fs.len());
-        super::prefetch(fs, ahead.saturating_sub(B).max(r.end), B.min(ahead - r.end));
+        // (Past the array's end only addresses are formed: a prefetch never faults.)
+        super::prefetch(s.parts.def_grad, r.end + AHEAD - B, B);
         let fs: &mut [Mat<D>; B] = (&mut s.parts.def_grad[r.clone()])
             .try_into()
             .expect("a full batch");
