@@ -7,13 +7,20 @@ Usage (after `cargo build --release`):
         [--dims 2,3] [--rounds 3] [--gradient mpmcg] [--update musl]
 
 Per dimension (2D 256^2 cells x 4^2 per cell, 3D 64^3 x 2^3, MUSL, MPMCG) and round,
-three configurations run in turn: 1 thread pinned to core 0 (`taskset -c 0`), 1 rank
-with `--threads 2`, and `mpirun -n 2` with one thread each. Each runs the scene to two
-step counts (10 and 110 in 2D, 5 and 45 in 3D) and the particle updates per second
-are particles x (difference of steps) / (difference of whole-process wall seconds),
-so seeding and start-up drop out. Prints each round and the medians; the speed-ups are
-the median pups over the median one-thread pups, with the per-round ratios. About 5
-minutes for both dimensions and 3 rounds on a 2-core machine; run it on an idle one.
+four configurations run in turn: 1 thread pinned to core 0 (`taskset -c 0`), 1 rank
+with `--threads 2`, `mpirun -n 2` with one thread each, and "2 copies": two independent
+one-thread runs of the same scene at once, pinned to cores 0 and 1. Each runs the scene
+to two step counts (10 and 110 in 2D, 5 and 45 in 3D) and the particle updates per
+second are particles x copies x (difference of steps) / (difference of whole-process
+wall seconds, until every copy ended), so seeding and start-up drop out. Prints each
+round and the medians; the speed-ups are the median pups over the median one-thread
+pups, with the per-round ratios.
+
+The copies share no work and exchange nothing, so their speed-up is what the machine
+gives two cores doing this step at all (its shared memory bus, caches and clock):
+the ceiling for 2 threads and 2 ranks, whose speed-ups are also given as a fraction
+of it. About 7 minutes for both dimensions and 3 rounds on a 2-core machine; run it
+on an idle one.
 """
 
 import argparse
@@ -45,22 +52,36 @@ def main():
     if mpirun is None:
         sys.exit("mpirun not found (scripts/setup.sh installs Open MPI)")
     root = ["--allow-run-as-root"] if os.geteuid() == 0 else []
+    # Each configuration: the commands started together (one per copy), before and
+    # after `run SCENE --out DIR --quiet`.
+    single = ["--threads", "1"]
     configs = {
-        "1 thread": (["taskset", "-c", "0", binary], ["--threads", "1"]),
-        "2 threads": ([binary], ["--threads", "2"]),
-        "2 ranks": ([mpirun, *root, "--oversubscribe", "-n", "2", binary], ["--threads", "1"]),
+        "1 thread": [(["taskset", "-c", "0", binary], single)],
+        "2 threads": [([binary], ["--threads", "2"])],
+        "2 ranks": [([mpirun, *root, "--oversubscribe", "-n", "2", binary], single)],
+        "2 copies": [(["taskset", "-c", str(c), binary], single) for c in (0, 1)],
     }
     with tempfile.TemporaryDirectory() as tmp:
 
-        def run(pre, post, scene, out):
+        def run(copies, scene, out):
+            """Particles (all copies'), steps and wall seconds until every copy ended."""
             t = time.perf_counter()
-            r = subprocess.run(pre + ["run", scene, "--out", out, "--quiet"] + post, capture_output=True, text=True)
+            procs = []
+            for c, (pre, post) in enumerate(copies):
+                cmd = pre + ["run", scene, "--out", f"{out}_{c}", "--quiet"] + post
+                procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+            done = [p.communicate() for p in procs]
             wall = time.perf_counter() - t
-            if r.returncode != 0:
-                sys.exit(f"mpmcg failed ({r.returncode}): {scene}\n{r.stderr}")
-            with open(os.path.join(out, "summary.json")) as f:
-                s = json.load(f)
-            return s["particles"], s["steps"], wall
+            particles, steps = 0, set()
+            for c, (p, (_, err)) in enumerate(zip(procs, done)):
+                if p.returncode != 0:
+                    sys.exit(f"mpmcg failed ({p.returncode}): {scene}\n{err}")
+                with open(os.path.join(f"{out}_{c}", "summary.json")) as f:
+                    s = json.load(f)
+                particles += s["particles"]
+                steps.add(s["steps"])
+            assert len(steps) == 1, f"copies ended at different steps: {steps}"
+            return particles, steps.pop(), wall
 
         for d in (int(x) for x in a.dims.split(",")):
             cells, ppc, short, long = SIZES[d]
@@ -73,9 +94,9 @@ def main():
                 scenes.append(path)
             pups = {k: [] for k in configs}
             for r in range(a.rounds):
-                for k, (pre, post) in configs.items():
-                    n0, s0, w0 = run(pre, post, scenes[0], os.path.join(tmp, f"o{d}a"))
-                    n1, s1, w1 = run(pre, post, scenes[1], os.path.join(tmp, f"o{d}b"))
+                for k, copies in configs.items():
+                    n0, s0, w0 = run(copies, scenes[0], os.path.join(tmp, f"o{d}a"))
+                    n1, s1, w1 = run(copies, scenes[1], os.path.join(tmp, f"o{d}b"))
                     assert n0 == n1
                     pups[k].append(n1 * (s1 - s0) / (w1 - w0))
                     print(f"{d}D round {r + 1} {k}: {pups[k][-1]:.3e} pups", file=sys.stderr)
@@ -86,6 +107,9 @@ def main():
                 if k != "1 thread":
                     per = " ".join(f"{x / y:.2f}" for x, y in zip(v, pups["1 thread"]))
                     line += f", {statistics.median(v) / one:.2f}x one thread (per round {per})"
+                if k in ("2 threads", "2 ranks"):
+                    ceiling = statistics.median(pups["2 copies"])
+                    line += f", {statistics.median(v) / ceiling:.2f} of 2 copies'"
                 print(line)
 
 
