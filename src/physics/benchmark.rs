@@ -980,7 +980,7 @@ mod tests {
     }
 
     /// The memo changes no bit: with entries that are current, stale (particles
-    /// reordered since the refresh, as the sort every 20 steps leaves them), missing
+    /// reordered since the refresh, as a sort by cell leaves them), missing
     /// (arrivals) or made for −0 where the particle sits at +0 (whose sines differ in
     /// sign), and with the vortex angle kept for this time or another,
     /// `exact_of`, `body_force_of` and `add_body_forces` equal the exact solution and
@@ -1166,7 +1166,9 @@ mod tests {
         for (x, e) in x0.iter().zip(moved.entries_mut()) {
             at.exact_keeping_force(x, e);
         }
-        crate::mpm::particles::permute(moved.entries_mut(), &perm, &mut Vec::new());
+        // As the sort moves it: with particles' arrays (here none).
+        let mut parts = crate::mpm::particles::Particles::<2>::default();
+        parts.permute_with(&perm, &mut Vec::new(), moved.entries_mut());
         let mut formed = Memo::default();
         formed.refresh(&b, &sorted);
         for (x, e) in sorted.iter().zip(formed.entries_mut()) {
