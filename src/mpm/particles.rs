@@ -187,14 +187,9 @@ macro_rules! particle_fields {
             }
 
             /// Apply the permutation `perm` (new position k holds old particle `perm[k]`)
-            /// to every array in place; `done` (one bit per particle) is reused, so no
-            /// allocation happens once it has grown.
-            pub fn permute(&mut self, perm: &[u32], done: &mut Vec<u64>) {
-                self.permute_with(perm, done, &mut [(); 0]);
-            }
-
-            /// [`Particles::permute`] of these arrays and of `extra` (empty, or one
-            /// entry per particle) in one walk along the permutation's cycles, in
+            /// to every array and to `extra` (empty, or one entry per particle); `done`
+            /// (one bit per particle) is reused, so no allocation happens once it has
+            /// grown. One walk along the permutation's cycles, in
             /// place: no copy of an array (one of the widest, `F` or σ, would be 72
             /// bytes per particle in 3D, held from the first sort on). The walk's
             /// loads of `perm` are a chain, paid once rather than per array (the
@@ -389,7 +384,7 @@ pub fn split_mut<T>(s: &mut [T], mid: usize) -> (&mut [T], &mut [T]) {
 /// sort of the keys' span (a cell number: 15 bits for a 128² grid), 11 bits a pass,
 /// then each run of equal keys (one cell's particles, mostly in id order already)
 /// sorted by id. The comparison sort it replaced took `n log n` comparisons of
-/// scattered keys, nearly a step's time on the vortex.
+/// scattered keys, a quarter of a step's time on the vortex (0.85 ms; this 0.29).
 pub fn order_by_key_then_id(
     key: impl Fn(u32) -> u64,
     ids: &[u64],
@@ -962,7 +957,7 @@ mod tests {
     fn permute_and_retain_move_every_array() {
         let (mut p, c) = sample();
         let orig = p.clone();
-        p.permute(&[2, 0, 1], &mut Vec::new());
+        p.permute_with(&[2, 0, 1], &mut Vec::new(), &mut [(); 0]);
         p.retain(&[true, false, true]);
         let (mut a, mut b) = (Vec::new(), Vec::new());
         for (k, o) in [(0, 2), (1, 1)] {

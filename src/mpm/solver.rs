@@ -2356,26 +2356,43 @@ impl<'c, const D: usize> Solver<'c, D> {
 
     /// Reorder particles by cell (then id, for determinism) for cache locality.
     pub fn sort(&mut self) {
-        self.located = false;
+        // The wrap's location, if it holds, names every particle's cell; after the
+        // sort it is stale.
+        let located = std::mem::take(&mut self.located);
         self.sorts += 1;
         let n = self.parts.len();
         // Each particle's cell as one number. They are kept in `pxi`, whose values are
         // stale once particles move and rewritten by the next tile pass before any
-        // read: no memory of their own (the bits of a cell number in the first word).
+        // read: no memory of their own (the bits of a cell number in every word).
         let geom = &self.geom;
+        let cell_key = |c: &[i64; D]| {
+            let mut key = 0u64;
+            for a in (0..D).rev() {
+                key = key * (geom.cells[a] as u64 + 1) + c[a] as u64;
+            }
+            [f64::from_bits(key); D]
+        };
         particles::reserve(&mut self.pxi, n);
         self.pxi.resize(n, [0.0; D]);
+        let runs = &self.cell_runs;
         self.pxi
             .par_chunks_mut(LOCATE_CHUNK)
             .zip(self.parts.x.par_chunks(LOCATE_CHUNK))
-            .for_each(|(keys, x)| {
-                for (k, x) in keys.iter_mut().zip(x) {
-                    let (c, _) = geom.locate(&std::array::from_fn(|a| x[a]));
-                    let mut key = 0u64;
-                    for a in (0..D).rev() {
-                        key = key * (geom.cells[a] as u64 + 1) + c[a] as u64;
+            .enumerate()
+            .for_each(|(k, (keys, x))| {
+                if !located {
+                    for (key, x) in keys.iter_mut().zip(x) {
+                        *key = cell_key(&geom.locate(&std::array::from_fn(|a| x[a])).0);
                     }
-                    k[0] = f64::from_bits(key);
+                    return;
+                }
+                // A key per run, not a location per particle.
+                let base = k * LOCATE_CHUNK;
+                for (r, run) in runs[k].iter().enumerate() {
+                    let end = runs[k]
+                        .get(r + 1)
+                        .map_or(keys.len(), |e| e.first as usize - base);
+                    keys[run.first as usize - base..end].fill(cell_key(&run.cell));
                 }
             });
         let keys = &self.pxi;
