@@ -553,6 +553,116 @@ fn unstable_run_checkpoints_its_last_good_state() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A checkpoint's content as bits: its particle table, run-state datasets and step
+/// attributes (all but the lineage, which names the run that wrote it).
+fn checkpoint_bits(path: &Path) -> Vec<(String, Vec<u64>)> {
+    let f = hdf5::File::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut out = Vec::new();
+    for name in ["particles", "external_work", "snapshot_times"] {
+        let v: Vec<f64> = f.dataset(name).unwrap().read_raw().unwrap();
+        out.push((name.to_string(), v.iter().map(|x| x.to_bits()).collect()));
+    }
+    for name in ["rank_rows", "checksum", "snapshot_steps"] {
+        out.push((
+            name.to_string(),
+            f.dataset(name).unwrap().read_raw().unwrap(),
+        ));
+    }
+    let history: Vec<u8> = f.dataset("history").unwrap().read_raw().unwrap();
+    out.push((
+        "history".into(),
+        history.iter().map(|&b| u64::from(b)).collect(),
+    ));
+    for name in [
+        "time",
+        "dt",
+        "max_speed",
+        "energy_scale",
+        "next_snapshot_time",
+    ] {
+        let v: Vec<f64> = f.attr(name).unwrap().read_raw().unwrap();
+        out.push((name.to_string(), v.iter().map(|x| x.to_bits()).collect()));
+    }
+    for name in ["step", "rebalances"] {
+        out.push((name.to_string(), f.attr(name).unwrap().read_raw().unwrap()));
+    }
+    out
+}
+
+/// The last good state of an unstable run is replayed, not copied: the run is set up
+/// again from its newest checkpoint and stepped to the last tenth step before the
+/// failure, and what it checkpoints there is bit for bit what a run that checkpoints
+/// that step itself wrote (particles, history, totals, schedule), on 2 ranks and on 3
+/// (more than the cores), with particles crossing between them and rebalances on the
+/// way. A regular checkpoint newer than that tenth step is itself the last good state.
+#[test]
+fn rescue_replays_the_run_to_its_last_good_state() {
+    let dir = temp_dir("replay");
+    // Snapshots cut steps short, so the replay must keep their schedule too.
+    let scene = |every: u64| {
+        let p = dir.join(format!("every{every}.toml"));
+        let text = crossing_scene(16, 3.0, &format!("every_steps = {every}"))
+            .replace("cfl = 0.3", "dt = 0.059")
+            .replace("every = 3\n", "every = 0.35\n");
+        assert!(text.contains("every = 0.35") && text.contains("dt = 0.059"));
+        std::fs::write(&p, text).unwrap();
+        p
+    };
+    let unstable = |n: usize, every: u64, out: &Path| {
+        let o = mpirun(n, &["run", s(&scene(every)), "--out", s(out)]);
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert_eq!(
+            o.status.code(),
+            Some(3),
+            "exit status 3 when unstable: {err}"
+        );
+        (summary(out), err)
+    };
+    let name = |out: &Path, step: u64| out.join(format!("checkpoint_{step:06}.h5"));
+    for n in [2, 3] {
+        // Checkpoints every 25 steps: the failure comes well after the one at 25.
+        let replayed = dir.join(format!("replayed{n}"));
+        let (j, err) = unstable(n, 25, &replayed);
+        let failed = j["steps"].as_u64().unwrap();
+        assert!(failed > 31, "{n} ranks: failed at step {failed}");
+        let good = (failed - 1) / 10 * 10;
+        assert_eq!(j["last_checkpoint"], s(&name(&replayed, good)));
+        assert!(j["balance"]["rebalances"].as_u64().unwrap() > 0);
+        assert!(
+            err.contains(&format!("replaying from step 25 to step {good}"))
+                && err.contains("(replayed from step 25 in"),
+            "{n} ranks: {err}"
+        );
+        // A run that checkpoints the good step itself, which then needs no replay.
+        let itself = dir.join(format!("itself{n}"));
+        let (k, err) = unstable(n, good / 2, &itself);
+        assert_eq!(k["steps"].as_u64(), Some(failed));
+        assert_eq!(k["last_checkpoint"], s(&name(&itself, good)));
+        assert!(!err.contains("replayed from"), "{n} ranks: {err}");
+        assert!(
+            checkpoint_bits(&name(&replayed, good)) == checkpoint_bits(&name(&itself, good)),
+            "{n} ranks: the replayed state differs from the run's own at step {good}"
+        );
+    }
+    // A regular checkpoint after the last tenth step is the last good state.
+    let newer = dir.join("newer");
+    let (j, _) = unstable(2, 25, &dir.join("probe"));
+    let failed = j["steps"].as_u64().unwrap();
+    assert!(
+        failed % 10 > 1,
+        "a step between the tenth and the failure: {failed}"
+    );
+    let (k, err) = unstable(2, failed - 1, &newer);
+    assert_eq!(k["last_checkpoint"], s(&name(&newer, failed - 1)));
+    assert_eq!(files(&newer, "checkpoint_").len(), 1, "{err}");
+    assert!(
+        err.contains(&format!("the last good state (step {}, ", failed - 1))
+            && !err.contains("replayed from"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// A restart may run longer (and change the step size, output interval, checkpoints):
 /// a run to t = 1.2 restarted from its checkpoint at 0.6 with the scene's end moved to
 /// 2.4 ends bit for bit like a run straight to 2.4. Anything else that differs is

@@ -886,6 +886,7 @@ enum Ending {
 struct Run<'a, const D: usize> {
     scene: &'a Scene,
     comm: &'a dyn Communicator,
+    opts: &'a RunOptions,
     out: &'a Path,
     /// Stored verbatim in checkpoints.
     scene_text: String,
@@ -897,7 +898,7 @@ struct Run<'a, const D: usize> {
     snaps: Option<SnapshotSchedule>,
     checkpoints: CheckpointSchedule,
     lineage: checkpoint::Lineage,
-    rescue: Rescue<D>,
+    rescue: Rescue,
     progress: Progress,
     start: Instant,
     output_seconds: OutputSeconds,
@@ -951,6 +952,7 @@ impl<'a, const D: usize> Run<'a, D> {
         Ok(Self {
             scene,
             comm,
+            opts,
             out: &opts.out,
             scene_text,
             e0: st.initial.total_energy(),
@@ -988,7 +990,7 @@ impl<'a, const D: usize> Run<'a, D> {
             }
             // Before anything is written, so that a checkpoint holds the layout the
             // run continues with.
-            let rebalanced = self.balance.check(&mut self.solver);
+            self.balance.check(&mut self.solver);
             if req.history_failed() {
                 return Err(RunError::Io(self.history.error.take().unwrap_or_else(
                     || format!("{}: writing failed on rank 0", self.history.path.display()),
@@ -1009,11 +1011,12 @@ impl<'a, const D: usize> Run<'a, D> {
                 .checkpoints
                 .due(&self.solver, self.st.next_checkpoint, &req);
             // A finished run needs no checkpoint.
-            if due && !self.solver.done() {
+            let checkpointed = due && !self.solver.done();
+            if checkpointed {
                 self.checkpoint()?;
             }
-            // The rescue copy is of this layout's particles, whatever rank holds them.
-            if rebalanced || self.solver.step.is_multiple_of(RESCUE_EVERY) {
+            // A checkpoint is a state to replay from, so the rescue is never older.
+            if checkpointed || self.solver.step.is_multiple_of(RESCUE_EVERY) {
                 self.rescue
                     .keep(&self.solver, &self.st, self.history.text.len());
             }
@@ -1102,19 +1105,124 @@ impl<'a, const D: usize> Run<'a, D> {
             None => failure.to_string(),
         };
         let good = self.rescue.solver;
+        let mut how = String::new();
         if self.checkpoints.last_step != Some(good.step) {
+            let t0 = Instant::now();
+            let from = self.checkpoints.last_step.unwrap_or(0);
+            if let Err(why) = self.replay(&good) {
+                return Ok(format!(
+                    "{reason}; {why}, so no checkpoint of the last good state (step {}) was \
+                     written; the newest checkpoint is {}",
+                    good.step,
+                    match self.checkpoints.last_name() {
+                        n if n.is_empty() => "none (restart from the scene)".to_string(),
+                        n => n,
+                    }
+                ));
+            }
             let history = &mut self.history.text;
-            self.rescue.restore(&mut self.solver, &mut self.st, history);
+            self.rescue.restore(&mut self.st, history);
             self.st.snapshots = self.snapshot_entries();
             self.st.snapshots.retain(|e| e.step <= good.step);
             self.checkpoints.last = Some(self.write_checkpoint()?);
+            how = format!(
+                " (replayed from step {from} in {:.1} s)",
+                t0.elapsed().as_secs_f64()
+            );
         }
         Ok(format!(
-            "{reason}; the last good state (step {}, t = {:.6e}) is checkpointed in {}",
+            "{reason}; the last good state (step {}, t = {:.6e}) is checkpointed in {}{how}",
             good.step,
             good.t,
             self.checkpoints.last_name()
         ))
+    }
+
+    /// Collective: the solver set up again from the newest checkpoint (or the scene)
+    /// and stepped, writing nothing, to the rescue's state `good`. A run is
+    /// deterministic on a given rank and thread count, and a restart continues it bit
+    /// for bit, so this is the state the run had: kept this way rather than as a copy,
+    /// which held as much memory as the particles themselves. `Err` says why
+    /// the state was not reached (a stop signal, or a replay that did not reproduce
+    /// the run, which would be a bug, or a set-up that failed).
+    fn replay(&mut self, good: &SolverState) -> Result<(), String> {
+        let from = self.checkpoints.last.clone();
+        let opts = RunOptions {
+            // A checkpoint of this run holds this scene text: none of its output is
+            // rescheduled, as a restart from it would keep the stored schedule.
+            scene_text: match &from {
+                Some(p) if Some(p) != self.opts.restart.as_ref() => Some(self.scene_text.clone()),
+                _ => self.opts.scene_text.clone(),
+            },
+            restart: from,
+            ..self.opts.clone()
+        };
+        if self.comm.rank() == 0 && !opts.quiet {
+            eprintln!(
+                "replaying from step {} to step {} to checkpoint the last good state",
+                self.checkpoints.last_step.unwrap_or(0),
+                good.step
+            );
+        }
+        // The failed state's particles go before the replay's are made.
+        self.solver.parts = Particles::default();
+        // Every rank reaches the same error (a checkpoint removed since, say).
+        let set = layout_for::<D>(self.scene, self.comm.size())
+            .and_then(|layout| set_up::<D>(self.scene, self.comm, &layout, &opts));
+        let (solver, restored, _, _) = match set {
+            Ok(s) => s,
+            Err(e) => return Err(format!("setting the run up again to replay it failed: {e}")),
+        };
+        self.solver = solver;
+        let mut next_snapshot = match (&restored, &self.snaps) {
+            (Some(st), _) => st.next_snapshot,
+            (None, Some(sn)) => sn.every,
+            (None, None) => f64::INFINITY,
+        };
+        // Its own tally: the summary's is of the run.
+        let mut balance = BalanceSchedule::of(self.scene);
+        while self.solver.step < good.step {
+            // The loop of `steps`, for what changes the state: the steps cut at
+            // snapshot times, and the rebalancing.
+            self.solver.stop_at = next_snapshot;
+            let mut req = Requests::new(signals::pending(), false, false);
+            if let Err(f) = self.solver.advance_with(&mut req.0) {
+                return Err(format!(
+                    "replaying the run failed at step {} ({f})",
+                    self.solver.step
+                ));
+            }
+            balance.check(&mut self.solver);
+            if let Some(sn) = &self.snaps {
+                if sn.due(&self.solver, next_snapshot) {
+                    let s = &self.solver;
+                    next_snapshot = sn.after(next_snapshot, s.t, s.dt);
+                }
+            }
+            if req.signal() != 0 {
+                return Err(format!(
+                    "{} stopped the replay at step {}",
+                    signals::name(req.signal()),
+                    self.solver.step
+                ));
+            }
+        }
+        let s = &self.solver;
+        let (external_work, max_speed) = s.local_state();
+        let same = s.step == good.step
+            && s.t.to_bits() == good.t.to_bits()
+            && s.dt.to_bits() == good.dt.to_bits()
+            && external_work.to_bits() == good.external_work.to_bits()
+            && max_speed.to_bits() == good.max_speed.to_bits();
+        let mut differs = [f64::from(u8::from(!same))];
+        self.comm.max_f64(&mut differs);
+        if differs[0] > 0.0 {
+            return Err(format!(
+                "replaying the run did not reproduce its state at step {}",
+                good.step
+            ));
+        }
+        Ok(())
     }
 
     /// After a stop signal: where to continue from.
@@ -1140,16 +1248,24 @@ impl<'a, const D: usize> Run<'a, D> {
             Ending::Completed => self.st.last.clone(),
             _ => self.solver.totals(),
         };
-        // Before the rescue puts the last good state back.
+        // Of the run as it ended: the rescue replaces the solver.
         let end = (self.solver.step, self.solver.t);
+        let wall = self.start.elapsed().as_secs_f64();
+        let mut summary = self.summary(&last, end, wall);
         let (status, message) = match &ending {
             Ending::Completed => ("completed", None),
             Ending::Unstable(f) => ("unstable", Some(self.rescue(f)?)),
             Ending::Stopped(signal) => ("interrupted", Some(self.stop_message(*signal))),
         };
         self.progress.finish();
-        let wall = self.start.elapsed().as_secs_f64();
-        let summary = self.summary(status, message.clone(), &last, end, wall);
+        summary.status = status.into();
+        summary.message.clone_from(&message);
+        summary.last_checkpoint = self
+            .checkpoints
+            .last
+            .as_ref()
+            .map(|p| p.display().to_string());
+        summary.output_seconds = self.output_seconds.clone();
         let failed = self.history.error.take();
         write_summary(self.comm, self.out, &summary, failed)?;
         match ending {
@@ -1160,15 +1276,8 @@ impl<'a, const D: usize> Run<'a, D> {
     }
 
     /// Collective: the summary of the run that ended at `end` (step, time) with the
-    /// totals `last`, after `wall` seconds.
-    fn summary(
-        &mut self,
-        status: &str,
-        message: Option<String>,
-        last: &Totals,
-        (steps, time): (u64, f64),
-        wall: f64,
-    ) -> Summary {
+    /// totals `last`, after `wall` seconds; its status and message are the caller's.
+    fn summary(&mut self, last: &Totals, (steps, time): (u64, f64), wall: f64) -> Summary {
         let (particles_per_rank, grid) = self.loads(last.particles);
         let imbalance = self.solver.imbalance();
         let halo = self.traffic();
@@ -1182,8 +1291,8 @@ impl<'a, const D: usize> Run<'a, D> {
             flip: scene.method.flip,
             xpic: scene.method.xpic,
             units: Labels::of::<D>(scene).units,
-            status: status.into(),
-            message,
+            status: String::new(),
+            message: None,
             ranks: self.comm.size(),
             threads: self.threads,
             blocks: solver.layout.procs.to_vec(),
@@ -1433,26 +1542,24 @@ fn past(last: f64, next: f64, t: f64, every: f64) -> f64 {
     }
 }
 
-/// Steps between copies of the state kept for [`Rescue`]: a copy is a memcpy of the
-/// particle arrays, a small fraction of a step, so every tenth step costs about 1 %
-/// (below the noise of the 262 144-particle scaling benchmark).
+/// Steps between the states kept for [`Rescue`].
 const RESCUE_EVERY: u64 = 10;
 
-/// The newest state known good (at most [`RESCUE_EVERY`] steps old): a run that turns
-/// unstable checkpoints this, since the failed step's own state is non-finite or
-/// outside the grid and can be neither continued nor usefully inspected.
+/// The newest state known good (at most [`RESCUE_EVERY`] steps old, never older than
+/// the newest checkpoint): a run that turns unstable checkpoints this, since the
+/// failed step's own state is non-finite or outside the grid and can be neither
+/// continued nor usefully inspected. Only what is not in the particles: those are
+/// replayed ([`Run::replay`]), and the solver's state here checks the replay.
 #[derive(Default)]
-struct Rescue<const D: usize> {
-    parts: Particles<D>,
+struct Rescue {
     solver: SolverState,
     run: Option<RunState>,
     history_len: usize,
 }
 
-impl<const D: usize> Rescue<D> {
-    /// Copy the state after the current step; no allocation once the buffers have grown.
-    fn keep(&mut self, solver: &Solver<D>, st: &RunState, history_len: usize) {
-        self.parts.copy_from(&solver.parts);
+impl Rescue {
+    /// Keep the state after the current step; no allocation once the buffers have grown.
+    fn keep<const D: usize>(&mut self, solver: &Solver<D>, st: &RunState, history_len: usize) {
         let (external_work, max_speed) = solver.local_state();
         self.solver = SolverState {
             t: solver.t,
@@ -1468,11 +1575,9 @@ impl<const D: usize> Rescue<D> {
         self.history_len = history_len;
     }
 
-    /// Put the kept state back into the solver, the run state and `history.csv`'s text.
-    fn restore(&mut self, solver: &mut Solver<D>, st: &mut RunState, history: &mut Vec<u8>) {
-        std::mem::swap(&mut solver.parts, &mut self.parts);
-        let s = &self.solver;
-        solver.restore(s.t, s.step, s.dt, s.external_work, s.max_speed);
+    /// Put the kept run state and `history.csv`'s text back (the solver has been
+    /// replayed to the kept step).
+    fn restore(&mut self, st: &mut RunState, history: &mut Vec<u8>) {
         if let Some(r) = &self.run {
             st.clone_from(r);
         }

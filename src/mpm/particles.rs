@@ -18,7 +18,6 @@ use crate::physics::material::Material;
 use crate::physics::shape::{Geom, GradientScheme};
 use crate::physics::tensor::{det, vector, Mat, Vector};
 use nalgebra::Matrix3;
-use rayon::prelude::*;
 
 /// Declares [`Carries`]: one flag per group of optional particle arrays. The flags'
 /// order is that of the checkpoint attributes `carries_<flag>`.
@@ -180,12 +179,6 @@ macro_rules! particle_fields {
                 w
             }
 
-            /// Make `self` a copy of `other`, reusing `self`'s allocations (a derived
-            /// `clone_from` would allocate fresh arrays every time).
-            pub fn copy_from(&mut self, other: &Self) {
-                $(copy_array(&mut self.$name, &other.$name);)*
-            }
-
             /// Apply the permutation `perm` (new position k holds old particle `perm[k]`)
             /// to every array and to `extra` (empty, or one entry per particle); `done`
             /// (one bit per particle) is reused, so no allocation happens once it has
@@ -343,21 +336,6 @@ pub fn stress_of<const D: usize>(
 #[inline(never)]
 fn stress_call<const D: usize>(m: &Material, f: &Mat<D>) -> Mat<D> {
     m.stress_of_def_grad(f)
-}
-
-/// `dst` made a copy of `src`, reusing its allocation: on threads when the lengths
-/// already agree (the rescue copy of a run whose particle count has not changed, every
-/// 10 steps, was a serial `memcpy` of all particle state).
-fn copy_array<T: Copy + Send + Sync>(dst: &mut Vec<T>, src: &[T]) {
-    const CHUNK: usize = 1 << 14;
-    if dst.len() == src.len() {
-        dst.par_chunks_mut(CHUNK)
-            .zip(src.par_chunks(CHUNK))
-            .for_each(|(d, s)| d.copy_from_slice(s));
-    } else {
-        dst.clear();
-        dst.extend_from_slice(src);
-    }
 }
 
 /// Room for `n` elements in `v`: where it must grow, to `n` and a sixteenth, not to

@@ -1851,7 +1851,7 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// external work and the fastest signal speed the next step size derives from
     /// (any value that is the maximum over ranks gives the same step).
     pub fn restore(&mut self, t: f64, step: u64, dt: f64, external_work: f64, max_speed: f64) {
-        // The particles may have been put back too (the rescue): locate them anew.
+        // Located afresh at the next step.
         self.located = false;
         self.t = t;
         self.step = step;
