@@ -6,7 +6,8 @@
 //! - a run killed with SIGKILL restarts from its last complete checkpoint and ends
 //!   like an uninterrupted run; SIGTERM ends a run cleanly with a final checkpoint,
 //!   status "interrupted" and exit status 4; a run that turns unstable checkpoints
-//!   its last good state, which continues with a smaller step;
+//!   its last good state, replayed bit for bit from its newest checkpoint (a stop
+//!   signal ends the replay), which continues with a smaller step;
 //! - a restart may run longer than planned (bit for bit like the longer run) and
 //!   refuses any other change to the scene, naming the key;
 //! - snapshots and the XDMF index read back;
@@ -659,6 +660,86 @@ fn rescue_replays_the_run_to_its_last_good_state() {
         err.contains(&format!("the last good state (step {}, ", failed - 1))
             && !err.contains("replayed from"),
         "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A stop signal during the replay ends it: the run still ends as unstable (exit 3),
+/// writes no checkpoint of a state it did not reach, and says so and where it stopped.
+/// A disk drifting out through a free face fails after about 2000 steps, with no
+/// checkpoint to replay from but the scene; SIGTERM reaches both ranks as the replay
+/// begins.
+#[test]
+fn a_stop_signal_ends_the_replay() {
+    use std::io::{BufRead, BufReader, Read};
+    let dir = temp_dir("replay-signal");
+    let sc = dir.join("scene.toml");
+    std::fs::write(
+        &sc,
+        r#"name = "escape"
+dim = 2
+[time]
+end = 10.0
+cfl = 0.3
+[grid]
+lower = [0.0, 0.0]
+upper = [1.0, 1.0]
+cells = [128, 128]
+boundary = { x_upper = "free" }
+[[materials]]
+name = "m"
+model = "neo_hookean"
+density = 1000.0
+youngs_modulus = 1000.0
+poisson_ratio = 0.3
+[[bodies]]
+material = "m"
+shape = { sphere = { center = [0.5, 0.5], radius = 0.3 } }
+velocity = [0.05, 0.0]
+"#,
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let mut child = mpirun_cmd(
+        2,
+        &["run", s(&sc), "--out", s(&out), "--progress-every", "1000"],
+    )
+    .stdout(Stdio::null())
+    .stderr(Stdio::piped())
+    .spawn()
+    .expect("start mpirun");
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut seen = String::new();
+    loop {
+        let mut line = String::new();
+        assert!(
+            err.read_line(&mut line).unwrap() > 0,
+            "no replay began: {seen}"
+        );
+        seen.push_str(&line);
+        if line.starts_with("replaying from step 0 to step ") {
+            break;
+        }
+    }
+    let ranks = children(child.id());
+    assert_eq!(ranks.len(), 2, "two ranks under mpirun");
+    for p in ranks {
+        signal(p, libc::SIGTERM);
+    }
+    err.read_to_string(&mut seen).unwrap();
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(3), "stderr: {seen}");
+    let j = summary(&out);
+    assert_eq!(j["status"], "unstable");
+    assert!(j["last_checkpoint"].is_null(), "{j}");
+    assert!(files(&out, "checkpoint_").is_empty());
+    let m = j["message"].as_str().unwrap();
+    assert!(
+        m.contains("material left the grid")
+            && m.contains("SIGTERM stopped the replay at step ")
+            && m.contains("so no checkpoint of the last good state (step ")
+            && m.contains("the newest checkpoint is none (restart from the scene)"),
+        "{m}"
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
