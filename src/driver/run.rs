@@ -6,7 +6,6 @@ use crate::driver::progress::Progress;
 use crate::driver::signals;
 use crate::input::plan::CheckpointEvery;
 use crate::input::scene::{Balance, Face, Scene};
-use crate::mpm::particles::Particles;
 use crate::mpm::solver::{Failure, Solver, Totals};
 use crate::output::checkpoint::{self, RunState, SolverState};
 use crate::output::io::{agree, Labels, Snapshots};
@@ -1164,8 +1163,8 @@ impl<'a, const D: usize> Run<'a, D> {
                 good.step
             );
         }
-        // The failed state's particles go before the replay's are made.
-        self.solver.parts = Particles::default();
+        // The failed state's memory goes before the replay's is taken.
+        self.solver.release();
         // Every rank reaches the same error (a checkpoint removed since, say).
         let set = layout_for::<D>(self.scene, self.comm.size())
             .and_then(|layout| set_up::<D>(self.scene, self.comm, &layout, &opts));

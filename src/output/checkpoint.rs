@@ -401,18 +401,17 @@ fn write_particles<const D: usize>(
 ) -> Result<u64, IoError> {
     let (parts, carries) = (&solver.parts, solver.carries());
     let width = Particles::<D>::record_width(carries);
-    let mut buf = Vec::with_capacity(parts.len() * width);
     let mut rec = Vec::with_capacity(width);
     let mut hash = 0u64;
-    for p in 0..parts.len() {
-        parts.pack(p, carries, &mut rec);
-        debug_assert_eq!(rec.len(), width);
-        hash = hash.wrapping_add(row_hash(p as u64, &rec));
-        buf.extend_from_slice(&rec);
-    }
     let rows = o.rows(offset, parts.len() as u64, total);
-    rows.floats("particles", &buf, width)?;
-    drop(buf);
+    rows.blocks("particles", width, &mut Vec::new(), |r, buf| {
+        for p in r {
+            parts.pack(p, carries, &mut rec);
+            debug_assert_eq!(rec.len(), width);
+            hash = hash.wrapping_add(row_hash(p as u64, &rec));
+            buf.extend_from_slice(&rec);
+        }
+    })?;
     crash_for_tests(solver.step);
     o.agree(o.file.dataset("particles").and_then(|ds| {
         let cols: VarLenUnicode = columns::<D>(carries).parse().expect("ASCII");

@@ -262,58 +262,55 @@ impl Snapshots {
             count: n,
             total,
         };
-        self.ibuf.clear();
-        self.ibuf.extend(parts.id.iter().map(|&i| i as i64));
-        w.ints("id", &self.ibuf)?;
-        self.ibuf.clear();
-        self.ibuf.resize(parts.len(), comm.rank() as i64);
-        w.ints("rank", &self.ibuf)?;
-        self.ibuf.clear();
-        self.ibuf.extend(parts.mat.iter().map(|&m| i64::from(m)));
-        w.ints("material", &self.ibuf)?;
+        let ibuf = &mut self.ibuf;
+        w.blocks("id", 0, ibuf, |r, b| {
+            b.extend(parts.id[r].iter().map(|&i| i as i64))
+        })?;
+        let rank = comm.rank() as i64;
+        w.blocks("rank", 0, ibuf, |r, b| b.resize(r.len(), rank))?;
+        w.blocks("material", 0, ibuf, |r, b| {
+            b.extend(parts.mat[r].iter().map(|&m| i64::from(m)))
+        })?;
         // What the numbers mean: the names behind `material`, units, symmetry planes.
         lockstep(comm, self.write_labels(file).map_err(|e| h5err(path, e)))?;
         // The XDMF topology's connectivity (0..N-1, one vertex per particle): the
         // Xdmf3 readers, ParaView's default for `.xmf`, make no cells without it.
-        self.ibuf.clear();
-        self.ibuf.extend((offset..offset + n).map(|i| i as i64));
-        w.ints("connectivity", &self.ibuf)?;
-        pad3(&mut self.buf, parts.x.iter().map(|x| x.as_slice()), D);
-        w.floats("position", &self.buf, 3)?;
-        for f in self.fields.clone() {
+        let (buf, ibuf) = (&mut self.buf, &mut self.ibuf);
+        w.blocks("connectivity", 0, ibuf, |r, b| {
+            b.extend((offset + r.start as u64..offset + r.end as u64).map(|i| i as i64))
+        })?;
+        w.blocks("position", 3, buf, |r, b| {
+            pad3(b, parts.x[r].iter().map(|x| x.as_slice()), D)
+        })?;
+        for &f in &self.fields {
             let (name, _, cols) = field_layout(f);
             match f {
-                Field::Velocity => {
-                    pad3(&mut self.buf, parts.v.iter().map(|x| x.as_slice()), D);
-                    w.floats(name, &self.buf, cols)?;
-                }
-                Field::Displacement => {
-                    self.buf.clear();
-                    for p in 0..parts.len() {
+                Field::Velocity => w.blocks(name, cols, buf, |r, b| {
+                    pad3(b, parts.v[r].iter().map(|x| x.as_slice()), D)
+                })?,
+                Field::Displacement => w.blocks(name, cols, buf, |r, b| {
+                    for p in r {
                         let u = if parts.x0.is_empty() {
                             nalgebra::SVector::<f64, D>::zeros()
                         } else {
                             parts.x[p] - parts.x0[p]
                         };
                         for a in 0..3 {
-                            self.buf.push(if a < D { u[a] } else { 0.0 });
+                            b.push(if a < D { u[a] } else { 0.0 });
                         }
                     }
-                    w.floats(name, &self.buf, cols)?;
-                }
-                Field::Stress => {
-                    self.buf.clear();
-                    for p in 0..parts.len() {
+                })?,
+                Field::Stress => w.blocks(name, cols, buf, |r, b| {
+                    for p in r {
                         let s = parts.stress3(p, materials);
                         // Row-major; the stress is symmetric anyway.
                         for i in 0..3 {
                             for j in 0..3 {
-                                self.buf.push(s[(i, j)]);
+                                b.push(s[(i, j)]);
                             }
                         }
                     }
-                    w.floats(name, &self.buf, cols)?;
-                }
+                })?,
                 // Scalars, one value per particle (the scene only lists them when a
                 // material carries them).
                 Field::PlasticStrain => w.floats(name, &parts.eps_p, cols)?,
@@ -442,8 +439,8 @@ fn xml_escape(s: &str) -> String {
         .replace('"', "&quot;")
 }
 
+/// Each of `rows` (its first `d` values) padded with zeros to 3, appended to `buf`.
 fn pad3<'a>(buf: &mut Vec<f64>, rows: impl Iterator<Item = &'a [f64]>, d: usize) {
-    buf.clear();
     for r in rows {
         for a in 0..3 {
             buf.push(if a < d { r[a] } else { 0.0 });
@@ -581,11 +578,17 @@ fn os_cause(path: &Path) -> Option<std::io::Error> {
     probe.err()
 }
 
+/// Rows a block of [`Writer::blocks`] holds: 10.5 MB of a 3D checkpoint's
+/// table, large enough that the writes stay few (16 for a rank of a million
+/// particles).
+pub(crate) const BLOCK_ROWS: usize = 1 << 16;
+
 /// Collective writes of this rank's rows `[offset, offset + count)` of datasets with
 /// `total` rows. Every dataset ends with an agreement over all ranks ([`lockstep`]):
 /// with collective MPI-IO only the aggregating ranks touch the disk, so a full disk
 /// fails the write on some ranks and not on others, and a rank that went on alone
 /// would wait for ever in the next collective call.
+#[derive(Clone, Copy)]
 pub(crate) struct Writer<'a> {
     pub comm: &'a dyn Communicator,
     pub file: &'a hdf5::File,
@@ -650,8 +653,49 @@ impl Writer<'_> {
         self.dataset(name, data, cols)
     }
 
-    pub fn ints(&self, name: &str, data: &[i64]) -> Result<(), IoError> {
-        self.dataset(name, data, 0)
+    /// The dataset `name` of `total × cols` values (`total` if `cols == 0`), this
+    /// rank's rows written [`BLOCK_ROWS`] at a time from `fill(rows, buf)`, which puts
+    /// this rank's rows `rows` into `buf` (cleared first). The buffer holds one block,
+    /// not all rows: a checkpoint's table is 160 bytes per particle in 3D, more than
+    /// the particles' own state (154), and a snapshot's stress 72. Every rank takes part
+    /// in as many collective writes as the rank with the most rows (empty selections
+    /// past its own), and all agree after each. The same file as one write of all rows.
+    pub fn blocks<T: Native>(
+        &self,
+        name: &str,
+        cols: usize,
+        buf: &mut Vec<T>,
+        mut fill: impl FnMut(std::ops::Range<usize>, &mut Vec<T>),
+    ) -> Result<(), IoError> {
+        let blocks = |rows: u64| rows.div_ceil(BLOCK_ROWS as u64);
+        let mut most = [blocks(self.count) as f64];
+        self.comm.max_f64(&mut most);
+        let err = |m: String| IoError(format!("{}: writing `{name}`: {m}", self.path.display()));
+        let shape = if cols == 0 {
+            vec![self.total as usize]
+        } else {
+            vec![self.total as usize, cols]
+        };
+        let ds = self
+            .file
+            .new_dataset::<T>()
+            .shape(shape)
+            .create(name)
+            .map_err(|e| err(e.to_string()));
+        let ds = lockstep(self.comm, ds)?;
+        for b in 0..most[0] as u64 {
+            let first = (b * BLOCK_ROWS as u64).min(self.count);
+            let rows = (self.count - first).min(BLOCK_ROWS as u64);
+            buf.clear();
+            fill(first as usize..(first + rows) as usize, buf);
+            let block = Writer {
+                offset: self.offset + first,
+                count: rows,
+                ..*self
+            };
+            lockstep(self.comm, block.raw_write(&ds, buf, cols).map_err(err))?;
+        }
+        Ok(())
     }
 
     /// Create the dataset `name` of `total × cols` values (`total` if `cols == 0`),
