@@ -6,6 +6,7 @@ use crate::driver::progress::Progress;
 use crate::driver::signals;
 use crate::input::plan::CheckpointEvery;
 use crate::input::scene::{Balance, Face, Scene};
+use crate::mpm::particles::Particles;
 use crate::mpm::solver::{Failure, Solver, Totals};
 use crate::output::checkpoint::{self, RunState, SolverState};
 use crate::output::io::{agree, Labels, Snapshots};
@@ -1163,8 +1164,10 @@ impl<'a, const D: usize> Run<'a, D> {
                 good.step
             );
         }
-        // The failed state's memory goes before the replay's is taken.
-        self.solver.release();
+        // The failed particles go before the replay's are seeded or read; the rest of
+        // the failed solver goes when the replay's replaces it, before its first step
+        // (measured: the replay's peak is then below the failed run's).
+        self.solver.parts = Particles::default();
         // Every rank reaches the same error (a checkpoint removed since, say).
         let set = layout_for::<D>(self.scene, self.comm.size())
             .and_then(|layout| set_up::<D>(self.scene, self.comm, &layout, &opts));

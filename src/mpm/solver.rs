@@ -1847,44 +1847,6 @@ impl<'c, const D: usize> Solver<'c, D> {
         (self.external_work, self.max_speed)
     }
 
-    /// Give back the memory of the particles, the grid fields and the per-particle
-    /// scratch: an unstable run's solver, before the run is replayed beside it
-    /// (without this, the replay's peak was 1.6 to 1.8 times the run's). The solver
-    /// is then fit only to be dropped.
-    pub fn release(&mut self) {
-        use std::mem::take;
-        self.parts = Particles::default();
-        drop(take(&mut self.ptile));
-        drop(take(&mut self.perm));
-        drop(take(&mut self.pxi));
-        for f in [
-            &mut self.scat,
-            &mut self.vel,
-            &mut self.avg,
-            &mut self.xpic_add,
-            &mut self.xpic_term,
-            &mut self.mom,
-            &mut self.fill,
-            &mut self.cell_w,
-            &mut self.node_vol,
-            &mut self.record,
-            &mut self.scratch,
-        ] {
-            drop(take(f));
-        }
-        drop(take(&mut self.slabs));
-        drop(take(&mut self.keep));
-        drop(take(&mut self.flagged));
-        drop(take(&mut self.dx));
-        drop(take(&mut self.permuted));
-        drop(take(&mut self.accel));
-        drop(take(&mut self.memo));
-        drop(take(&mut self.error_sums));
-        drop(take(&mut self.cell_runs));
-        drop(take(&mut self.run_keys));
-        self.located = false;
-    }
-
     /// Continue from a checkpoint: time, step, last step size, this rank's share of the
     /// external work and the fastest signal speed the next step size derives from
     /// (any value that is the maximum over ranks gives the same step).
