@@ -578,6 +578,22 @@ fn os_cause(path: &Path) -> Option<std::io::Error> {
     probe.err()
 }
 
+/// A write that failed, past the process's file size limit (`ulimit -f`, as batch
+/// systems set): the operating system's reason, which the probe of [`close`] may miss
+/// (each rank writes its rows in place, so a refused block can lie well past the
+/// file's end, and appending to it still works). `end` is where the write was to reach
+/// in the file, at least.
+fn past_size_limit(end: u64) -> Option<std::io::Error> {
+    let mut lim = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit writes the struct it is given and nothing else.
+    let ok = unsafe { libc::getrlimit(libc::RLIMIT_FSIZE, &mut lim) } == 0;
+    (ok && lim.rlim_cur != libc::RLIM_INFINITY && end > lim.rlim_cur)
+        .then(|| std::io::Error::from_raw_os_error(libc::EFBIG))
+}
+
 /// Rows a block of [`Writer::blocks`] holds: 10.5 MB of a 3D checkpoint's
 /// table, large enough that the writes stay few (16 for a rank of a million
 /// particles).
@@ -693,7 +709,14 @@ impl Writer<'_> {
                 count: rows,
                 ..*self
             };
-            lockstep(self.comm, block.raw_write(&ds, buf, cols).map_err(err))?;
+            let row = (cols.max(1) * std::mem::size_of::<T>()) as u64;
+            let written = block.raw_write(&ds, buf, cols).map_err(|m| {
+                match past_size_limit((block.offset + block.count) * row) {
+                    Some(c) => err(format!("{m}: {c}")),
+                    None => err(m),
+                }
+            });
+            lockstep(self.comm, written)?;
         }
         Ok(())
     }
