@@ -18,7 +18,9 @@ does not count; on small scenes, a few samples per step, add the two). Samples o
 `log`, `memset`, `memmove`, the kernel) count with the phase of the mpmcg sample next
 to them in time (the previous one), and so does a helper that is not inlined (in 3D,
 `Geom::locate`); `memset` is the scatter's clear of the node records, `memmove` outside
-a sort the rescue copy. Start-up (seeding) and anything before the first step is left out.
+a sort the rescue copy (builds before `09cdfaf`, which copied the particles every 10
+steps; since then a `memmove` there is some other copy). Start-up (seeding) and
+anything before the first step is left out.
 
 Needs perf and binutils' addr2line. Shares are of the step's samples, so of its CPU
 time on one thread.
