@@ -10,7 +10,7 @@
 //! the checkpoint and what is wrong, never a panic or a signal, and no summary.json.
 
 mod common;
-use common::{files, temp_dir};
+use common::{checkpoint_table, files, temp_dir};
 use decomposition::splitmix::mix;
 use hdf5::types::VarLenUnicode;
 use std::path::{Path, PathBuf};
@@ -180,18 +180,10 @@ fn data<T: hdf5::H5Type>(f: &hdf5::File, name: &str, v: &[T]) {
     f.new_dataset_builder().with_data(v).create(name).unwrap();
 }
 
-/// The particle table as values, its width and column names.
-fn table(f: &hdf5::File) -> (Vec<f64>, usize, Vec<String>) {
-    let ds = f.dataset("particles").unwrap();
-    let cols: VarLenUnicode = ds.attr("columns").unwrap().read_scalar().unwrap();
-    let cols: Vec<String> = cols.as_str().split(' ').map(String::from).collect();
-    (ds.read_raw().unwrap(), ds.shape()[1], cols)
-}
-
 /// Edit the particle table in place with `edit(rows, column index)` and store each
 /// writer rank's checksum of the edited rows, as a determined editor would.
 fn rows(f: &hdf5::File, edit: impl FnOnce(&mut [f64], &dyn Fn(&str) -> usize)) {
-    let (mut v, width, cols) = table(f);
+    let (mut v, width, cols) = checkpoint_table(f);
     let col = |name: &str| cols.iter().position(|c| c == name).expect(name);
     edit(&mut v, &col);
     f.dataset("particles").unwrap().write_raw(&v).unwrap();
@@ -210,7 +202,7 @@ fn rows(f: &hdf5::File, edit: impl FnOnce(&mut [f64], &dyn Fn(&str) -> usize)) {
 
 /// Set column `name` of row `row` to `x` (checksum recomputed).
 fn cell(f: &hdf5::File, row: usize, name: &str, x: f64) {
-    let width = table(f).1;
+    let width = checkpoint_table(f).1;
     rows(f, |v, col| v[row * width + col(name)] = x);
 }
 
@@ -300,7 +292,7 @@ fn particle_cases() -> Vec<(&'static str, &'static str, Edit)> {
             "particles_one_column_short",
             "dataset `particles` has shape",
             |f| {
-                let (v, w, _) = table(f);
+                let (v, w, _) = checkpoint_table(f);
                 let short: Vec<f64> = v
                     .chunks_exact(w)
                     .flat_map(|r| r[..w - 1].to_vec())
@@ -316,7 +308,7 @@ fn particle_cases() -> Vec<(&'static str, &'static str, Edit)> {
             },
         ),
         case("particles_as_integers", "dataset `particles` holds", |f| {
-            let (v, w, _) = table(f);
+            let (v, w, _) = checkpoint_table(f);
             f.unlink("particles").unwrap();
             let ds = f
                 .new_dataset::<i32>()
@@ -368,7 +360,7 @@ fn particle_cases() -> Vec<(&'static str, &'static str, Edit)> {
             cell(f, 4, "id", -1.0)
         }),
         case("id_duplicate", "is in more than one row", |f| {
-            let w = table(f).1;
+            let w = checkpoint_table(f).1;
             rows(f, |v, col| v[4 * w + col("id")] = v[7 * w + col("id")]);
         }),
         case("def_grad_nan", "`def_grad` holds NaN", |f| {
@@ -563,7 +555,7 @@ fn particle_rows_edited_without_their_checksum() {
     let dir = temp_dir("ckpt-rows-sum");
     let good = checkpoint(&dir, 1);
     let ckpt = edited(&good, &dir, "mass", &|f| {
-        let (mut v, w, cols) = table(f);
+        let (mut v, w, cols) = checkpoint_table(f);
         v[w + cols.iter().position(|c| c == "mass").unwrap()] *= 2.0;
         f.dataset("particles").unwrap().write_raw(&v).unwrap();
     });
@@ -594,7 +586,7 @@ fn particle_cases_under_mpirun_agree() {
         |f| {
             // The first row of writer 0 gets the position of writer 1's first row.
             let n0: Vec<u64> = f.dataset("rank_rows").unwrap().read_raw().unwrap();
-            let w = table(f).1;
+            let w = checkpoint_table(f).1;
             rows(f, |v, col| {
                 let b = n0[0] as usize * w;
                 v[col("x[0]")] = v[b + col("x[0]")];

@@ -797,17 +797,12 @@ every_steps = 1
     assert!(ids == (0..110_592).collect::<Vec<i64>>(), "every id once");
     // The checkpoint of the same step: its rows' positions are the snapshot's.
     let ckpt = out.join("checkpoint_000001.h5");
-    let c = hdf5::File::open(&ckpt).unwrap();
-    let table = c.dataset("particles").unwrap();
-    let width = table.shape()[1];
-    let cells: Vec<f64> = table.read_raw().unwrap();
-    let columns: hdf5::types::VarLenUnicode = table.attr("columns").unwrap().read_scalar().unwrap();
+    let (cells, width, columns) = common::checkpoint_table(&hdf5::File::open(&ckpt).unwrap());
     let col = |name: &str| {
         columns
-            .as_str()
-            .split(' ')
+            .iter()
             .position(|c| c == name)
-            .unwrap_or_else(|| panic!("no column {name}: {columns}"))
+            .unwrap_or_else(|| panic!("no column {name}: {columns:?}"))
     };
     let (x, y, id) = (col("x[0]"), col("x[1]"), col("id"));
     let mut from_table: Vec<(i64, [u64; 2])> = cells

@@ -189,3 +189,12 @@ material = "m"
 shape = { sphere = { center = [0.5, 0.5], radius = 0.3 } }
 velocity = [0.5, -0.25]
 "#;
+
+/// A checkpoint's particle table: its values row by row, the row width and the column
+/// names (the dataset's `columns` attribute).
+pub fn checkpoint_table(f: &hdf5::File) -> (Vec<f64>, usize, Vec<String>) {
+    let ds = f.dataset("particles").unwrap();
+    let cols: hdf5::types::VarLenUnicode = ds.attr("columns").unwrap().read_scalar().unwrap();
+    let cols: Vec<String> = cols.as_str().split(' ').map(String::from).collect();
+    (ds.read_raw().unwrap(), ds.shape()[1], cols)
+}
