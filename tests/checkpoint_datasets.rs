@@ -332,11 +332,9 @@ fn particle_cases() -> Vec<(&'static str, &'static str, Edit)> {
         case("velocity_infinite", "`v` holds inf", |f| {
             cell(f, 2, "v[1]", f64::INFINITY)
         }),
-        case("mass_zero", "`mass` = 0 is not positive", |f| {
-            cell(f, 0, "mass", 0.0)
-        }),
-        case("mass_negative", "`mass` = -1 is not positive", |f| {
-            cell(f, 0, "mass", -1.0)
+        // The mass is density × vol0 (checkpoint version 5): a zero mass is a zero vol0.
+        case("reference_volume_zero", "`vol0` = 0 is not positive", |f| {
+            cell(f, 0, "vol0", 0.0)
         }),
         case("volume_zero", "`vol` = 0 is not positive", |f| {
             cell(f, 1, "vol", 0.0)
@@ -404,7 +402,7 @@ fn other_cases() -> Vec<(&'static str, &'static str, Edit)> {
             attr(f, "cuts", &[0u64, 16, 0, 8]);
         }),
         case("cells_deleted", "attribute `cells`", |f| f.delete_attr("cells").unwrap()),
-        case("particles_count_more", "dataset `particles` has shape [32, 15], expected [33, 15]", |f| scalar(f, "particles", 33u64)),
+        case("particles_count_more", "dataset `particles` has shape [32, 14], expected [33, 14]", |f| scalar(f, "particles", 33u64)),
         case("record_width", "are not those the stored scene needs", |f| scalar(f, "record_width", 18u64)),
         case("carries_half_off", "are not those the stored scene needs", |f| scalar(f, "carries_half", 0u64)),
         case("carries_deleted", "attribute `carries_def_grad`", |f| f.delete_attr("carries_def_grad").unwrap()),
@@ -485,6 +483,9 @@ fn other_cases() -> Vec<(&'static str, &'static str, Edit)> {
 /// - already refused as now: the deleted and wrong-length datasets and attributes,
 ///   `dim_*`, `ranks_*`, `cells_*`, `particles_count_more`, `record_width`, `carries_*`,
 ///   `time_as_text`, `rebalances_as_text`, `scene_*`, `rank_rows_short`.
+///
+/// (Since version 5 a checkpoint holds no mass, the material's density times `vol0`:
+/// the mass cases are `reference_volume_zero` and `reference_volume_negative`.)
 #[test]
 fn each_dataset_edited_and_resealed_is_refused() {
     let dir = temp_dir("ckpt-datasets");
@@ -554,12 +555,12 @@ fn material_state_columns_are_checked() {
 fn particle_rows_edited_without_their_checksum() {
     let dir = temp_dir("ckpt-rows-sum");
     let good = checkpoint(&dir, 1);
-    let ckpt = edited(&good, &dir, "mass", &|f| {
+    let ckpt = edited(&good, &dir, "vol0", &|f| {
         let (mut v, w, cols) = checkpoint_table(f);
-        v[w + cols.iter().position(|c| c == "mass").unwrap()] *= 2.0;
+        v[w + cols.iter().position(|c| c == "vol0").unwrap()] *= 2.0;
         f.dataset("particles").unwrap().write_raw(&v).unwrap();
     });
-    let out = dir.join("out-mass");
+    let out = dir.join("out-vol0");
     let words = "the particle rows of writer rank 0 do not match their checksum";
     if let Some(m) = fault(&restart(&ckpt, &out), &ckpt, &out, words, false) {
         panic!("{m}");

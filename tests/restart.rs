@@ -364,6 +364,78 @@ fn version_3_checkpoint_restarts() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A checkpoint of format version 4 (`tests/data/checkpoint_v4_two_densities.h5`,
+/// written by commit bf943c7 from [`two_densities_scene`], step 76 of 168), whose
+/// records hold each particle's mass, which version 5 forms as density × `vol0`. The
+/// masses its rows hold sum to the restarted run's mass (a mass formed from another
+/// material's density, or a column read out of place, would not); restarted on one
+/// rank it ends bit for bit like this build's uninterrupted run (the masses formed
+/// are the stored ones to the bit), on two within 1e-12; the checkpoints this build
+/// writes are of version 5, without the mass.
+#[test]
+fn version_4_checkpoint_restarts() {
+    let dir = temp_dir("restart-v4");
+    let sc = dir.join("scene.toml");
+    std::fs::write(&sc, two_densities_scene()).unwrap();
+    let full = dir.join("full");
+    ok(1, &["run", s(&sc), "--out", s(&full), "--quiet"]);
+    let v4 =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/checkpoint_v4_two_densities.h5");
+    let stored: f64 = {
+        let f = hdf5::File::open(&v4).unwrap();
+        let version: u64 = f.attr("version").unwrap().read_scalar().unwrap();
+        assert_eq!(version, 4);
+        let (v, w, cols) = common::checkpoint_table(&f);
+        let at = cols
+            .iter()
+            .position(|c| c == "mass")
+            .expect("a mass column");
+        v.chunks(w).map(|r| r[at]).sum()
+    };
+    for n in [1, 2] {
+        let out = dir.join(format!("r{n}"));
+        ok(
+            n,
+            &["run", "--restart", s(&v4), "--out", s(&out), "--quiet"],
+        );
+        let j = summary(&out);
+        assert_eq!(j["restarted_from"]["step"], 76);
+        let mass = j["mass"]["final"].as_f64().unwrap();
+        assert!(
+            (mass - stored).abs() <= 1e-12 * stored,
+            "v4 1→{n}: mass {mass} against the stored {stored}"
+        );
+        if n == 1 {
+            assert_identical(&full, &out, "v4 1→1");
+        } else {
+            assert_close(&full, &out, 1e-12, "v4 1→2");
+        }
+    }
+    let c = files(&full, "checkpoint_");
+    let f = hdf5::File::open(&c[0]).unwrap();
+    let version: u64 = f.attr("version").unwrap().read_scalar().unwrap();
+    let (_, _, cols) = common::checkpoint_table(&f);
+    assert_eq!(version, 5);
+    assert!(!cols.iter().any(|c| c == "mass"), "{cols:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The crossing disks at 16 cells of two densities, 1000 and 400, so that a mass
+/// formed from the wrong material shows.
+fn two_densities_scene() -> String {
+    crossing_scene(16, 1.2, "every = 0.6")
+        .replacen(
+            "[[bodies]]",
+            "[[materials]]\nname = \"n\"\nmodel = \"neo_hookean\"\ndensity = 400.0\n\
+             youngs_modulus = 1000.0\npoisson_ratio = 0.3\n[[bodies]]",
+            1,
+        )
+        .replace(
+            "material = \"m\"\nshape = { sphere = { center = [0.75",
+            "material = \"n\"\nshape = { sphere = { center = [0.75",
+        )
+}
+
 /// Plastic particles restart too: the Taylor bar (J2, 3D), cut short at 20 µs with a
 /// checkpoint at 10 µs. 2→2 ends bit for bit like the uninterrupted run (summary,
 /// history with its plastic_work column, snapshot); 2→1 agrees to 1e-12 in positions

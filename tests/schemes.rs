@@ -121,7 +121,7 @@ fn momentum_drift<const D: usize>(
     let mut s = solver_with_state::<D>(text, alpha, seed);
     let masses: Vec<(u64, f64)> = {
         let mut m: Vec<_> = (0..s.parts.len())
-            .map(|p| (s.parts.id[p], s.parts.mass[p]))
+            .map(|p| (s.parts.id[p], s.particle_mass(p)))
             .collect();
         m.sort_by_key(|e| e.0);
         m
@@ -137,7 +137,7 @@ fn momentum_drift<const D: usize>(
         assert_eq!(t.mass, t0.mass, "total mass changed at step {}", s.step);
         assert_eq!(t.particles, t0.particles);
         let scale: f64 = (0..s.parts.len())
-            .map(|p| s.parts.mass[p] * s.parts.v[p].abs().sum())
+            .map(|p| s.particle_mass(p) * s.parts.v[p].abs().sum())
             .sum();
         for a in 0..D {
             worst = worst.max((t.momentum[a] - t0.momentum[a]).abs() / scale);
@@ -151,15 +151,15 @@ fn momentum_drift<const D: usize>(
             .iter()
             .position(|&i| i == s.parts.id[p])
             .expect("same particles");
-        change += s.parts.mass[p] * (s.parts.v[p] - v0[q]).abs().sum();
-        size += s.parts.mass[p] * v0[q].abs().sum();
+        change += s.particle_mass(p) * (s.parts.v[p] - v0[q]).abs().sum();
+        size += s.particle_mass(p) * v0[q].abs().sum();
     }
     assert!(
         change > 0.1 * size,
         "forces too weak to test anything: {change:e} of {size:e}"
     );
     let mut m: Vec<_> = (0..s.parts.len())
-        .map(|p| (s.parts.id[p], s.parts.mass[p]))
+        .map(|p| (s.parts.id[p], s.particle_mass(p)))
         .collect();
     m.sort_by_key(|e| e.0);
     assert_eq!(m, masses, "particle masses changed");
@@ -231,15 +231,16 @@ type NodeMap<const D: usize, T> = std::collections::BTreeMap<[i64; D], T>;
 #[allow(clippy::needless_range_loop)]
 fn reference_scatter<const D: usize>(
     parts: &Particles<D>,
+    masses: &[f64],
     shapes: &dyn Fn(usize) -> Vec<([i64; D], f64)>,
     grads: &[Grads<D>],
 ) -> (NodeMap<D, f64>, NodeMap<D, [f64; D]>, NodeMap<D, [f64; D]>) {
     let (mut mass, mut mom, mut force) = (NodeMap::new(), NodeMap::new(), NodeMap::new());
     for p in 0..parts.len() {
         for (nd, w) in shapes(p) {
-            *mass.entry(nd).or_default() += parts.mass[p] * w;
+            *mass.entry(nd).or_default() += masses[p] * w;
             let e = mom.entry(nd).or_insert([0.0; D]);
-            (0..D).for_each(|a| e[a] += parts.mass[p] * w * parts.v[p][a]);
+            (0..D).for_each(|a| e[a] += masses[p] * w * parts.v[p][a]);
         }
         for (nd, g) in &grads[p] {
             let e = force.entry(*nd).or_insert([0.0; D]);
@@ -354,11 +355,12 @@ fn check_step<const D: usize>(
             m.into_iter().collect()
         })
         .collect();
-    let (mass, mom, force) = reference_scatter(&s.parts, &shapes, &grads);
+    let masses: Vec<f64> = (0..s.parts.len()).map(|p| s.particle_mass(p)).collect();
+    let (mass, mom, force) = reference_scatter(&s.parts, &masses, &shapes, &grads);
     let before = s.parts.clone();
     s.advance().expect("step");
     let dt = s.dt;
-    let floor = 1e-12 * s.parts.mass.iter().cloned().fold(f64::INFINITY, f64::min);
+    let floor = 1e-12 * masses.iter().cloned().fold(f64::INFINITY, f64::min);
     // Grid velocities before (0) and after (1) the forces.
     let vel = |nd: &[i64; D]| -> ([f64; D], [f64; D]) {
         let m = mass.get(nd).copied().unwrap_or(0.0);

@@ -54,6 +54,8 @@ pub struct Ctx<'a, const D: usize> {
     pub gimp: bool,
     pub alpha: Alpha,
     pub materials: &'a [Material],
+    /// Each material's density ([`particles::mass_of`]).
+    pub densities: &'a [f64],
     pub gravity: Vector<D>,
     /// The benchmark at the pass's time, if it applies a body force.
     pub body_force: Option<benchmark::At<'a, D>>,
@@ -1111,9 +1113,10 @@ fn gather_one<const D: usize, const N: usize>(
     // clamped, and clipping pressed the cantilever's compressed root onto the
     // clamp until particles left the grid through it (5 and 6 m beams at 3 × 3
     // per cell).
-    t.work += clip_at_slip_walls(ctx, k, &mut new, &vm, s.parts.mass[p]);
+    let mass = particles::mass_of(ctx.densities, s.parts.mat, s.parts.vol0, p);
+    t.work += clip_at_slip_walls(ctx, k, &mut new, &vm, mass);
     let a = ctx.accel_kept(s.accel, s.parts.x0, p);
-    t.work += m.dt * s.parts.mass[p] * a.dot(&(old + new)) * 0.5;
+    t.work += m.dt * mass * a.dot(&(old + new)) * 0.5;
     s.parts.v[p] = new;
     t.ok &= new.iter().all(|x| x.is_finite());
     if m.stress {
@@ -1173,7 +1176,8 @@ fn stress_one<const D: usize, const N: usize>(
         // velocities are neither read nor written here.
         if k.ends.iter().flatten().any(|&e| e) {
             let mut v = s.parts.v[p];
-            t.work += clip_at_slip_walls(ctx, k, &mut v, &vm, s.parts.mass[p]);
+            let mass = particles::mass_of(ctx.densities, s.parts.mat, s.parts.vol0, p);
+            t.work += clip_at_slip_walls(ctx, k, &mut v, &vm, mass);
             s.parts.v[p] = v;
         }
         s.parts.x[p] += vm * m.dt;
@@ -1217,7 +1221,7 @@ pub struct ScatterParts<'a, const D: usize> {
     pub def_grad: &'a [Mat<D>],
     pub mat: &'a [u16],
     pub vol: &'a [f64],
-    pub mass: &'a [f64],
+    pub mass: particles::Masses<'a>,
     pub x0: &'a [Vector<D>],
     pub half: &'a [[f64; D]],
     /// Storage index of each particle's cell's lower corner node.
@@ -1719,7 +1723,7 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
             }
         }
         let idx = &run.idx;
-        let mass = parts.mass[p];
+        let mass = parts.mass.get(p);
         let mv = if m.from_grid {
             let mut u = Vector::<D>::zeros();
             for n in 0..N {

@@ -62,6 +62,10 @@ carries! {
     /// The Cauchy stress, for materials whose stress is state of its own
     /// ([`Material::stress_is_state`]); the others' follows from `F`.
     stress,
+    /// The mass: never for a scene's particles, whose mass is their material's density
+    /// times `vol0` ([`mass_of`]); only the rows of a checkpoint of version 4 or older
+    /// hold it, read and dropped.
+    mass,
 }
 
 /// How a field's values are named in a checkpoint's `columns`: `name`, `name[a]`, or
@@ -276,7 +280,8 @@ macro_rules! particle_fields {
 particle_fields! {
     x: Vector<D>, Vector, always;
     v: Vector<D>, Vector, always;
-    mass: f64, Scalar, always;
+    /// Mass, only as read from an older checkpoint (see [`Carries::mass`]).
+    mass: f64, Scalar, mass;
     /// Current volume.
     vol: f64, Scalar, always;
     /// Reference volume.
@@ -458,7 +463,32 @@ impl Carries {
                 .materials
                 .iter()
                 .any(|m| Material::from_plan(m).stress_is_state()),
+            mass: false,
         }
+    }
+}
+
+/// The mass of particle `p`: its material's density (`densities`, per material index)
+/// times its reference volume, the product seeding has always formed, so the same bits
+/// as the mass that particles stored before (checkpoint version 4). Not stored: it is
+/// 8 bytes per particle, of every particle, in memory, migration and checkpoints.
+#[inline(always)]
+pub fn mass_of(densities: &[f64], mat: &[u16], vol0: &[f64], p: usize) -> f64 {
+    densities[mat[p] as usize] * vol0[p]
+}
+
+/// The particles' masses ([`mass_of`]) as a view the particle loops index.
+#[derive(Clone, Copy)]
+pub struct Masses<'a> {
+    pub densities: &'a [f64],
+    pub mat: &'a [u16],
+    pub vol0: &'a [f64],
+}
+
+impl Masses<'_> {
+    #[inline(always)]
+    pub fn get(&self, p: usize) -> f64 {
+        mass_of(self.densities, self.mat, self.vol0, p)
     }
 }
 
@@ -566,7 +596,7 @@ impl<const D: usize> Particles<D> {
         let j = det(&f);
         self.x.push(x);
         self.v.push(v);
-        self.mass.push(mat.density() * vol0);
+        debug_assert!(!carries.mass, "a seeded particle's mass is density × vol0");
         self.vol0.push(vol0);
         self.vol.push(vol0 * j);
         if carries.stress {

@@ -19,7 +19,7 @@ use crate::physics::tensor::Vector;
 /// Read-only particle arrays of the remap.
 pub struct RemapParts<'a, const D: usize> {
     pub x: &'a [Vector<D>],
-    pub mass: &'a [f64],
+    pub mass: crate::mpm::particles::Masses<'a>,
     pub x0: &'a [Vector<D>],
     pub half: &'a [[f64; D]],
     /// Storage index of each particle's cell's lower corner node.
@@ -235,7 +235,7 @@ fn remap_one<const D: usize, const N: usize>(
     // `ParticlePtr`); no other reference to v[p] or dx[p] lives meanwhile.
     let vp = unsafe { &mut *pp.v.add(p) };
     let old = *vp;
-    let mass = parts.mass[p];
+    let mass = parts.mass.get(p);
     let mut new = (old + dv) * m.flip + vn * (1.0 - m.flip);
     t.work += clip_at_slip_walls(ctx, k, &mut new, &vn, mass);
     let a = ctx.accel_kept(parts.accel, parts.x0, p);
@@ -284,7 +284,7 @@ fn remap_lanes<const D: usize, const N: usize, const B: usize>(
         // thread only; no other reference to v[p] or dx[p] lives meanwhile.
         let vp = unsafe { &mut *pp.v.add(p) };
         let old = *vp;
-        let mass = parts.mass[p];
+        let mass = parts.mass.get(p);
         let mut new = Vector::<D>::zeros();
         let mut vnl = Vector::<D>::zeros();
         for a in 0..D {
@@ -360,6 +360,7 @@ mod tests {
             gimp: false,
             alpha: Alpha::ProductOfShapes,
             materials: &materials,
+            densities: &[1.0],
             gravity: Vector::<D>::from_fn(|a, _| if a == 1 { -9.81 } else { 0.0 }),
             body_force: None,
             faces: [[Face::Slip; 2]; D],
@@ -386,7 +387,9 @@ mod tests {
                         .iter()
                         .map(|c| Vector::<D>::from_fn(|a, _| 0.3 + 0.1 * c[a]))
                         .collect();
-                    let mass: Vec<f64> = (0..n).map(|_| 1e-4 * (0.5 + rng.f64())).collect();
+                    // Masses of density 1: the reference volumes.
+                    let vol0: Vec<f64> = (0..n).map(|_| 1e-4 * (0.5 + rng.f64())).collect();
+                    let mat = vec![0u16; n];
                     let accel: Vec<Vector<D>> = if body {
                         (0..n)
                             .map(|_| Vector::<D>::from_fn(|_, _| rng.f64() - 5.0))
@@ -397,7 +400,11 @@ mod tests {
                     let tile = vec![0u32; n];
                     let parts = RemapParts {
                         x: &x,
-                        mass: &mass,
+                        mass: crate::mpm::particles::Masses {
+                            densities: &[1.0],
+                            mat: &mat,
+                            vol0: &vol0,
+                        },
                         x0: &x,
                         half: &[],
                         tile: &tile,

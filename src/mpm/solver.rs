@@ -28,6 +28,7 @@ macro_rules! ctx {
             gimp: $s.scheme.gimp,
             alpha: $s.scheme.alpha,
             materials: &$s.materials,
+            densities: &$s.densities,
             gravity: $s.gravity,
             body_force: $s
                 .benchmark
@@ -121,6 +122,9 @@ pub struct Solver<'c, const D: usize> {
     faces: [[Face; 2]; D],
     pub parts: Particles<D>,
     pub materials: Vec<Material>,
+    /// Each material's density: with `vol0`, the particles' masses
+    /// ([`particles::mass_of`]).
+    pub densities: Vec<f64>,
     pub benchmark: Option<Benchmark<D>>,
     gravity: Vector<D>,
     /// The gradient scheme, resolved once: shape functions, α, two-step or not.
@@ -1132,6 +1136,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             block,
             faces,
             parts,
+            densities: materials.iter().map(Material::density).collect(),
             materials,
             benchmark,
             gravity: scene
@@ -1196,7 +1201,9 @@ impl<'c, const D: usize> Solver<'c, D> {
         };
         s.resolve_phases();
         s.setup_grid();
-        let mut mmin = [s.parts.mass.iter().cloned().fold(f64::INFINITY, f64::min)];
+        let mut mmin = [(0..s.parts.len())
+            .map(|p| particles::mass_of(&s.densities, &s.parts.mat, &s.parts.vol0, p))
+            .fold(f64::INFINITY, f64::min)];
         s.comm.min_f64(&mut mmin);
         s.mass_floor = if mmin[0].is_finite() {
             1e-12 * mmin[0]
@@ -1523,7 +1530,11 @@ impl<'c, const D: usize> Solver<'c, D> {
             def_grad: &self.parts.def_grad,
             mat: &self.parts.mat,
             vol: &self.parts.vol,
-            mass: &self.parts.mass,
+            mass: particles::Masses {
+                densities: &self.densities,
+                mat: &self.parts.mat,
+                vol0: &self.parts.vol0,
+            },
             x0: &self.parts.x0,
             half: &self.parts.half,
             tile: &self.ptile,
@@ -1860,6 +1871,11 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.max_speed = max_speed;
     }
 
+    /// The mass of particle `p` ([`particles::mass_of`]).
+    pub fn particle_mass(&self, p: usize) -> f64 {
+        particles::mass_of(&self.densities, &self.parts.mat, &self.parts.vol0, p)
+    }
+
     /// Which optional particle arrays this solver's particles carry.
     pub fn carries(&self) -> Carries {
         self.carries
@@ -1955,7 +1971,11 @@ impl<'c, const D: usize> Solver<'c, D> {
         ctx.walls = self.has_walls();
         let parts = crate::mpm::remap::RemapParts {
             x: &self.parts.x,
-            mass: &self.parts.mass,
+            mass: particles::Masses {
+                densities: &self.densities,
+                mat: &self.parts.mat,
+                vol0: &self.parts.vol0,
+            },
             x0: &self.parts.x0,
             half: &self.parts.half,
             tile: &self.ptile,
@@ -2415,14 +2435,14 @@ impl<'c, const D: usize> Solver<'c, D> {
 
     /// Totals over all ranks.
     pub fn totals(&self) -> Totals {
-        let (parts, materials) = (&self.parts, &self.materials);
+        let (parts, materials, densities) = (&self.parts, &self.materials, &self.densities);
         // Summed per fixed chunk, then in a fixed tree (as `errors`): on threads, and
         // the same on any thread count. Slots: mass, kinetic, strain, (external work),
         // plastic work, momentum per axis.
         let chunk = |k: usize| {
             let mut sums = [0.0; 8];
             for p in k * LOCATE_CHUNK..parts.len().min((k + 1) * LOCATE_CHUNK) {
-                let m = parts.mass[p];
+                let m = particles::mass_of(densities, &parts.mat, &parts.vol0, p);
                 let v = parts.v[p];
                 sums[0] += m;
                 sums[1] += 0.5 * m * v.norm_squared();
@@ -3221,7 +3241,7 @@ particles_per_cell = 2
         let mut mass = vec![0.0; nn];
         for (p, wp) in w.iter().enumerate() {
             for &(n, sw) in wp {
-                mass[n] += s.parts.mass[p] * sw;
+                mass[n] += s.particle_mass(p) * sw;
             }
         }
         let to_particles = |g: &[Vector<2>]| -> Vec<Vector<2>> {
@@ -3233,7 +3253,7 @@ particles_per_cell = 2
             let mut g = vec![Vector::<2>::zeros(); nn];
             for (p, wp) in w.iter().enumerate() {
                 for &(n, sw) in wp {
-                    g[n] += u[p] * (s.parts.mass[p] * sw);
+                    g[n] += u[p] * (s.particle_mass(p) * sw);
                 }
             }
             for n in 0..nn {
@@ -3296,10 +3316,10 @@ particles_per_cell = 2
                 let want = reference(&s, m, dt);
                 let momentum = |s: &Solver<'_, 2>| -> Vector<2> {
                     (0..s.parts.len())
-                        .map(|p| s.parts.v[p] * s.parts.mass[p])
+                        .map(|p| s.parts.v[p] * s.particle_mass(p))
                         .sum()
                 };
-                let total: f64 = s.parts.mass.iter().sum();
+                let total: f64 = (0..s.parts.len()).map(|p| s.particle_mass(p)).sum();
                 let before = momentum(&s) + s.gravity * (total * dt);
                 update(&mut s, dt);
                 let scale = want.iter().map(|v| v.norm()).fold(0.0, f64::max);
@@ -3356,7 +3376,8 @@ particles_per_cell = 2
                     sm[(p, n)] += sw;
                 }
             }
-            let mp = DMatrix::from_diagonal(&DVector::from_row_slice(&s.parts.mass));
+            let masses: Vec<f64> = (0..s.parts.len()).map(|p| s.particle_mass(p)).collect();
+            let mp = DMatrix::from_diagonal(&DVector::from_row_slice(&masses));
             let st_m = sm.transpose() * &mp;
             let lu = (&st_m * &sm).lu();
             for a in 0..2 {

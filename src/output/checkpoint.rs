@@ -9,16 +9,17 @@
 //! crash during a write leaves the previous checkpoints intact. Then the oldest
 //! checkpoints beyond `keep` of this run's [`Lineage`] are deleted.
 //!
-//! # Format (version 4; version 3 is read too)
+//! # Format (version 5; versions 3 and 4 are read too)
 //!
-//! Root attributes: `format` = "mpmcg-checkpoint", `version` = 4, `lineage` (the id
+//! Root attributes: `format` = "mpmcg-checkpoint", `version` = 5, `lineage` (the id
 //! of the run and its restarts; pruning deletes only checkpoints of its own lineage),
 //! `dim`, `step`,
 //! `time`, `dt`, `max_speed` (fastest signal speed over all ranks after the step; the
 //! next step size follows from it), `ranks` and `blocks` (the writer's process grid),
 //! `cells`, `particles` (total), `record_width`, `carries_def_grad`, `carries_x0`,
 //! `carries_half`, `carries_plastic`, `carries_damage`, `carries_stress_zz`,
-//! `carries_stress` (0/1; absent in version 3, whose records always hold the stress), and
+//! `carries_stress` (0/1; absent in version 3, whose records always hold the stress),
+//! `carries_mass` (0; absent before version 5, whose records hold the mass), and
 //! the run loop's diagnostics: `initial_totals` and
 //! `last_totals` (mass, kinetic, strain, external work, plastic work, momentum[dim]),
 //! `initial_particles`, `last_particles`, `energy_scale`, `max_energy_deviation`,
@@ -58,10 +59,12 @@ pub const FORMAT: &str = "mpmcg-checkpoint";
 /// The format version this build writes. 3: the record gained `stress_zz` (2D
 /// brittle particles) and the attribute `carries_stress_zz`. 4: the stress columns
 /// only where the stress is state (`carries_stress`; a neo-Hookean particle's follows
-/// from `F`).
-pub const VERSION: u64 = 4;
+/// from `F`). 5: no mass column (`carries_mass` = 0): a particle's mass is its
+/// material's density times `vol0`.
+pub const VERSION: u64 = 5;
 /// The oldest version this build reads: a version 3 record always has the stress
-/// columns, which a scene that does not store the stress drops on reading.
+/// columns, which a scene that does not store the stress drops on reading, and
+/// records before version 5 the mass, dropped too.
 pub const OLDEST: u64 = 3;
 
 /// Rows read at a time when every rank scans the whole file.
@@ -947,6 +950,8 @@ pub fn read<const D: usize>(
         // A version 3 record's stress of a material whose stress follows from `F`.
         parts.stress = Vec::new();
     }
+    // A record's mass before version 5: density × vol0 as seeded, formed where used.
+    parts.mass = Vec::new();
     rows.unique_ids(&parts)?;
     let run = read_run_state::<D>(&f, path, rank, header.step)?;
     let dt = attr_f64(&f, path, "dt")?;
@@ -1023,14 +1028,17 @@ impl<'a> Rows<'a> {
             .iter()
             .map(|&name| match name {
                 "stress" if version == 3 => Ok(true),
+                "mass" if version <= 4 => Ok(true),
                 _ => Ok(attr_u64(f, path, &format!("carries_{name}"))? != 0),
             })
             .collect::<Result<Vec<bool>, String>>()?;
         let stored = Carries::from_flags(&flags);
         let width = Particles::<D>::record_width(stored);
-        // The stored stress of a version 3 file is read and then dropped (`read`).
+        // The stored stress of a version 3 file and the mass of a version 3 or 4 file
+        // are read and then dropped (`read`).
         let needed = Carries {
             stress: carries.stress || version == 3,
+            mass: version <= 4,
             ..carries
         };
         if stored != needed || attr_u64(f, path, "record_width")? != width as u64 {
@@ -1454,7 +1462,8 @@ mod tests {
 
     /// The record layout of format 3, as written before the fields were declared in one
     /// place: a reordered declaration would make old checkpoints unreadable. Format 4
-    /// is the same with the stress columns only where `carries.stress`.
+    /// is the same with the stress columns only where `carries.stress`, format 5 with
+    /// the mass only where `carries.mass` (read from formats 3 and 4).
     #[test]
     fn columns_keep_the_format_3_layout() {
         assert_eq!(
@@ -1465,12 +1474,16 @@ mod tests {
              be[1][1] be[2][1] be[0][2] be[1][2] be[2][2] eps_p damage stress_zz"
         );
         assert_eq!(
-            columns::<1>(all(0b100_0010)),
+            columns::<1>(all(0b1100_0010)),
             "x[0] v[0] mass vol vol0 stress[0][0] material id x0[0]"
         );
         assert_eq!(
-            columns::<1>(all(0b10)),
+            columns::<1>(all(0b1000_0010)),
             "x[0] v[0] mass vol vol0 material id x0[0]"
+        );
+        assert_eq!(
+            columns::<1>(all(0b10)),
+            "x[0] v[0] vol vol0 material id x0[0]"
         );
         assert_eq!(
             Carries::NAMES,
@@ -1481,7 +1494,8 @@ mod tests {
                 "plastic",
                 "damage",
                 "stress_zz",
-                "stress"
+                "stress",
+                "mass"
             ]
         );
     }

@@ -19,6 +19,7 @@
 use super::{
     pair, Alpha, Ctx, GatherMode, NodeData, Slices, StressMode, Tally, FROM_MOMENTUM, UPDATED,
 };
+use crate::mpm::particles;
 use crate::physics::tensor::{Mat, Vector};
 use std::ops::Range;
 
@@ -410,7 +411,7 @@ pub fn gather<const D: usize, const N: usize, const B: usize>(
         // What `clip_at_slip_walls` returns where it clips nothing, then the
         // external force's work, as the scalar loop adds them.
         let p = p0 + l;
-        let mass = s.parts.mass[p];
+        let mass = particles::mass_of(ctx.densities, s.parts.mat, s.parts.vol0, p);
         *work += 0.5 * mass * (new.norm_squared() - new.norm_squared());
         let acc = ctx.accel_kept(s.accel, s.parts.x0, p);
         *work += m.dt * mass * acc.dot(&(old + new)) * 0.5;
@@ -692,7 +693,6 @@ mod tests {
             let vol0 = 1e-4 * (0.5 + rng.f64());
             p.vol0.push(vol0);
             p.vol.push(vol0 * (0.85 + 0.3 * rng.f64()));
-            p.mass.push(vol0);
             p.mat.push(0);
         }
         (p, xi)
@@ -727,6 +727,7 @@ mod tests {
                 gimp: false,
                 alpha,
                 materials: &self.materials,
+                densities: &[1.0],
                 gravity: Vector::<D>::from_fn(|a, _| if a == 1 { -9.81 } else { 0.0 }),
                 body_force: None,
                 faces: [[Face::Slip; 2]; D],
@@ -976,7 +977,6 @@ mod tests {
             let stretched = (2 * LANES..3 * LANES).contains(&k);
             let j = if stretched { 1.0 } else { 0.8 } + 0.2 * rng.f64();
             p.vol.push(vol0 * j);
-            p.mass.push(vol0);
             p.mat.push(0);
         }
         let xi = vec![[0.5; 2]; n];
