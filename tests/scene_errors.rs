@@ -839,6 +839,14 @@ fn other_validation() {
     )
     .key("grid.cells")
     .says("beyond what a run can hold");
+    // A 1D grid of 2^31 cells holds few enough nodes, but its cells are numbered in 32
+    // bits (the tile pass's runs).
+    check(
+        "long_axis",
+        edit(BAR, "cells = [16]", "cells = [2147483648]"),
+    )
+    .key("grid.cells[0]")
+    .says("must be at most 2147483647 cells per axis, got 2147483648");
     // `..` and `.` name a folder outside `out/` or `out/` itself.
     for (tag, name) in [
         ("name_dotdot", ".."),

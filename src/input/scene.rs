@@ -975,6 +975,10 @@ const MAX_GRID_NODES: u64 = 1 << 40;
 /// fill, weight and volume), for the message above.
 const BYTES_PER_NODE: u64 = 8 * (1 + 6 + 9 + 1 + 6 + 9 + 3);
 
+/// The most cells a grid axis may have: the tile pass keeps a cell per run of
+/// particles as 32-bit numbers.
+pub const MAX_CELLS_PER_AXIS: usize = i32::MAX as usize;
+
 /// The most snapshots or time-interval checkpoints a scene may ask for over its run:
 /// each is a file, and an interval far below the step size makes every step write one.
 pub const MAX_OUTPUTS: f64 = 1e6;
@@ -1255,6 +1259,15 @@ fn validate_grid(s: &Scene) -> Result<(), Invalid> {
     for a in 0..d {
         if g.cells[a] == 0 {
             return Err((format!("grid.cells[{a}]"), "must be >= 1, got 0".into()));
+        }
+        if g.cells[a] > MAX_CELLS_PER_AXIS {
+            return Err((
+                format!("grid.cells[{a}]"),
+                format!(
+                    "must be at most {MAX_CELLS_PER_AXIS} cells per axis, got {}",
+                    g.cells[a]
+                ),
+            ));
         }
         if g.lower[a] >= g.upper[a] {
             return Err((

@@ -807,8 +807,28 @@ struct CellRun<const D: usize> {
     /// The storage index of its cell's lower corner node ([`Solver::run_nodes`]).
     node: u32,
     /// Its cell, as the locator found it: the later passes over the runs need not
-    /// locate their first particles again.
-    cell: [i64; D],
+    /// locate their first particles again. 32-bit: the scene allows at most
+    /// `i32::MAX` cells per axis ([`crate::input::scene::MAX_CELLS_PER_AXIS`]), and a run of 3D
+    /// particles that move between sorts is one per particle or so (20 bytes each,
+    /// not 32).
+    cell: [i32; D],
+}
+
+impl<const D: usize> CellRun<D> {
+    fn new(first: usize, cell: [i64; D]) -> Self {
+        debug_assert!(cell.iter().all(|&c| (0..=i32::MAX as i64).contains(&c)));
+        CellRun {
+            first: first as u32,
+            node: 0,
+            cell: cell.map(|c| c as i32),
+        }
+    }
+
+    /// Its cell.
+    #[inline(always)]
+    fn cell(&self) -> [i64; D] {
+        self.cell.map(i64::from)
+    }
 }
 
 /// The tile pass's location of the particles of one chunk, in order: each one's local
@@ -921,11 +941,10 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
         while starts != 0 {
             let l = starts.trailing_zeros() as usize;
             starts &= starts - 1;
-            self.runs.push(CellRun {
-                first: (self.base + p0 + l) as u32,
-                node: 0,
-                cell: std::array::from_fn(|a| c[a][l]),
-            });
+            self.runs.push(CellRun::new(
+                self.base + p0 + l,
+                std::array::from_fn(|a| c[a][l]),
+            ));
         }
         self.prev = std::array::from_fn(|a| c[a][L - 1]);
         true
@@ -939,11 +958,7 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
         *slab = self.index.slab(c[D - 1]);
         if c != self.prev {
             self.prev = c;
-            self.runs.push(CellRun {
-                first: (self.base + p) as u32,
-                node: 0,
-                cell: c,
-            });
+            self.runs.push(CellRun::new(self.base + p, c));
         }
     }
 }
@@ -956,7 +971,7 @@ fn descents<const D: usize>(runs: &[Vec<CellRun<D>>]) -> usize {
     let mut n = 0;
     for r in runs.iter().flatten() {
         let c = r.cell;
-        let key = std::array::from_fn::<i64, D, _>(|a| c[D - 1 - a]);
+        let key = std::array::from_fn::<i32, D, _>(|a| c[D - 1 - a]);
         n += usize::from(prev.is_some_and(|p| key < p));
         prev = Some(key);
     }
@@ -1431,7 +1446,8 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// The local cell of a run.
     #[inline]
     fn run_cell(node_lo: &[i64; D], run: &CellRun<D>) -> [i64; D] {
-        std::array::from_fn(|a| run.cell[a] - node_lo[a])
+        let c = run.cell();
+        std::array::from_fn(|a| c[a] - node_lo[a])
     }
 
     /// Touch the tiles every run's nodes lie in: their keys gathered per chunk on
@@ -2412,7 +2428,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                     let end = runs[k]
                         .get(r + 1)
                         .map_or(keys.len(), |e| e.first as usize - base);
-                    keys[run.first as usize - base..end].fill(cell_key(&run.cell));
+                    keys[run.first as usize - base..end].fill(cell_key(&run.cell()));
                 }
             });
         let keys = &self.pxi;
