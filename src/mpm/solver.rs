@@ -163,13 +163,13 @@ pub struct Solver<'c, const D: usize> {
     /// Per particle: its local coordinate in its cell (`Geom::locate`), set and valid
     /// with `ptile`; the particle loops' hat functions start from it.
     pxi: Vec<[f64; D]>,
-    /// Scatter records, `sw` numbers per node laid out as [`NodeRecord`] says.
+    /// Scatter records, `sw` numbers per node laid out as [`NodeRecord`] says; once
+    /// the grid velocities are formed, two-step schemes' L̄ and v̄ ([`avg_of`]).
     scat: Vec<f64>,
     sw: usize,
-    /// Per node: velocity before (D) and after (D) the force update.
+    /// Per node: velocity before (D) and after (D) the force update; before the grid
+    /// update, two-step schemes' σ̄ ([`Solver::averaged_force`]).
     vel: Vec<f64>,
-    /// Per node: σ̄ (D×D), then reused for L̄ (D×D).
-    avg: Vec<f64>,
     /// XPIC's order m, if the scene asks for it (else FLIP/PIC by `flip`).
     xpic: Option<usize>,
     /// Per node (D), XPIC only: the field `(m − 1) v − m v*` the gather adds to the
@@ -487,7 +487,8 @@ impl<const D: usize> NodeView<'_, D> {
     }
 
     /// The node → node force of [`Solver::averaged_force`] on every owned node, from
-    /// `sigma` (σ̄ per node, [`AvgRecord`]) into the force slots of `scat`.
+    /// `sigma` (σ̄'s upper triangle per node, [`kernel::sym_index`]) into the force
+    /// slots of `scat`.
     ///
     /// A row of [`TILE`] nodes along the first axis at a time, one node per lane: the
     /// row's neighbours are side by side in the padded arrays, so every product below
@@ -497,10 +498,10 @@ impl<const D: usize> NodeView<'_, D> {
     /// `f`, which never holds −0 (it starts at +0, and a sum of finite numbers is −0
     /// only if both are): the same bits as one node at a time.
     fn force_tiles<const NP: usize>(&self, scat: &mut [f64], sw: usize, sigma: &[f64]) {
-        let (dd, aw) = (D * D, AvgRecord::<D>::WIDTH);
+        let sym = NodeRecord::<D>::SYM;
         let cell_k = self.cell_k;
         let ahead = |n: usize| {
-            kernel::prefetch(sigma, n * aw, dd);
+            kernel::prefetch(sigma, n * sym, sym);
             kernel::prefetch(self.cell_w, n, 1);
         };
         self.par_tiles::<NP>(scat, sw, ahead, |slot, pad, recs| {
@@ -513,11 +514,9 @@ impl<const D: usize> NodeView<'_, D> {
             let mut sp = [[0.0; NP]; 6];
             let mut cw = [0.0; NP];
             for k in 0..NP {
-                let at = pad[k] * aw;
-                for a in 0..D {
-                    for b in a..D {
-                        sp[kernel::sym_index::<D>(a, b)][k] = sigma[at + a * D + b];
-                    }
+                let at = pad[k] * sym;
+                for (i, sp) in sp[..sym].iter_mut().enumerate() {
+                    sp[k] = sigma[at + i];
                 }
                 cw[k] = self.cell_w[pad[k]];
             }
@@ -798,6 +797,16 @@ impl Update {
 /// vortex (0.93 of its time sorted every 20 steps; one in ten: 0.97, one in 33:
 /// 0.96); a body at rest is not sorted again.
 const SORT_DISORDER: f64 = 0.05;
+
+/// L̄ and v̄ per node ([`AvgRecord`]) as [`Solver::averaged_velocity_gradient`] left
+/// them in `scat` (two-step schemes, `nodes` of them; else empty): in the scatter
+/// records' storage, whose values no phase reads after the grid velocities are formed
+/// from them and before the next scatter (`resolve_phases` puts XPIC's scatters before
+/// L̄), so the grid holds no field of its own for them (`AvgRecord::WIDTH` is at most
+/// the record's width).
+fn avg_of<const D: usize>(scat: &[f64], nodes: usize) -> &[f64] {
+    &scat[..nodes * AvgRecord::<D>::WIDTH]
+}
 
 /// A run of particles in one cell, as the tile pass finds it.
 #[derive(Clone, Debug, PartialEq)]
@@ -1183,7 +1192,6 @@ impl<'c, const D: usize> Solver<'c, D> {
             scat: Vec::new(),
             sw: 0,
             vel: Vec::new(),
-            avg: Vec::new(),
             xpic: scene.method.xpic.map(|m| m as usize),
             xpic_add: Vec::new(),
             xpic_term: Vec::new(),
@@ -1274,6 +1282,15 @@ impl<'c, const D: usize> Solver<'c, D> {
                 _ => vec![p],
             })
             .collect();
+        // XPIC's scatters overwrite the scatter records, where L̄ and v̄ are kept
+        // (`avg`): its field first, then theirs (neither reads what the other writes).
+        for i in 1..self.phases.len() {
+            if self.phases[i] == Phase::XpicField
+                && matches!(self.phases[i - 1], Phase::AveragedGradient { .. })
+            {
+                self.phases.swap(i - 1, i);
+            }
+        }
     }
 
     fn setup_grid(&mut self) {
@@ -1323,7 +1340,12 @@ impl<'c, const D: usize> Solver<'c, D> {
         fit(&mut self.scat, nn * self.sw);
         fit(&mut self.vel, nn * VelRecord::<D>::WIDTH);
         let n2 = if two { nn } else { 0 };
-        fit(&mut self.avg, n2 * AvgRecord::<D>::WIDTH);
+        // σ̄ lives in `vel` and L̄, v̄ in `scat` for part of a step (`averaged_force`,
+        // `avg`).
+        const {
+            assert!(NodeRecord::<D>::SYM <= VelRecord::<D>::WIDTH);
+            assert!(AvgRecord::<D>::WIDTH <= NodeRecord::<D>::width(true));
+        }
         let nx = if self.xpic.is_some() { nn * D } else { 0 };
         fit(&mut self.xpic_add, nx);
         fit(&mut self.xpic_term, nx);
@@ -1737,33 +1759,33 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// Node → node step of the internal force: `f_i −= Σ_j σ̄_j · ∫ w S_j ∇S_i dv`,
     /// assembled cell by cell over the weighted cells around each owned node.
     fn averaged_force(&mut self) {
-        let sw = self.sw;
-        let aw = AvgRecord::<D>::WIDTH;
-        // σ̄_j = T_j / V_j on owned nodes, then to the ghosts.
-        let mut avg = std::mem::take(&mut self.avg);
+        let (sw, sym) = (self.sw, NodeRecord::<D>::SYM);
+        // σ̄_j = T_j / V_j on owned nodes, then to the ghosts: its upper triangle, in
+        // the grid velocities' storage, which the grid update after this rewrites
+        // (SYM numbers fit in its 2 D a node).
+        let mut vel = std::mem::take(&mut self.vel);
+        let sigma = &mut vel[..self.node_vol.len() * sym];
         let (nodes, scat, node_vol) = (self.nodes(), &self.scat, &self.node_vol);
-        nodes.par_owned(&mut avg, aw, |n, _, rec| {
+        nodes.par_owned(sigma, sym, |n, _, rec| {
             let v = node_vol[n];
-            // One division per entry of the upper triangle, mirrored: σ̄ is symmetric
-            // to the bit, which `force_tiles` relies on.
+            // One division per entry: σ̄ is symmetric to the bit, which `force_tiles`
+            // relies on.
             for a in 0..D {
                 for b in a..D {
-                    let s = if v > 0.0 {
+                    rec[kernel::sym_index::<D>(a, b)] = if v > 0.0 {
                         scat[n * sw + NodeRecord::<D>::stress_sum(a, b)] / v
                     } else {
                         0.0
                     };
-                    rec[a * D + b] = s;
-                    rec[b * D + a] = s;
                 }
             }
         });
-        self.block.ghost_copy(self.comm, &mut avg, aw);
+        self.block.ghost_copy(self.comm, sigma, sym);
         let mut scat = std::mem::take(&mut self.scat);
         let nodes = self.nodes();
-        by_pad!(D, nodes, force_tiles, &mut scat, sw, &avg);
+        by_pad!(D, nodes, force_tiles, &mut scat, sw, sigma);
         self.scat = scat;
-        self.avg = avg;
+        self.vel = vel;
     }
 
     /// Grid velocities from momentum (and, if `dt > 0`, forces), with boundary
@@ -1803,20 +1825,21 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// the ghosts in `avg` ([`AvgRecord`]). The particles' velocity gradient and the
     /// velocity they move with ([`kernel::moving_velocity`]) are built from these.
     fn averaged_velocity_gradient(&mut self, slot: usize) {
-        let mut avg = std::mem::take(&mut self.avg);
+        let aw = AvgRecord::<D>::WIDTH;
+        let mut scat = std::mem::take(&mut self.scat);
+        let avg = &mut scat[..self.node_vol.len() * aw];
         let nodes = self.nodes();
         by_pad!(
             D,
             nodes,
             gradient_tiles,
-            &mut avg,
+            avg,
             &self.vel,
             slot,
             &self.node_vol
         );
-        self.block
-            .ghost_copy(self.comm, &mut avg, AvgRecord::<D>::WIDTH);
-        self.avg = avg;
+        self.block.ghost_copy(self.comm, avg, aw);
+        self.scat = scat;
     }
 
     /// Largest wave speed plus particle speed on this rank.
@@ -2072,7 +2095,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             &ctx,
             parts,
             &self.vel,
-            &self.avg,
+            avg_of::<D>(&self.scat, self.node_vol.len()),
             self.xpic.map(|_| &self.xpic_add[..]),
             mode
         );
@@ -2102,7 +2125,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             &ctx,
             parts,
             &self.vel,
-            &self.avg,
+            avg_of::<D>(&self.scat, self.node_vol.len()),
             m
         );
         self.external_work += t.work;
@@ -2668,7 +2691,14 @@ particles_per_cell = 3
         let mut work = 0.0;
         for p in 0..s.parts.len() {
             let (k, idx) = ctx.kern::<2, 4>(&s.parts.x[p], None, s.ptile[p]);
-            let l = kernel::velocity_gradient(&k, &idx, &s.vel, &s.avg, 1, s.scheme.two_step());
+            let l = kernel::velocity_gradient(
+                &k,
+                &idx,
+                &s.vel,
+                avg_of::<2>(&s.scat, s.node_vol.len()),
+                1,
+                s.scheme.two_step(),
+            );
             work -= s.parts.vol[p] * s.parts.stress[p].component_mul(&l).sum();
         }
         (fv, work)
@@ -2727,8 +2757,14 @@ particles_per_cell = 3
                 let mut worst = 0.0f64;
                 for p in 0..s.parts.len() {
                     let (k, idx) = ctx.kern::<2, 4>(&s.parts.x[p], None, s.ptile[p]);
-                    let l =
-                        kernel::velocity_gradient(&k, &idx, &s.vel, &s.avg, 1, s.scheme.two_step());
+                    let l = kernel::velocity_gradient(
+                        &k,
+                        &idx,
+                        &s.vel,
+                        avg_of::<2>(&s.scat, s.node_vol.len()),
+                        1,
+                        s.scheme.two_step(),
+                    );
                     for a in 0..2 {
                         for b in 0..2 {
                             worst = worst.max((l[(a, b)] - w[a][b]).abs());
@@ -2845,6 +2881,8 @@ particles_per_cell = 3
         }
         s.scatter(true, true);
         s.averaged_force();
+        // The records as the grid update reads them: L̄ is formed in their storage.
+        let records = s.scat.clone();
         let mut owned = Vec::new();
         s.for_owned(|n, c| owned.push((n, c)));
         let w = [[0.3, -1.1, 0.4], [0.7, 0.2, -0.5], [-0.6, 0.9, 0.1]];
@@ -2853,7 +2891,7 @@ particles_per_cell = 3
         for linear in [true, false] {
             let mut vel = vec![0.0; s.tiles.nodes() * 6];
             for &(n, ci) in &owned {
-                if s.scat[n * s.sw + NodeRecord::<3>::MASS] > s.mass_floor {
+                if records[n * s.sw + NodeRecord::<3>::MASS] > s.mass_floor {
                     let node = std::array::from_fn(|a| s.block.node_lo[a] + ci[a] as i64);
                     let x = s.geom.node_position(node);
                     for a in 0..3 {
@@ -2874,7 +2912,14 @@ particles_per_cell = 3
             let mut work = 0.0;
             for p in 0..s.parts.len() {
                 let (k, idx) = ctx.kern::<2, 8>(&s.parts.x[p], None, s.ptile[p]);
-                let l = kernel::velocity_gradient(&k, &idx, &s.vel, &s.avg, 1, true);
+                let l = kernel::velocity_gradient(
+                    &k,
+                    &idx,
+                    &s.vel,
+                    avg_of::<3>(&s.scat, s.node_vol.len()),
+                    1,
+                    true,
+                );
                 if linear {
                     for a in 0..3 {
                         for b in 0..3 {
@@ -2890,7 +2935,7 @@ particles_per_cell = 3
                 let mut fv = 0.0;
                 for &(n, _) in &owned {
                     for a in 0..3 {
-                        fv += s.scat[n * s.sw + NodeRecord::<3>::force(a)] * s.vel[n * 6 + 3 + a];
+                        fv += records[n * s.sw + NodeRecord::<3>::force(a)] * s.vel[n * 6 + 3 + a];
                     }
                 }
                 sides = [fv, work];
@@ -3352,6 +3397,37 @@ particles_per_cell = 2
                     drift < 1e-13,
                     "{g}, XPIC({m}): momentum drifts by {drift:e}"
                 );
+            }
+        }
+    }
+
+    /// XPIC changes the particle velocities only: under USL and USF the particles
+    /// move and deform with the grid's fields alone, so a step with XPIC(m) leaves
+    /// the same positions and `F`, to the bit, as one without. (MPMCG moves them with
+    /// L̄ and v̄, kept in the scatter records' storage that XPIC's scatters overwrite:
+    /// with its field formed after them, not before, this fails.)
+    #[test]
+    fn xpic_leaves_the_motion_to_the_grid() {
+        for update in ["usl", "usf"] {
+            for m in [2, 3] {
+                let u = format!("update = \"{update}\"");
+                let mut a = block("mpmcg", &format!("{u}\nxpic = {m}"), &mut Rng(11));
+                let mut b = block("mpmcg", &u, &mut Rng(11));
+                a.advance().expect("a step with XPIC");
+                b.advance().expect("a step without");
+                assert_eq!(
+                    a.parts.id, b.parts.id,
+                    "{update}, XPIC({m}): the order (sorted by position)"
+                );
+                let what = format!("{update}, XPIC({m})");
+                for p in 0..a.parts.len() {
+                    assert_eq!(a.parts.x[p], b.parts.x[p], "{what}: position {p}");
+                    assert_eq!(a.parts.def_grad[p], b.parts.def_grad[p], "{what}: F {p}");
+                }
+                let dv = (0..a.parts.len())
+                    .map(|p| (a.parts.v[p] - b.parts.v[p]).norm())
+                    .fold(0.0, f64::max);
+                assert!(dv > 1e-3, "{what}: XPIC changed the velocities ({dv:e})");
             }
         }
     }
