@@ -1325,7 +1325,7 @@ fn unusable_checkpoints_are_rejected() {
     mpmcg::output::checkpoint::seal(&future).unwrap();
     run(
         &future,
-        "checkpoint format version 99, but this mpmcg reads versions 3 to 4",
+        "checkpoint format version 99, but this mpmcg reads versions 3 to 5",
     );
     // Particle data changed in the middle of the file: the checksum notices.
     let flipped = put("flipped.h5", &bytes);
