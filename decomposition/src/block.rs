@@ -368,12 +368,28 @@ impl<const D: usize> Block<D> {
     /// Add every ghost node's value into its owner's node, then leave ghosts as they were
     /// (call [`Block::ghost_copy`] if they must hold the sum too).
     pub fn ghost_sum(&mut self, comm: &dyn Communicator, field: &mut [f64], ncomp: usize) {
+        self.ghost_sum_slots(comm, field, ncomp, 0..ncomp);
+    }
+
+    /// [`Block::ghost_sum`] of the entries `slots` of every node's record of `width`
+    /// numbers in `field`, the others left alone: a field that shares its nodes'
+    /// records with others, summed without them.
+    pub fn ghost_sum_slots(
+        &mut self,
+        comm: &dyn Communicator,
+        field: &mut [f64],
+        width: usize,
+        slots: std::ops::Range<usize>,
+    ) {
+        debug_assert!(slots.end <= width);
+        let (lo, hi) = (slots.start, slots.end);
+        let ncomp = hi - lo;
         let h = &mut self.halo;
         for (k, nodes) in h.sum_send.iter().enumerate() {
             let buf = &mut h.send[k];
             buf.clear();
             for &n in nodes {
-                buf.extend_from_slice(&field[n * ncomp..(n + 1) * ncomp]);
+                buf.extend_from_slice(&field[n * width + lo..n * width + hi]);
             }
         }
         h.traffic.record(self.rank, &h.peers, &h.send);
@@ -383,7 +399,7 @@ impl<const D: usize> Block<D> {
             debug_assert_eq!(buf.len(), nodes.len() * ncomp);
             for (j, &n) in nodes.iter().enumerate() {
                 for c in 0..ncomp {
-                    field[n * ncomp + c] += buf[j * ncomp + c];
+                    field[n * width + lo + c] += buf[j * ncomp + c];
                 }
             }
         }

@@ -7,10 +7,11 @@
 //! that is two evaluations of every particle's shape functions and a second sum of
 //! mass and covered volume that equal the first (the positions did not change). Here
 //! one pass evaluates the weights once, updates the velocity and adds `m_p v_p S_i`
-//! into a momentum-only field; mass, cover and domain weights stay those of the
-//! step's scatter. The particle velocities are bit for bit those of the two passes
-//! (same formulas); the nodal momenta are summed per run of particles that share their
-//! nodes, as in `kernel::scatter`, so they equal the two passes' to round-off.
+//! into the scatter records' momentum slots alone; mass, cover and domain weights stay
+//! those of the step's scatter. The particle velocities are bit for bit those of the
+//! two passes (same formulas); the nodal momenta are summed per run of particles that
+//! share their nodes, as in `kernel::scatter`, so they equal the two passes' to
+//! round-off.
 
 use crate::mpm::kernel::lanes::{self, HALF, LANES, QUARTER};
 use crate::mpm::kernel::{self, clip_at_slip_walls, Ctx, GridPtr, Kern, NodeData, Run, SlabOrder};
@@ -38,6 +39,9 @@ pub struct RemapMode {
     /// One-step schemes keep the position increment (grid velocity × dt) in `dx`; a
     /// two-step scheme's stress pass sets it from the remapped velocity.
     pub keep_dx: bool,
+    /// Where a node's momentum goes in `mom`: records of `.0` numbers, its `D`
+    /// components from entry `.1` on (the scatter records' momentum slots).
+    pub record: (usize, usize),
 }
 
 /// The particle arrays the remap writes, shared by its threads.
@@ -74,7 +78,8 @@ impl RemapTally {
 
 /// Update the particle velocities `v` from the grid velocities `vel` (FLIP/PIC blend,
 /// clipped at slip walls as in `kernel::gather`), keep `dx` if asked, and add the new
-/// momentum into `mom` (`D` per node, cleared by the caller), in the slab colours of
+/// momentum into `mom` (`D` per node where `m.record` says, cleared by the caller), in
+/// the slab colours of
 /// `kernel::scatter` (the same order whatever the thread count, so the same sums).
 #[allow(clippy::too_many_arguments)]
 pub fn remap<const D: usize, const NA: usize, const N: usize>(
@@ -170,7 +175,7 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
             if b > 1 {
                 if run.is_new(tile, [0; D]) {
                     if run.started() {
-                        add_momentum(grid, &run.idx, &mut sum);
+                        add_momentum(grid, m.record, &run.idx, &mut sum);
                     }
                     run.enter(ctx, tile, [0; D]);
                     nd.load(&run.idx, vel, &[], None);
@@ -200,7 +205,7 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
         let (mut k, below, w) = ctx.weights::<NA, N>(&parts.x[p], half, &parts.xi[p]);
         if run.is_new(parts.tile[p], below) {
             if run.started() {
-                add_momentum(grid, &run.idx, &mut sum);
+                add_momentum(grid, m.record, &run.idx, &mut sum);
             }
             run.enter(ctx, parts.tile[p], below);
             nd.load(&run.idx, vel, &[], None);
@@ -209,7 +214,7 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
         remap_one(ctx, parts, pp, p, &k, &nd, m, &mut sum, &mut t);
     }
     if run.started() {
-        add_momentum(grid, &run.idx, &mut sum);
+        add_momentum(grid, m.record, &run.idx, &mut sum);
     }
     t
 }
@@ -311,17 +316,19 @@ fn remap_lanes<const D: usize, const N: usize, const B: usize>(
     }
 }
 
-/// Add one run's momentum sums into the nodes `idx` of `mom` and clear them.
+/// Add one run's momentum sums into the nodes `idx` of `mom`, records of `width`
+/// numbers with the momentum from entry `at` on, and clear them.
 #[inline(always)]
 fn add_momentum<const D: usize, const N: usize>(
     grid: GridPtr,
+    (width, at): (usize, usize),
     idx: &[usize; N],
     sum: &mut [[f64; N]; D],
 ) {
     for n in 0..N {
         // SAFETY: see `kernel::scatter`: same slabs, same colours, so no other thread
         // writes these D numbers; bounds checked by `record`.
-        let rec = unsafe { grid.record(idx[n] * D, D) };
+        let rec = unsafe { grid.record(idx[n] * width + at, D) };
         for a in 0..D {
             rec[a] += sum[a][n];
         }
@@ -426,6 +433,7 @@ mod tests {
                         dt: 1e-3,
                         flip,
                         keep_dx,
+                        record: (D, 0),
                     };
                     let v0: Vec<Vector<D>> = (0..n)
                         .map(|_| Vector::<D>::from_fn(|_, _| rng.f64() - 0.5))

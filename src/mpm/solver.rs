@@ -176,8 +176,6 @@ pub struct Solver<'c, const D: usize> {
     /// updated grid velocity ([`Solver::xpic_field`]), and the recursion's current term.
     xpic_add: Vec<f64>,
     xpic_term: Vec<f64>,
-    /// MUSL's remapped momentum, `D` per node ([`Phase::Remap`]).
-    mom: Vec<f64>,
     /// Per node: its fill fraction `φ_k` (see [`Solver::domain_weights`]), copied to
     /// the ghosts.
     fill: Vec<f64>,
@@ -1195,7 +1193,6 @@ impl<'c, const D: usize> Solver<'c, D> {
             xpic: scene.method.xpic.map(|m| m as usize),
             xpic_add: Vec::new(),
             xpic_term: Vec::new(),
-            mom: Vec::new(),
             fill: Vec::new(),
             cell_w: Vec::new(),
             node_vol: Vec::new(),
@@ -1349,8 +1346,6 @@ impl<'c, const D: usize> Solver<'c, D> {
         let nx = if self.xpic.is_some() { nn * D } else { 0 };
         fit(&mut self.xpic_add, nx);
         fit(&mut self.xpic_term, nx);
-        let remaps = self.phases.contains(&Phase::Remap);
-        fit(&mut self.mom, if remaps { nn * D } else { 0 });
         fit(&mut self.fill, n2);
         fit(&mut self.cell_w, n2);
         fit(&mut self.node_vol, n2);
@@ -2005,7 +2000,13 @@ impl<'c, const D: usize> Solver<'c, D> {
         // stress pass; a two-step scheme's stress pass moves with the reconstruction.
         self.dx
             .resize(if keep_dx { n } else { 0 }, Vector::<D>::zeros());
-        zero(&mut self.mom);
+        // Summed into the records' momentum slots in place: no field of its own.
+        let (sw, mom) = (self.sw, NodeRecord::<D>::momentum(0));
+        self.scat.par_chunks_mut(sw * ZERO_CHUNK).for_each(|recs| {
+            for rec in recs.chunks_exact_mut(sw) {
+                rec[mom..mom + D].fill(0.0);
+            }
+        });
         let mut ctx = ctx!(self);
         ctx.walls = self.has_walls();
         let parts = crate::mpm::remap::RemapParts {
@@ -2025,6 +2026,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             dt,
             flip: self.flip,
             keep_dx,
+            record: (sw, mom),
         };
         let t = match (self.scheme.gimp, D) {
             (false, 1) => remap::<D, 2, 2>,
@@ -2040,21 +2042,11 @@ impl<'c, const D: usize> Solver<'c, D> {
             &mut self.dx,
             &self.slabs,
             &self.vel,
-            &mut self.mom,
+            &mut self.scat,
             m,
         );
-        self.block.ghost_sum(self.comm, &mut self.mom, D);
-        let sw = self.sw;
-        self.scat
-            .par_chunks_mut(sw * ZERO_CHUNK)
-            .zip(self.mom.par_chunks(D * ZERO_CHUNK))
-            .for_each(|(scat, mom)| {
-                for (rec, p) in scat.chunks_exact_mut(sw).zip(mom.chunks_exact(D)) {
-                    for a in 0..D {
-                        rec[NodeRecord::<D>::momentum(a)] = p[a];
-                    }
-                }
-            });
+        self.block
+            .ghost_sum_slots(self.comm, &mut self.scat, sw, mom..mom + D);
         self.external_work += t.work;
         t.ok
     }
