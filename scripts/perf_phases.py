@@ -17,9 +17,11 @@ scatter after a gather, a remap or a stress update is the second one (a lone sam
 does not count; on small scenes, a few samples per step, add the two). Samples outside mpmcg (libm's
 `log`, `memset`, `memmove`, the kernel) count with the phase of the mpmcg sample next
 to them in time (the previous one), and so does a helper that is not inlined (in 3D,
-`Geom::locate`); `memset` is the scatter's clear of the node records, `memmove` outside
-a sort the rescue copy (builds before `09cdfaf`, which copied the particles every 10
-steps; since then a `memmove` there is some other copy). Start-up (seeding) and
+`Geom::locate`); `memset` is the scatter's clear of the node records (and, labelled "clear grid"
+too, any other zeroing: since `364c5b4` the lanes' batches), `memmove` outside a sort
+"memcpy": the rescue copy in builds before `09cdfaf`, which copied the particles every
+10 steps; until `364c5b4` mostly the lanes' batches returned by value (2 % of the 3D
+step). Start-up (seeding) and
 anything before the first step is left out.
 
 Needs perf and binutils' addr2line. Shares are of the step's samples, so of its CPU
@@ -224,7 +226,7 @@ def main():
             if "memset" in sym:
                 lab = "clear grid"  # the scatter's clear of the node records
             elif ("memmove" in sym or "memcpy" in sym) and prev != "sort":
-                lab = "rescue copy"  # Rescue::keep's copy_from; sort's permute copies too
+                lab = "memcpy"  # see the docstring; sort's permute copies too
             else:
                 lab = prev
         else:
@@ -244,7 +246,7 @@ def main():
             pass
         elif lab in ("gather", "remap", "stress update", "material stress"):
             ordinal = 2
-        elif lab in ("relocate", "tile pass", "sort", "rescue copy", "history totals"):
+        elif lab in ("relocate", "tile pass", "sort", "rescue copy", "memcpy", "history totals"):
             ordinal = 1
         if lab in TWICE:
             lab = f"{lab} ({ordinal})"
