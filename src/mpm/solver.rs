@@ -2679,18 +2679,9 @@ particles_per_cell = 3
         if s.scheme.two_step() {
             s.averaged_velocity_gradient(1);
         }
-        let ctx = ctx!(s);
         let mut work = 0.0;
         for p in 0..s.parts.len() {
-            let (k, idx) = ctx.kern::<2, 4>(&s.parts.x[p], None, s.ptile[p]);
-            let l = kernel::velocity_gradient(
-                &k,
-                &idx,
-                &s.vel,
-                avg_of::<2>(&s.scat, s.node_vol.len()),
-                1,
-                s.scheme.two_step(),
-            );
+            let l = gradient_at(&s, p);
             work -= s.parts.vol[p] * s.parts.stress[p].component_mul(&l).sum();
         }
         (fv, work)
@@ -2698,6 +2689,15 @@ particles_per_cell = 3
 
     /// A solver on the beam of [`scene_text`] with 3 × 3 particles per cell, positions
     /// jittered by up to `jitter` cells (partly filled surface cells).
+    /// Particle `p`'s velocity gradient from velocity slot 1 (with L̄ where the scheme
+    /// has it), as the particle passes form it.
+    fn gradient_at(s: &Solver<'_, 2>, p: usize) -> Mat<2> {
+        let ctx = ctx!(s);
+        let (k, idx) = ctx.kern::<2, 4>(&s.parts.x[p], None, s.ptile[p]);
+        let avg = avg_of::<2>(&s.scat, s.node_vol.len());
+        kernel::velocity_gradient(&k, &idx, &s.vel, avg, 1, s.scheme.two_step())
+    }
+
     fn beam(gradient: &str, x_lower: &str, jitter: f64, rng: &mut Rng) -> Solver<'static, 2> {
         let sc = scene::parse(&scene_text(gradient, x_lower), "adj").unwrap();
         let layout = Layout::choose([20, 22], [false, false], 1).unwrap();
@@ -2745,18 +2745,9 @@ particles_per_cell = 3
                 if s.scheme.two_step() {
                     s.averaged_velocity_gradient(1);
                 }
-                let ctx = ctx!(s);
                 let mut worst = 0.0f64;
                 for p in 0..s.parts.len() {
-                    let (k, idx) = ctx.kern::<2, 4>(&s.parts.x[p], None, s.ptile[p]);
-                    let l = kernel::velocity_gradient(
-                        &k,
-                        &idx,
-                        &s.vel,
-                        avg_of::<2>(&s.scat, s.node_vol.len()),
-                        1,
-                        s.scheme.two_step(),
-                    );
+                    let l = gradient_at(&s, p);
                     for a in 0..2 {
                         for b in 0..2 {
                             worst = worst.max((l[(a, b)] - w[a][b]).abs());
