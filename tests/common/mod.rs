@@ -7,12 +7,40 @@ use mpmcg::input::scene::parse;
 use std::collections::HashMap;
 use std::path::PathBuf;
 
-/// A fresh, empty folder under the system temp dir.
+/// A fresh, empty folder under the system temp dir. Tests leave their folders for a
+/// look after a failure; the first call in a process removes those of test processes
+/// that have ended, so repeated runs do not fill `/tmp`.
 pub fn temp_dir(tag: &str) -> PathBuf {
+    static SWEEP: std::sync::Once = std::sync::Once::new();
+    SWEEP.call_once(remove_ended_runs_folders);
     let d = std::env::temp_dir().join(format!("mpmcg-test-{}-{tag}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
     d
+}
+
+/// Remove `mpmcg-test-<pid>-*` folders whose process is gone. Only where `/proc`
+/// tells which processes run (Linux); elsewhere nothing is removed.
+fn remove_ended_runs_folders() {
+    let proc_fs = std::path::Path::new("/proc/self");
+    if !proc_fs.exists() {
+        return;
+    }
+    let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let name = e.file_name();
+        let Some(rest) = name.to_str().and_then(|n| n.strip_prefix("mpmcg-test-")) else {
+            continue;
+        };
+        let Some(pid) = rest.split('-').next().and_then(|p| p.parse::<u32>().ok()) else {
+            continue;
+        };
+        if !std::path::Path::new(&format!("/proc/{pid}")).exists() {
+            let _ = std::fs::remove_dir_all(e.path());
+        }
+    }
 }
 
 /// Run scene text on one rank; returns the run's result (an unstable run's error
