@@ -1252,7 +1252,7 @@ pub fn external_accel<const D: usize>(ctx: &Ctx<'_, D>, x0: &[Vector<D>], out: &
         });
 }
 
-/// A particle's slab from its cell along the last axis ([`SlabOrder::slabs_mut`]).
+/// A particle's slab from its cell along the last axis ([`SlabOrder::begin`]).
 #[derive(Clone, Copy, Debug)]
 pub struct SlabIndex {
     lo: usize,
@@ -1298,31 +1298,24 @@ impl SlabIndex {
     }
 }
 
-/// `f(s, run)` for each run of equal slabs `s` in `slab` (the indices `run`), in
-/// order. Particles sorted by cell come in long runs of one slab: a slab's count or
-/// cursor then changes once per run, in a register, not once per particle through
-/// memory (a chain of loads and stores, each waiting on the one before).
-#[inline(always)]
-fn for_runs(slab: &[u32], mut f: impl FnMut(u32, std::ops::Range<usize>)) {
-    const STRIDE: usize = 16;
-    let mut start = 0;
-    while start < slab.len() {
-        let s = slab[start];
-        let mut end = start + 1;
-        // Sixteen at a time (one vector comparison), then one by one.
-        while let Some(next) = slab.get(end..end + STRIDE) {
-            if next.iter().fold(true, |all, &t| all & (t == s)) {
-                end += STRIDE;
-            } else {
-                break;
-            }
-        }
-        while end < slab.len() && slab[end] == s {
-            end += 1;
-        }
-        f(s, start..end);
-        start = end;
-    }
+/// A rank's particles in runs of one slab, chunk by chunk of [`SlabOrder::CHUNK`]:
+/// what [`SlabOrder::finish`] sorts. The tile pass's runs of one cell are such runs,
+/// so the order needs no slab stored per particle (4 bytes each).
+///
+/// `each(c, …)`'s runs must cover chunk `c`'s particles (`c · CHUNK ..`, up to
+/// `count`) exactly, in order ([`SlabOrder::finish`] asserts the total).
+///
+/// # Safety
+///
+/// [`SlabOrder::finish`] writes the order from several threads where a first call of
+/// `each` counted runs: `each` must give the same runs every time it is called.
+pub unsafe trait SlabRuns: Sync {
+    /// The particle count.
+    fn count(&self) -> usize;
+
+    /// `f(s, particles)` for the runs of chunk `c` in order: together they cover its
+    /// particles `c · CHUNK ..` exactly, each run in slab `s`.
+    fn each(&self, c: usize, f: impl FnMut(u32, std::ops::Range<usize>));
 }
 
 /// The particle order of the coloured scatter: particle indices grouped by slab.
@@ -1331,7 +1324,6 @@ pub struct SlabOrder {
     /// `start[s]..start[s + 1]` indexes `order` for slab `s`.
     pub start: Vec<usize>,
     pub order: Vec<u32>,
-    slab_of: Vec<u32>,
     /// Per chunk of [`SlabOrder::CHUNK`] particles, its particles per slab (chunk-major),
     /// then where its first particle of each slab goes in `order`.
     counts: Vec<usize>,
@@ -1349,9 +1341,9 @@ struct OrderPtr(*mut u32);
 
 // SAFETY: made in `SlabOrder::finish` from `&mut self.order`, held for its whole use.
 // Chunk `c` writes `order[counts[c][s] ..]` for each of its particles in slab `s`, as
-// many as it counted there; the offsets are an exclusive prefix sum over (slab, chunk)
+// many as it counted there (its runs are the same both times, `SlabRuns`'s contract); the offsets are an exclusive prefix sum over (slab, chunk)
 // of those counts, so the ranges of different (chunk, slab) pairs are disjoint and lie
-// within `order` (whose length is their total, the particle count). No two threads
+// within `order` (whose length is their total). No two threads
 // write one element and no element is read while they run.
 unsafe impl Send for OrderPtr {}
 unsafe impl Sync for OrderPtr {}
@@ -1371,59 +1363,60 @@ impl SlabOrder {
     /// order does not depend on the thread count).
     pub const CHUNK: usize = 4096;
 
-    /// Start grouping `n` particles by slab (of `thick` cells, [`slab_thickness`]) along
-    /// the last axis of the owned cells `[cell_lo, cell_hi)`: then set each particle's slab in [`SlabOrder::slabs_mut`]
-    /// ([`SlabIndex::slab`] of its cell along that axis), in parallel if wished, and
-    /// [`SlabOrder::finish`]. Stable: within a slab, particles keep their array order.
-    pub fn begin(&mut self, cell_lo: usize, cell_hi: usize, thick: usize, n: usize) {
+    /// Start grouping particles by slab (of `thick` cells, [`slab_thickness`]) along the
+    /// last axis of the owned cells `[cell_lo, cell_hi)`; the returned index finds a
+    /// cell's slab. Then [`SlabOrder::finish`] with the particles' runs.
+    pub fn begin(&mut self, cell_lo: usize, cell_hi: usize, thick: usize) -> SlabIndex {
         let nslab = (cell_hi - cell_lo).div_ceil(thick).max(1);
         self.lo = cell_lo;
         self.hi = cell_hi;
         self.thick = thick;
         self.start.clear();
         self.start.resize(nslab + 1, 0);
-        // Every entry is set before `finish`: only new ones need a value.
-        self.slab_of.resize(n, 0);
+        self.index()
     }
 
-    /// How to find a particle's slab, and every particle's slab, to be set between
-    /// [`SlabOrder::begin`] and [`SlabOrder::finish`].
-    pub fn slabs_mut(&mut self) -> (SlabIndex, &mut [u32]) {
-        (
-            SlabIndex {
-                lo: self.lo,
-                hi: self.hi,
-                thick: self.thick,
-            },
-            &mut self.slab_of,
-        )
+    /// How to find a cell's slab (the last [`SlabOrder::begin`]'s).
+    pub fn index(&self) -> SlabIndex {
+        SlabIndex {
+            lo: self.lo,
+            hi: self.hi,
+            thick: self.thick,
+        }
     }
 
-    /// Order the particles by slab: a counting sort, its counting and placing in
-    /// parallel over chunks of particles where the per-chunk counts are few (a slab
-    /// count per chunk, no more numbers than particles), else serially (many slabs,
-    /// as in a huge box, with few particles). The order is the same either way.
-    pub fn finish(&mut self) {
+    /// Order the particles of `runs` by slab, stably (within a slab, particles keep
+    /// their array order): a counting sort over runs, its counting and placing in
+    /// parallel over chunks where the per-chunk counts are few (a slab count per
+    /// chunk, no more numbers than particles), else serially (many slabs, as in a huge
+    /// box, with few particles). The order is the same either way.
+    pub fn finish(&mut self, runs: &impl SlabRuns) {
         let nslab = self.start.len() - 1;
-        let n = self.slab_of.len();
+        let n = runs.count();
         let nchunk = n.div_ceil(Self::CHUNK);
         if nchunk * nslab <= n {
-            self.count_in_chunks(nchunk);
+            self.count_in_chunks(nchunk, runs);
         } else {
             self.start.fill(0);
-            for &s in &self.slab_of {
-                self.start[s as usize + 1] += 1;
+            for c in 0..nchunk {
+                runs.each(c, |s, run| self.start[s as usize + 1] += run.len());
             }
             for s in 0..nslab {
                 self.start[s + 1] += self.start[s];
             }
             self.order.resize(n, 0);
             let mut at = self.start.clone();
-            for (p, &s) in self.slab_of.iter().enumerate() {
-                self.order[at[s as usize]] = p as u32;
-                at[s as usize] += 1;
+            for c in 0..nchunk {
+                runs.each(c, |s, run| {
+                    let k = at[s as usize];
+                    for (o, p) in self.order[k..k + run.len()].iter_mut().zip(run.clone()) {
+                        *o = p as u32;
+                    }
+                    at[s as usize] += run.len();
+                });
             }
         }
+        assert_eq!(self.start[nslab], n, "the runs cover every particle once");
         // Per colour, the particles of the slabs below each slab ([`SlabOrder::split`]).
         self.below.clear();
         self.below.resize(nslab + 2, 0);
@@ -1433,16 +1426,16 @@ impl SlabOrder {
     }
 
     /// [`SlabOrder::finish`]'s parallel counting sort.
-    fn count_in_chunks(&mut self, nchunk: usize) {
+    fn count_in_chunks(&mut self, nchunk: usize, runs: &impl SlabRuns) {
         use rayon::prelude::*;
         let nslab = self.start.len() - 1;
         self.counts.clear();
         self.counts.resize(nchunk * nslab, 0);
-        self.slab_of
-            .par_chunks(Self::CHUNK)
-            .zip(self.counts.par_chunks_mut(nslab))
-            .for_each(|(slab, count)| {
-                for_runs(slab, |s, run| count[s as usize] += run.len());
+        self.counts
+            .par_chunks_mut(nslab)
+            .enumerate()
+            .for_each(|(c, count)| {
+                runs.each(c, |s, run| count[s as usize] += run.len());
             });
         // Offsets: slab by slab, chunk by chunk within a slab (so within a slab the
         // particles keep their array order). Walked chunk by chunk (the counts' own
@@ -1468,28 +1461,29 @@ impl SlabOrder {
                 *at += count;
             }
         }
+        let total = self.start[nslab];
         // `start` was advanced past each slab: back to the slabs' starts.
         for s in (1..=nslab).rev() {
             self.start[s] = self.start[s - 1];
         }
         self.start[0] = 0;
         // Every entry is written below.
-        self.order.resize(self.slab_of.len(), 0);
+        // As long as the runs counted (which the writes below stay within).
+        self.order.resize(total, 0);
         let out = OrderPtr(self.order.as_mut_ptr());
-        self.slab_of
-            .par_chunks(Self::CHUNK)
-            .zip(self.counts.par_chunks_mut(nslab))
+        self.counts
+            .par_chunks_mut(nslab)
             .enumerate()
-            .for_each(|(c, (slab, cursor))| {
-                for_runs(slab, |s, run| {
+            .for_each(|(c, cursor)| {
+                runs.each(c, |s, run| {
                     // In a local, not through `cursor`, which the writes might alias
                     // as far as the compiler knows.
                     let mut k = cursor[s as usize];
-                    for i in run {
+                    for p in run {
                         // SAFETY: see `OrderPtr`: `k` stays within this chunk's range
                         // for slab `s`, which lies in `order` and no other thread
                         // writes.
-                        unsafe { out.write(k, (c * Self::CHUNK + i) as u32) };
+                        unsafe { out.write(k, p as u32) };
                         k += 1;
                     }
                     cursor[s as usize] = k;
@@ -1919,14 +1913,38 @@ mod tests {
             .build()
             .expect("a thread pool");
         pool.install(|| {
-            o.begin(lo, hi, thick, cells.len());
-            let (ix, slab) = o.slabs_mut();
-            for (s, &c) in slab.iter_mut().zip(cells) {
-                *s = ix.slab(c);
-            }
-            o.finish();
+            let ix = o.begin(lo, hi, thick);
+            o.finish(&CellSlabs { cells, ix });
             ix
         })
+    }
+
+    /// Particles in `cells`, in runs of one cell as the tile pass finds them (so runs
+    /// next to each other may share a slab).
+    struct CellSlabs<'a> {
+        cells: &'a [i64],
+        ix: SlabIndex,
+    }
+
+    // SAFETY: `each` walks chunk `c`'s particles once, in order, the same every call.
+    unsafe impl SlabRuns for CellSlabs<'_> {
+        fn count(&self) -> usize {
+            self.cells.len()
+        }
+
+        fn each(&self, c: usize, mut f: impl FnMut(u32, std::ops::Range<usize>)) {
+            let end = self.cells.len().min((c + 1) * SlabOrder::CHUNK);
+            let mut a = c * SlabOrder::CHUNK;
+            while a < end {
+                let s = self.ix.slab(self.cells[a]);
+                let mut b = a + 1;
+                while b < end && self.cells[b] == self.cells[a] {
+                    b += 1;
+                }
+                f(s, a..b);
+                a = b;
+            }
+        }
     }
 
     /// The stored upper triangle: row by row, each place once, and `(b, a)` at the

@@ -352,6 +352,13 @@ pub fn reserve<T>(v: &mut Vec<T>, n: usize) {
     }
 }
 
+/// Room for exactly `n` elements in `v` where it has less.
+pub fn reserve_exact<T>(v: &mut Vec<T>, n: usize) {
+    if v.capacity() < n {
+        v.reserve_exact(n - v.len());
+    }
+}
+
 /// Split a (possibly absent, i.e. empty) array at `mid`.
 pub fn split_mut<T>(s: &mut [T], mid: usize) -> (&mut [T], &mut [T]) {
     if s.is_empty() {

@@ -839,11 +839,10 @@ impl<const D: usize> CellRun<D> {
 }
 
 /// The tile pass's location of the particles of one chunk, in order: each one's local
-/// coordinate and slab, and in `runs` where a run of particles in one cell starts
-/// (the chunk's first particle starts one).
+/// coordinate, and in `runs` where a run of particles in one cell starts (the chunk's
+/// first particle starts one).
 struct ChunkLocator<'a, const D: usize> {
     geom: &'a Geom<D>,
-    index: kernel::SlabIndex,
     /// The chunk's first particle.
     base: usize,
     /// The cell of the particle located last (none at first).
@@ -851,28 +850,54 @@ struct ChunkLocator<'a, const D: usize> {
     runs: &'a mut Vec<CellRun<D>>,
 }
 
+/// The tile pass's runs of one cell as [`kernel::SlabRuns`]: the slab order sorts
+/// them, not the particles one by one.
+struct RunSlabs<'a, const D: usize> {
+    /// Per chunk of [`LOCATE_CHUNK`] particles, its runs.
+    runs: &'a [Vec<CellRun<D>>],
+    count: usize,
+    index: kernel::SlabIndex,
+}
+
+const _: () = assert!(LOCATE_CHUNK == kernel::SlabOrder::CHUNK);
+
+// SAFETY: `each` only reads the runs, which it borrows: the same every call. (They
+// cover the chunk: its first particle starts a run, later ones start at increasing
+// particles within it (`ChunkLocator`), and run k ends where run k + 1 starts.)
+unsafe impl<const D: usize> kernel::SlabRuns for RunSlabs<'_, D> {
+    fn count(&self) -> usize {
+        self.count
+    }
+
+    #[inline]
+    fn each(&self, c: usize, mut f: impl FnMut(u32, std::ops::Range<usize>)) {
+        let end = self.count.min((c + 1) * LOCATE_CHUNK);
+        let runs = &self.runs[c];
+        for (k, run) in runs.iter().enumerate() {
+            let next = runs.get(k + 1).map_or(end, |r| r.first as usize);
+            // Asserts that the cell is in the block, which the scatter's threads rely on.
+            let s = self.index.slab(i64::from(run.cell[D - 1]));
+            f(s, run.first as usize..next);
+        }
+    }
+}
+
 impl<'a, const D: usize> ChunkLocator<'a, D> {
-    fn new(
-        geom: &'a Geom<D>,
-        index: kernel::SlabIndex,
-        chunk: usize,
-        runs: &'a mut Vec<CellRun<D>>,
-    ) -> Self {
+    fn new(geom: &'a Geom<D>, chunk: usize, runs: &'a mut Vec<CellRun<D>>) -> Self {
         runs.clear();
         ChunkLocator {
             geom,
-            index,
             base: chunk * LOCATE_CHUNK,
             prev: [i64::MIN; D],
             runs,
         }
     }
 
-    /// Locate the chunk's particle `p`, at `x`, into its `xi` and `slab`.
+    /// Locate the chunk's particle `p`, at `x`, into its `xi`.
     #[inline(always)]
-    fn locate(&mut self, p: usize, x: &Vector<D>, xi: &mut [f64; D], slab: &mut u32) {
+    fn locate(&mut self, p: usize, x: &Vector<D>, xi: &mut [f64; D]) {
         let (c, f) = self.geom.locate(&std::array::from_fn(|a| x[a]));
-        self.store(p, c, f, xi, slab);
+        self.store(p, c, f, xi);
     }
 
     /// [`ChunkLocator::locate`] of a particle whose grid coordinates `s` (per axis
@@ -882,7 +907,7 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
     /// so this is its cell and ξ without either (a fifth of the tile pass's
     /// instructions).
     #[inline(always)]
-    fn locate_inside(&mut self, p: usize, s: &[f64; D], xi: &mut [f64; D], slab: &mut u32) {
+    fn locate_inside(&mut self, p: usize, s: &[f64; D], xi: &mut [f64; D]) {
         let mut c = [0i64; D];
         let mut f = [0.0; D];
         for a in 0..D {
@@ -890,13 +915,13 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
             c[a] = s[a] as i64;
             f[a] = s[a] - c[a] as f64;
         }
-        self.store(p, c, f, xi, slab);
+        self.store(p, c, f, xi);
     }
 
     /// [`block_coordinates`] and [`ChunkLocator::locate_inside`] of the `L` particles
     /// from the chunk's `p0`, at `xs`, as vector operations over them: `false`, with
     /// nothing stored, unless all of them lie in the block `[lo, hi)`. The same
-    /// arithmetic per lane, so the same bits, slabs and runs as one at a time.
+    /// arithmetic per lane, so the same bits and runs as one at a time.
     #[inline(always)]
     fn locate_lanes<const L: usize>(
         &mut self,
@@ -904,7 +929,6 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
         xs: &[Vector<D>; L],
         (lo, hi): (&[usize; D], &[usize; D]),
         xi: &mut [[f64; D]; L],
-        slab: &mut [u32; L],
     ) -> bool {
         let geom = self.geom;
         let mut s = [[0.0; L]; D];
@@ -933,7 +957,6 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
                 xi[l][a] = s[a][l] - c[a][l] as f64;
             }
         }
-        *slab = self.index.slabs(&c[D - 1]);
         // A run starts where a lane's cell differs from the one before it: a bit per
         // lane (a mask register), visited bit by bit only where one is set.
         let mut starts = 0u32;
@@ -957,12 +980,11 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
         true
     }
 
-    /// Store particle `p`'s local coordinate `f` and slab, and start a run where its
-    /// cell `c` differs from the last particle's.
+    /// Store particle `p`'s local coordinate `f`, and start a run where its cell `c`
+    /// differs from the last particle's.
     #[inline(always)]
-    fn store(&mut self, p: usize, c: [i64; D], f: [f64; D], xi: &mut [f64; D], slab: &mut u32) {
+    fn store(&mut self, p: usize, c: [i64; D], f: [f64; D], xi: &mut [f64; D]) {
         *xi = f;
-        *slab = self.index.slab(c[D - 1]);
         if c != self.prev {
             self.prev = c;
             self.runs.push(CellRun::new(self.base + p, c));
@@ -1363,7 +1385,6 @@ impl<'c, const D: usize> Solver<'c, D> {
         } else if cfg!(debug_assertions) {
             // The tests' builds check that claim: locating again changes nothing.
             let pxi = self.pxi.clone();
-            let slab_of = self.slabs.slabs_mut().1.to_vec();
             let runs = self.cell_runs.clone();
             self.locate_all();
             let same_xi = pxi.len() == self.pxi.len()
@@ -1373,14 +1394,23 @@ impl<'c, const D: usize> Solver<'c, D> {
                     .zip(self.pxi.iter().flatten())
                     .all(|(a, b)| a.to_bits() == b.to_bits());
             assert!(
-                same_xi && slab_of == self.slabs.slabs_mut().1 && runs == self.cell_runs,
+                same_xi && runs == self.cell_runs,
                 "the particles' location kept from the wrap is stale at step {}",
                 self.step
             );
         }
+        // The slab order first: it checks that every run's cell is in the block.
+        let last = D - 1;
+        let (lo, hi) = (self.block.cell_lo[last], self.block.cell_hi[last]);
+        let thick = kernel::slab_thickness(self.scheme.gimp);
+        let index = self.slabs.begin(lo, hi, thick);
+        self.slabs.finish(&RunSlabs {
+            runs: &self.cell_runs,
+            count: self.parts.len(),
+            index,
+        });
         // The tiles of the runs' cells.
         self.touch_runs();
-        self.slabs.finish();
         // The halo nodes any rank's particles come near, stored on every rank that
         // holds them (a neighbour's particles may need nodes this rank's do not).
         self.block.activate_halo(self.comm, &mut self.tiles);
@@ -1416,48 +1446,43 @@ impl<'c, const D: usize> Solver<'c, D> {
             });
     }
 
-    /// The tile pass's parallel part: locate every particle, keep ξ and its slab, and
-    /// list per chunk of particles where a run of particles in one cell starts (the
+    /// The tile pass's parallel part: locate every particle, keep ξ, and list per chunk of particles where a run of particles in one cell starts (the
     /// chunk's first particle starts one). Chunks are fixed, so the runs do not depend
     /// on the thread count.
     fn locate_all(&mut self) {
-        let (chunks, index) = self.begin_locate();
+        let chunks = self.begin_locate();
         let geom = &self.geom;
-        let (_, slab_of) = self.slabs.slabs_mut();
         self.parts
             .x
             .par_chunks(LOCATE_CHUNK)
             .zip(self.pxi.par_chunks_mut(LOCATE_CHUNK))
-            .zip(slab_of.par_chunks_mut(LOCATE_CHUNK))
             .zip(self.cell_runs.par_iter_mut())
             .enumerate()
-            .for_each(|(k, (((x, xi), slab), runs))| {
-                let mut loc = ChunkLocator::new(geom, index, k, runs);
+            .for_each(|(k, ((x, xi), runs))| {
+                let mut loc = ChunkLocator::new(geom, k, runs);
                 for (p, x) in x.iter().enumerate() {
-                    loc.locate(p, x, &mut xi[p], &mut slab[p]);
+                    loc.locate(p, x, &mut xi[p]);
                 }
             });
         self.cell_runs.truncate(chunks);
     }
 
-    /// The tile pass's arrays sized for this rank's particles and the slab order
-    /// begun: the chunk count and how to find a particle's slab.
-    fn begin_locate(&mut self) -> (usize, kernel::SlabIndex) {
+    /// The tile pass's arrays sized for this rank's particles: the chunk count.
+    fn begin_locate(&mut self) -> usize {
         let n = self.parts.len();
+        // As much room as the particles' arrays have (which grow with a sixteenth to
+        // spare, [`particles::reserve`]): no more, and it grows when they do.
+        let room = self.parts.x.capacity().max(n);
+        particles::reserve_exact(&mut self.ptile, room);
+        particles::reserve_exact(&mut self.pxi, room);
         // Every entry is written below: only new ones need a value (no serial fill).
-        particles::reserve(&mut self.ptile, n);
-        particles::reserve(&mut self.pxi, n);
         self.ptile.resize(n, 0);
         self.pxi.resize(n, [0.0; D]);
-        let last = D - 1;
-        let (lo, hi) = (self.block.cell_lo[last], self.block.cell_hi[last]);
-        let thick = kernel::slab_thickness(self.scheme.gimp);
-        self.slabs.begin(lo, hi, thick, n);
         let chunks = n.div_ceil(LOCATE_CHUNK);
         if self.cell_runs.len() < chunks {
             self.cell_runs.resize_with(chunks, Vec::new);
         }
-        (chunks, self.slabs.slabs_mut().0)
+        chunks
     }
 
     /// The local cell of a run.
@@ -2133,34 +2158,31 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// others' particles are located for the next tile pass as in
     /// [`Solver::locate_all`], while their positions are at hand.
     fn wrap_and_flag(&mut self) {
-        let (chunks, index) = self.begin_locate();
+        let chunks = self.begin_locate();
         self.flagged.clear();
         self.flagged.resize(chunks, false);
         let (geom, lo, hi) = (&self.geom, &self.block.cell_lo, &self.block.cell_hi);
         let periodic = geom.periodic.contains(&true);
-        let (_, slab_of) = self.slabs.slabs_mut();
         self.parts
             .x
             .par_chunks_mut(LOCATE_CHUNK)
             .zip(self.flagged.par_iter_mut())
             .zip(self.pxi.par_chunks_mut(LOCATE_CHUNK))
-            .zip(slab_of.par_chunks_mut(LOCATE_CHUNK))
             .zip(self.cell_runs.par_iter_mut())
             .enumerate()
-            .for_each(|(k, ((((xs, flag), xi), slab), runs))| {
-                let mut loc = ChunkLocator::new(geom, index, k, runs);
+            .for_each(|(k, (((xs, flag), xi), runs))| {
+                let mut loc = ChunkLocator::new(geom, k, runs);
                 // One particle: whether it left the block.
                 let one = |loc: &mut ChunkLocator<'_, D>,
                            p: usize,
                            x: &mut Vector<D>,
-                           xi: &mut [f64; D],
-                           slab: &mut u32| {
+                           xi: &mut [f64; D]| {
                     wrap_periodic(geom, x);
                     // In the block is on the grid: one test for both.
                     let (s, inside) = block_coordinates(geom, lo, hi, x);
                     // A flagged chunk is located again after the exchange.
                     if inside {
-                        loc.locate_inside(p, &s, xi, slab);
+                        loc.locate_inside(p, &s, xi);
                     }
                     !inside
                 };
@@ -2177,16 +2199,15 @@ impl<'c, const D: usize> Solver<'c, D> {
                                 .for_each(|x| wrap_periodic(geom, x));
                         }
                         let batch = <&[Vector<D>; LANES]>::try_from(&xs[r.clone()]);
-                        let xi = <&mut [[f64; D]; LANES]>::try_from(&mut xi[r.clone()]);
-                        let slab = <&mut [u32; LANES]>::try_from(&mut slab[r]);
-                        let (batch, xi, slab) = (batch.unwrap(), xi.unwrap(), slab.unwrap());
-                        if loc.locate_lanes(p, batch, (lo, hi), xi, slab) {
+                        let xi = <&mut [[f64; D]; LANES]>::try_from(&mut xi[r]);
+                        let (batch, xi) = (batch.unwrap(), xi.unwrap());
+                        if loc.locate_lanes(p, batch, (lo, hi), xi) {
                             p += LANES;
                             continue;
                         }
                     }
                     for q in p..p + b {
-                        *flag |= one(&mut loc, q, &mut xs[q], &mut xi[q], &mut slab[q]);
+                        *flag |= one(&mut loc, q, &mut xs[q], &mut xi[q]);
                     }
                     p += b;
                 }
@@ -3583,7 +3604,7 @@ mod locate_tests {
 
     /// Inside the block is exactly "on the grid and in the block" (NaN, the grid's
     /// faces and beyond, the block's faces included), and an inside particle gets
-    /// `Geom::locate`'s ξ to the bit, its slab and the same runs, on bounded and
+    /// `Geom::locate`'s ξ to the bit and the same runs, on bounded and
     /// periodic axes, for a block at the grid's edge and one inside it.
     #[test]
     fn inside_particles_locate_as_geom_locate() {
@@ -3609,12 +3630,9 @@ mod locate_tests {
                 }
                 xs.push(Vector::<2>::new(f64::NAN, 1.0));
                 xs.push(Vector::<2>::new(0.5, f64::NAN));
-                let mut slabs = kernel::SlabOrder::default();
-                slabs.begin(lo[1], hi[1], 1, xs.len());
-                let (index, _) = slabs.slabs_mut();
                 let (mut runs_a, mut runs_b) = (Vec::new(), Vec::new());
-                let mut la = ChunkLocator::new(&geom, index, 0, &mut runs_a);
-                let mut lb = ChunkLocator::new(&geom, index, 0, &mut runs_b);
+                let mut la = ChunkLocator::new(&geom, 0, &mut runs_a);
+                let mut lb = ChunkLocator::new(&geom, 0, &mut runs_b);
                 let mut inside_count = 0;
                 for (p, x) in xs.iter().enumerate() {
                     let (s, inside) = block_coordinates(&geom, &lo, &hi, x);
@@ -3624,11 +3642,10 @@ mod locate_tests {
                         continue;
                     }
                     inside_count += 1;
-                    let (mut xi_a, mut xi_b, mut slab_a, mut slab_b) = ([0.0; 2], [0.0; 2], 0, 0);
-                    la.locate(p, x, &mut xi_a, &mut slab_a);
-                    lb.locate_inside(p, &s, &mut xi_b, &mut slab_b);
+                    let (mut xi_a, mut xi_b) = ([0.0; 2], [0.0; 2]);
+                    la.locate(p, x, &mut xi_a);
+                    lb.locate_inside(p, &s, &mut xi_b);
                     assert_eq!(xi_a.map(f64::to_bits), xi_b.map(f64::to_bits), "{x:?}");
-                    assert_eq!(slab_a, slab_b, "{x:?}");
                 }
                 assert!(inside_count > 1000, "{inside_count} inside");
                 assert_eq!(runs_a, runs_b);
@@ -3638,7 +3655,7 @@ mod locate_tests {
 
     /// Eight particles at a time ([`ChunkLocator::locate_lanes`]) give what one at a
     /// time gives ([`block_coordinates`], [`ChunkLocator::locate_inside`]): the same
-    /// ξ to the bit, slabs (one and three cells thick) and runs, in 2D and 3D, with
+    /// ξ to the bit and runs, in 2D and 3D, with
     /// runs that start at any lane and span batches; and a batch with a particle
     /// outside the block (beyond a face, on the upper face, NaN) is refused whole,
     /// with nothing stored.
@@ -3671,47 +3688,41 @@ mod locate_tests {
             xs[outside[0]][0] = geom.lower[0] + hi[0] as f64 * geom.h[0];
             xs[outside[1]][D - 1] = f64::NAN;
             xs[outside[2]][0] = geom.lower[0] - 0.01;
-            for thick in [1, 3] {
-                let mut slabs = kernel::SlabOrder::default();
-                slabs.begin(lo[D - 1], hi[D - 1], thick, xs.len());
-                let (index, _) = slabs.slabs_mut();
-                let (mut runs_a, mut runs_b) = (Vec::new(), Vec::new());
-                let mut la = ChunkLocator::new(&geom, index, 1, &mut runs_a);
-                let mut lb = ChunkLocator::new(&geom, index, 1, &mut runs_b);
-                let mut refused = 0;
-                for p0 in (0..xs.len()).step_by(LANES) {
-                    let batch: &[Vector<D>; LANES] = xs[p0..p0 + LANES].try_into().unwrap();
-                    let (mut xi_a, mut slab_a) = ([[-1.0; D]; LANES], [u32::MAX; LANES]);
-                    let ok = la.locate_lanes(p0, batch, (&lo, &hi), &mut xi_a, &mut slab_a);
-                    let mut all = true;
-                    for (l, x) in batch.iter().enumerate() {
-                        let (s, inside) = block_coordinates(&geom, &lo, &hi, x);
-                        all &= inside;
-                        if ok {
-                            let (mut xi_b, mut slab_b) = ([0.0; D], 0);
-                            lb.locate_inside(p0 + l, &s, &mut xi_b, &mut slab_b);
-                            assert_eq!(xi_a[l].map(f64::to_bits), xi_b.map(f64::to_bits));
-                            assert_eq!(slab_a[l], slab_b, "{x:?}");
-                        }
-                    }
-                    assert_eq!(ok, all, "batch at {p0}");
-                    if !ok {
-                        refused += 1;
-                        assert_eq!((xi_a, slab_a), ([[-1.0; D]; LANES], [u32::MAX; LANES]));
+            let (mut runs_a, mut runs_b) = (Vec::new(), Vec::new());
+            let mut la = ChunkLocator::new(&geom, 1, &mut runs_a);
+            let mut lb = ChunkLocator::new(&geom, 1, &mut runs_b);
+            let mut refused = 0;
+            for p0 in (0..xs.len()).step_by(LANES) {
+                let batch: &[Vector<D>; LANES] = xs[p0..p0 + LANES].try_into().unwrap();
+                let mut xi_a = [[-1.0; D]; LANES];
+                let ok = la.locate_lanes(p0, batch, (&lo, &hi), &mut xi_a);
+                let mut all = true;
+                for (l, x) in batch.iter().enumerate() {
+                    let (s, inside) = block_coordinates(&geom, &lo, &hi, x);
+                    all &= inside;
+                    if ok {
+                        let mut xi_b = [0.0; D];
+                        lb.locate_inside(p0 + l, &s, &mut xi_b);
+                        assert_eq!(xi_a[l].map(f64::to_bits), xi_b.map(f64::to_bits));
                     }
                 }
-                // The planted ones (random positions at a cell's upper face may round
-                // onto the block's upper face too).
-                for &p in &outside {
-                    assert!(!block_coordinates(&geom, &lo, &hi, &xs[p]).1);
+                assert_eq!(ok, all, "batch at {p0}");
+                if !ok {
+                    refused += 1;
+                    assert_eq!(xi_a, [[-1.0; D]; LANES]);
                 }
-                assert!(
-                    refused >= outside.len() && refused < 10,
-                    "{refused} refused"
-                );
-                assert!(runs_a.len() > 400, "{} runs", runs_a.len());
-                assert_eq!(runs_a, runs_b);
             }
+            // The planted ones (random positions at a cell's upper face may round
+            // onto the block's upper face too).
+            for &p in &outside {
+                assert!(!block_coordinates(&geom, &lo, &hi, &xs[p]).1);
+            }
+            assert!(
+                refused >= outside.len() && refused < 10,
+                "{refused} refused"
+            );
+            assert!(runs_a.len() > 400, "{} runs", runs_a.len());
+            assert_eq!(runs_a, runs_b);
         }
         check::<2>([40, 25], [5, 3], [31, 22], 0x1a9e);
         check::<3>([9, 10, 11], [0, 2, 4], [9, 8, 11], 0x3d);
