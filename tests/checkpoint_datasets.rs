@@ -332,28 +332,18 @@ fn particle_cases() -> Vec<(&'static str, &'static str, Edit)> {
         case("velocity_infinite", "`v` holds inf", |f| {
             cell(f, 2, "v[1]", f64::INFINITY)
         }),
-        // The mass is density × vol0 (checkpoint version 5): a zero mass is a zero vol0.
-        case("reference_volume_zero", "`vol0` = 0 is not positive", |f| {
-            cell(f, 0, "vol0", 0.0)
-        }),
         case("volume_zero", "`vol` = 0 is not positive", |f| {
             cell(f, 1, "vol", 0.0)
         }),
+        // The mass and reference volume are the kind's (checkpoint version 6).
         case(
-            "reference_volume_negative",
-            "`vol0` = -0.5 is not positive",
-            |f| cell(f, 1, "vol0", -0.5),
+            "kind_out_of_range",
+            "kind index 1 is not one of the scene's 1 kinds of particle",
+            |f| cell(f, 5, "kind", 1.0),
         ),
-        case(
-            "material_out_of_range",
-            "material index 1 is not one of the scene's 1 materials",
-            |f| cell(f, 5, "material", 1.0),
-        ),
-        case(
-            "material_fractional",
-            "material index 0.5 is not one of",
-            |f| cell(f, 5, "material", 0.5),
-        ),
+        case("kind_fractional", "kind index 0.5 is not one of", |f| {
+            cell(f, 5, "kind", 0.5)
+        }),
         case("id_negative", "particle id -1 is not an integer id", |f| {
             cell(f, 4, "id", -1.0)
         }),
@@ -402,10 +392,15 @@ fn other_cases() -> Vec<(&'static str, &'static str, Edit)> {
             attr(f, "cuts", &[0u64, 16, 0, 8]);
         }),
         case("cells_deleted", "attribute `cells`", |f| f.delete_attr("cells").unwrap()),
-        case("particles_count_more", "dataset `particles` has shape [32, 14], expected [33, 14]", |f| scalar(f, "particles", 33u64)),
+        case("particles_count_more", "dataset `particles` has shape [32, 13], expected [33, 13]", |f| scalar(f, "particles", 33u64)),
         case("record_width", "are not those the stored scene needs", |f| scalar(f, "record_width", 18u64)),
         case("carries_half_off", "are not those the stored scene needs", |f| scalar(f, "carries_half", 0u64)),
         case("carries_deleted", "attribute `carries_def_grad`", |f| f.delete_attr("carries_def_grad").unwrap()),
+        case("carries_vol0_on", "are not those the stored scene needs", |f| scalar(f, "carries_vol0", 1u64)),
+        case("kind_material_deleted", "attribute `kind_material`", |f| f.delete_attr("kind_material").unwrap()),
+        case("kind_material_two", "attribute `kind_material` has 2 values, expected 1", |f| attr(f, "kind_material", &[0u64, 0])),
+        case("kind_material_other", "are not the kinds of particle of the stored scene", |f| attr(f, "kind_material", &[1u64])),
+        case("kind_vol0_other", "are not the kinds of particle of the stored scene", |f| attr(f, "kind_vol0", &[0.5f64])),
         case("step_deleted", "attribute `step`", |f| f.delete_attr("step").unwrap()),
         case("step_max", "is beyond any run's step count", |f| scalar(f, "step", u64::MAX)),
         case("time_nan", "attribute `time` = NaN is not a finite time", |f| scalar(f, "time", f64::NAN)),
@@ -462,7 +457,8 @@ fn other_cases() -> Vec<(&'static str, &'static str, Edit)> {
 /// process. Before these checks (`checkpoint::read_header`, `checkpoint::read` and its
 /// `RowCheck`, `read_run_state`), the cases ended as follows:
 ///
-/// - panic: `material_out_of_range` (index out of bounds in `Solver::with_particles`),
+/// - panic: `kind_out_of_range` (then `material_out_of_range`: index out of bounds in
+///   `Solver::with_particles`),
 ///   `position_outside_grid` (`SlabOrder::push`), `blocks_overflow`, `blocks_huge`,
 ///   `rank_rows_overflow` (arithmetic overflow of stored counts), `step_max` (overflow
 ///   of the step count);
@@ -471,7 +467,7 @@ fn other_cases() -> Vec<(&'static str, &'static str, Edit)> {
 ///   checkpointed again): `velocity_infinite`, `stress_nan`, `mass_negative`,
 ///   `volume_zero`, `def_grad_nan`, `max_speed_infinite`;
 /// - silent, the run completed: `position_nan`, `position_on_periodic_upper_face`,
-///   `mass_zero`, `reference_volume_negative`, `material_fractional` (truncated to 0),
+///   `mass_zero`, `reference_volume_negative`, `kind_fractional` (truncated to 0),
 ///   `id_negative` (saturated to 0), `id_duplicate`, `half_width_zero`,
 ///   `cuts_short_of_the_grid` (read as uniform blocks), `time_negative` (71 steps from
 ///   t = -1), `dt_*`, `max_speed_nan` (steps as long as the CFL allows at speed 0),
@@ -484,8 +480,9 @@ fn other_cases() -> Vec<(&'static str, &'static str, Edit)> {
 ///   `dim_*`, `ranks_*`, `cells_*`, `particles_count_more`, `record_width`, `carries_*`,
 ///   `time_as_text`, `rebalances_as_text`, `scene_*`, `rank_rows_short`.
 ///
-/// (Since version 5 a checkpoint holds no mass, the material's density times `vol0`:
-/// the mass cases are `reference_volume_zero` and `reference_volume_negative`.)
+/// (Since version 5 a checkpoint holds no mass, and since version 6 no reference
+/// volume: both are the particle's kind's. The cases of the mass and `vol0` columns
+/// of older versions are `version_5_rows_are_checked`'s.)
 #[test]
 fn each_dataset_edited_and_resealed_is_refused() {
     let dir = temp_dir("ckpt-datasets");
@@ -507,8 +504,8 @@ fn each_dataset_edited_and_resealed_is_refused() {
 }
 
 /// The material-state columns (J2 plasticity, brittle damage and plane-strain σ_zz)
-/// and a material index past the scene's two. Before: `material_index_2` panicked (as
-/// `material_out_of_range`), `eps_p_negative`, `damage_above_1` and
+/// and a kind index past the scene's two. Before: `kind_index_2` panicked (as
+/// `kind_out_of_range`), `eps_p_negative`, `damage_above_1` and
 /// `stress_zz_infinite` ran on silently, `be_nan` and `stress_nan` ended as
 /// "numerically unstable" (exit 3).
 #[test]
@@ -540,12 +537,61 @@ fn material_state_columns_are_checked() {
             cell(f, 2, "stress[1][0]", f64::NAN)
         }),
         case(
-            "material_index_2",
-            "material index 2 is not one of the scene's 2 materials",
-            |f| cell(f, 4, "material", 2.0),
+            "kind_index_2",
+            "kind index 2 is not one of the scene's 2 kinds of particle",
+            |f| cell(f, 4, "kind", 2.0),
         ),
     ];
     refused_on_one_rank(&good, &dir, cases);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The rows of a version 5 checkpoint (`tests/data/checkpoint_v5_kinds.h5`, three kinds
+/// of particle: `tests/restart.rs`'s `version_5_checkpoint_restarts_its_kinds`) hold
+/// the material and `vol0`, read as the particle's kind: a `vol0` that is not positive,
+/// or a material and `vol0` that make no kind of the stored scene (another volume, a
+/// material past its two, a fraction), is refused with its row. Without the check, a
+/// `vol0` of no kind panicked (`Kinds::find`'s `expect` in `checkpoint::read`).
+#[test]
+fn version_5_rows_are_checked() {
+    let dir = temp_dir("ckpt-v5-rows");
+    let v5 = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/checkpoint_v5_kinds.h5");
+    let o = restart(&v5, &dir.join("ok"));
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let cases = [
+        case("reference_volume_zero", "`vol0` = 0 is not positive", |f| {
+            cell(f, 0, "vol0", 0.0)
+        }),
+        case(
+            "reference_volume_negative",
+            "`vol0` = -0.5 is not positive",
+            |f| cell(f, 1, "vol0", -0.5),
+        ),
+        case(
+            "reference_volume_of_no_kind",
+            "material index 1 with `vol0` = 0.0001 is not a kind of particle of the stored scene",
+            |f| {
+                rows(f, |v, col| {
+                    v[col("material")] = 1.0;
+                    v[col("vol0")] = 1e-4;
+                })
+            },
+        ),
+        case("material_of_no_kind", "material index 2 with `vol0`", |f| {
+            cell(f, 2, "material", 2.0)
+        }),
+        case(
+            "material_fractional",
+            "material index 0.5 with `vol0`",
+            |f| cell(f, 2, "material", 0.5),
+        ),
+    ];
+    refused_on_one_rank(&v5, &dir, cases);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -555,12 +601,12 @@ fn material_state_columns_are_checked() {
 fn particle_rows_edited_without_their_checksum() {
     let dir = temp_dir("ckpt-rows-sum");
     let good = checkpoint(&dir, 1);
-    let ckpt = edited(&good, &dir, "vol0", &|f| {
+    let ckpt = edited(&good, &dir, "vol", &|f| {
         let (mut v, w, cols) = checkpoint_table(f);
-        v[w + cols.iter().position(|c| c == "vol0").unwrap()] *= 2.0;
+        v[w + cols.iter().position(|c| c == "vol").unwrap()] *= 2.0;
         f.dataset("particles").unwrap().write_raw(&v).unwrap();
     });
-    let out = dir.join("out-vol0");
+    let out = dir.join("out-vol");
     let words = "the particle rows of writer rank 0 do not match their checksum";
     if let Some(m) = fault(&restart(&ckpt, &out), &ckpt, &out, words, false) {
         panic!("{m}");
@@ -605,7 +651,7 @@ fn particle_cases_under_mpirun_agree() {
         if let Some(m) = fault(&o, &ckpt, &out, words, true) {
             failed.push(format!("mpirun -n 2, {name}: {m}"));
         }
-        if matches!(name, "position_nan" | "material_out_of_range") {
+        if matches!(name, "position_nan" | "kind_out_of_range") {
             let out = dir.join(format!("one-{name}"));
             if let Some(m) = fault(&restart(&ckpt, &out), &ckpt, &out, words, false) {
                 failed.push(format!("1 rank, {name}: {m}"));

@@ -371,7 +371,7 @@ fn version_3_checkpoint_restarts() {
 /// material's density, or a column read out of place, would not); restarted on one
 /// rank it ends bit for bit like this build's uninterrupted run (the masses formed
 /// are the stored ones to the bit), on two within 1e-12; the checkpoints this build
-/// writes are of version 5, without the mass.
+/// writes are of version 6, without the mass.
 #[test]
 fn version_4_checkpoint_restarts() {
     let dir = temp_dir("restart-v4");
@@ -415,9 +415,83 @@ fn version_4_checkpoint_restarts() {
     let f = hdf5::File::open(&c[0]).unwrap();
     let version: u64 = f.attr("version").unwrap().read_scalar().unwrap();
     let (_, _, cols) = common::checkpoint_table(&f);
-    assert_eq!(version, 5);
+    assert_eq!(version, 6);
     assert!(!cols.iter().any(|c| c == "mass"), "{cols:?}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A checkpoint of format version 5 (`tests/data/checkpoint_v5_kinds.h5`, written by
+/// commit 114d179 from [`kinds_scene`], step 76 of 168), whose rows hold each
+/// particle's material and `vol0`, which version 6 reads as the particle's kind. The
+/// scene's third body is of the first material with 3 × 3 particles per cell, so its
+/// kind (2) is not its material (0). Restarted on one rank the run ends bit for bit
+/// like this build's uninterrupted run (a kind found from the material alone would
+/// give those particles the mass and volume of 2 × 2 per cell), on two within 1e-12,
+/// and every particle keeps its material (the snapshot's `material` by id against the
+/// stored rows); the checkpoints this build writes are of version 6: no `vol0`, and
+/// the kinds as attributes.
+#[test]
+fn version_5_checkpoint_restarts_its_kinds() {
+    let dir = temp_dir("restart-v5");
+    let sc = dir.join("scene.toml");
+    std::fs::write(&sc, kinds_scene()).unwrap();
+    let full = dir.join("full");
+    ok(1, &["run", s(&sc), "--out", s(&full), "--quiet"]);
+    let v5 = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/checkpoint_v5_kinds.h5");
+    let stored: std::collections::BTreeMap<i64, f64> = {
+        let f = hdf5::File::open(&v5).unwrap();
+        let version: u64 = f.attr("version").unwrap().read_scalar().unwrap();
+        assert_eq!(version, 5);
+        let (v, w, cols) = common::checkpoint_table(&f);
+        let at = |name: &str| cols.iter().position(|c| c == name).unwrap();
+        v.chunks(w)
+            .map(|r| (r[at("id")] as i64, r[at("material")]))
+            .collect()
+    };
+    for n in [1, 2] {
+        let out = dir.join(format!("r{n}"));
+        ok(
+            n,
+            &["run", "--restart", s(&v5), "--out", s(&out), "--quiet"],
+        );
+        assert_eq!(summary(&out)["restarted_from"]["step"], 76);
+        if n == 1 {
+            assert_identical(&full, &out, "v5 1→1");
+        } else {
+            assert_close(&full, &out, 1e-12, "v5 1→2");
+        }
+        let material = common::scalar_by_id(&last_snapshot(&out), "material");
+        assert_eq!(material.len(), stored.len());
+        for (id, _, m) in material {
+            assert_eq!(
+                Some(&m),
+                stored.get(&id),
+                "v5 1→{n}: particle {id}'s material"
+            );
+        }
+    }
+    let c = files(&full, "checkpoint_");
+    let f = hdf5::File::open(&c[0]).unwrap();
+    let version: u64 = f.attr("version").unwrap().read_scalar().unwrap();
+    let (_, _, cols) = common::checkpoint_table(&f);
+    assert_eq!(version, 6);
+    assert!(!cols.iter().any(|c| c == "vol0"), "{cols:?}");
+    let material: Vec<u64> = f.attr("kind_material").unwrap().read_raw().unwrap();
+    let vol0: Vec<f64> = f.attr("kind_vol0").unwrap().read_raw().unwrap();
+    let h2 = 1.0 / 256.0;
+    assert_eq!(material, [0, 1, 0]);
+    assert_eq!(vol0, [h2 / 4.0, h2 / 4.0, h2 / 9.0]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// [`two_densities_scene`] with a third disk, of the first material at 3 × 3 particles
+/// per cell: three kinds of particle, the third's not its material's index.
+fn kinds_scene() -> String {
+    two_densities_scene().replace(
+        "[output]",
+        "[[bodies]]\nmaterial = \"m\"\nshape = { sphere = { center = [0.25, 0.75], radius = 0.1 } }\n\
+         velocity = [0.2, 0.0]\nparticles_per_cell = 3\n[output]",
+    )
 }
 
 /// The crossing disks at 16 cells of two densities, 1000 and 400, so that a mass
@@ -1325,7 +1399,7 @@ fn unusable_checkpoints_are_rejected() {
     mpmcg::output::checkpoint::seal(&future).unwrap();
     run(
         &future,
-        "checkpoint format version 99, but this mpmcg reads versions 3 to 5",
+        "checkpoint format version 99, but this mpmcg reads versions 3 to 6",
     );
     // Particle data changed in the middle of the file: the checksum notices.
     let flipped = put("flipped.h5", &bytes);

@@ -847,6 +847,30 @@ fn other_validation() {
     )
     .key("grid.cells[0]")
     .says("must be at most 2147483647 cells per axis, got 2147483648");
+    // A particle stores its kind (material and particles per cell) in 16 bits: the
+    // bar's body and `n` more of 4097 materials at 1 to 16 per cell are n + 1 kinds
+    // (refused before the bodies' overlaps are looked for).
+    let kinds = |n: usize| {
+        let mut text = BAR.to_string();
+        for m in 0..n.div_ceil(16) {
+            text += &format!(
+                "[[materials]]\nname = \"k{m}\"\nmodel = \"linear_elastic\"\ndensity = 1.0\n\
+                 youngs_modulus = 100.0\npoisson_ratio = 0.0\n"
+            );
+        }
+        for b in 0..n {
+            text += &format!(
+                "[[bodies]]\nmaterial = \"k{}\"\nshape = {{ box = {{ lower = [0.0], upper = [0.5] }} }}\n\
+                 particles_per_cell = {}\n",
+                b / 16,
+                b % 16 + 1
+            );
+        }
+        text
+    };
+    check("kinds_too_many", kinds(65536))
+        .key("bodies")
+        .says("the bodies seed 65537 kinds of particle (distinct pairs of material and particles_per_cell); at most 65536");
     // `..` and `.` name a folder outside `out/` or `out/` itself.
     for (tag, name) in [
         ("name_dotdot", ".."),

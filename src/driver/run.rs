@@ -516,7 +516,7 @@ fn set_up<'c, const D: usize>(
             &layout,
             &geom,
             carries,
-            scene.materials.len(),
+            &crate::mpm::particles::Kinds::of_scene(scene, &geom),
         )
         .map(|x| (h, x, layout))
     });
@@ -739,7 +739,7 @@ impl SnapshotSchedule {
             .write(
                 comm,
                 &solver.parts,
-                &solver.materials,
+                (&solver.kinds, &solver.materials),
                 solver.step,
                 solver.t,
             )

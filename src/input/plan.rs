@@ -56,14 +56,30 @@ pub enum CheckpointEvery {
     Seconds(f64),
 }
 
+/// A kind of particle: the particles of one material seeded with one count per cell
+/// share their reference volume and mass, which they need not store each.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct KindPlan {
+    /// The index of its material in [`Plan::materials`].
+    pub material: usize,
+    /// Particles per cell per axis.
+    pub particles_per_cell: usize,
+}
+
+/// Kinds a scene may have: a particle stores its kind's index in 16 bits.
+pub const MAX_KINDS: usize = 1 << 16;
+
 /// What validation resolved; built only by `scene::parse`, which refuses a scene
 /// before it gets here.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Plan {
     /// One per `[[materials]]` entry, in order.
     pub materials: Vec<MaterialPlan>,
-    /// Per `[[bodies]]` entry: the index of its material in `materials`.
-    pub body_material: Vec<usize>,
+    /// The kinds of particle the bodies seed: each distinct pair of material and
+    /// particles per cell, in the order the bodies first name it.
+    pub kinds: Vec<KindPlan>,
+    /// Per `[[bodies]]` entry: the index of its kind in `kinds`.
+    pub body_kind: Vec<usize>,
     pub benchmark: Option<BenchmarkPlan>,
     pub checkpoint: Option<CheckpointEvery>,
 }

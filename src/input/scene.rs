@@ -2,7 +2,9 @@
 //! runs. Every error names the file, the key (with line and column when they are
 //! known) and what was expected.
 
-use crate::input::plan::{BenchmarkPlan, CheckpointEvery, Law, MaterialPlan, Plan};
+use crate::input::plan::{
+    BenchmarkPlan, CheckpointEvery, KindPlan, Law, MaterialPlan, Plan, MAX_KINDS,
+};
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::io::Read;
@@ -1139,6 +1141,7 @@ fn validate(s: &Scene) -> Result<Plan, Invalid> {
     validate_grid(s)?;
     let materials = validate_materials(s)?;
     let body_material = validate_bodies(s)?;
+    let (kinds, body_kind) = kinds_of(s, &body_material)?;
     let benchmark = validate_benchmark_table(s)?;
     if let Some(gr) = &s.gravity {
         vector("gravity.value", &gr.value, s.dim)?;
@@ -1148,7 +1151,8 @@ fn validate(s: &Scene) -> Result<Plan, Invalid> {
     validate_parallel(s)?;
     Ok(Plan {
         materials,
-        body_material,
+        kinds,
+        body_kind,
         benchmark,
         checkpoint,
     })
@@ -1411,6 +1415,35 @@ fn validate_bodies(s: &Scene) -> Result<Vec<usize>, Invalid> {
         .enumerate()
         .map(|(i, b)| validate_body(s, i, b))
         .collect()
+}
+
+/// The kinds of particle the bodies seed (distinct material and particles per cell, in
+/// the bodies' order) and each body's kind; at most [`MAX_KINDS`].
+fn kinds_of(s: &Scene, body_material: &[usize]) -> Result<(Vec<KindPlan>, Vec<usize>), Invalid> {
+    let mut kinds: Vec<KindPlan> = Vec::new();
+    let mut index = std::collections::HashMap::new();
+    let mut body_kind = Vec::with_capacity(body_material.len());
+    for (b, &material) in s.bodies.iter().zip(body_material) {
+        let kind = KindPlan {
+            material,
+            particles_per_cell: b.particles_per_cell,
+        };
+        body_kind.push(*index.entry(kind).or_insert_with(|| {
+            kinds.push(kind);
+            kinds.len() - 1
+        }));
+    }
+    if kinds.len() > MAX_KINDS {
+        return Err((
+            "bodies".into(),
+            format!(
+                "the bodies seed {} kinds of particle (distinct pairs of material and \
+                 particles_per_cell); at most {MAX_KINDS}",
+                kinds.len()
+            ),
+        ));
+    }
+    Ok((kinds, body_kind))
 }
 
 /// `bodies[i]`: a defined material, particles per cell in 1..=16, velocities of `dim`

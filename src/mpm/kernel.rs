@@ -53,9 +53,11 @@ pub struct Ctx<'a, const D: usize> {
     pub tiles: &'a Tiles<D>,
     pub gimp: bool,
     pub alpha: Alpha,
+    /// Per kind of particle ([`particles::Kinds`]): its material, the mass and the
+    /// reference volume of each of its particles.
     pub materials: &'a [Material],
-    /// Each material's density ([`particles::mass_of`]).
-    pub densities: &'a [f64],
+    pub kind_mass: &'a [f64],
+    pub kind_vol0: &'a [f64],
     pub gravity: Vector<D>,
     /// The benchmark at the pass's time, if it applies a body force.
     pub body_force: Option<benchmark::At<'a, D>>,
@@ -911,7 +913,7 @@ fn deform<const D: usize>(
     let inc = Mat::<D>::identity() + l * dt;
     let j = det(&inc);
     s.parts.vol[p] *= j;
-    let mat = &ctx.materials[s.parts.mat[p] as usize];
+    let mat = &ctx.materials[s.parts.kind[p] as usize];
     let f = if s.parts.def_grad.is_empty() {
         Mat::<D>::identity()
     } else {
@@ -938,8 +940,9 @@ fn deform<const D: usize>(
 /// ([`Material::raise_signal_speed`]).
 #[inline(always)]
 fn raise_speed<const D: usize>(ctx: &Ctx<'_, D>, s: &Slices<'_, D>, p: usize, max: f64) -> f64 {
-    let j = s.parts.vol[p] / s.parts.vol0[p];
-    ctx.materials[s.parts.mat[p] as usize].raise_signal_speed(j, s.parts.v[p].norm(), max)
+    let kind = s.parts.kind[p] as usize;
+    let j = s.parts.vol[p] / ctx.kind_vol0[kind];
+    ctx.materials[kind].raise_signal_speed(j, s.parts.v[p].norm(), max)
 }
 
 /// Grid → particle over all particles.
@@ -1113,7 +1116,7 @@ fn gather_one<const D: usize, const N: usize>(
     // clamped, and clipping pressed the cantilever's compressed root onto the
     // clamp until particles left the grid through it (5 and 6 m beams at 3 × 3
     // per cell).
-    let mass = particles::mass_of(ctx.densities, s.parts.mat, s.parts.vol0, p);
+    let mass = particles::mass_of(ctx.kind_mass, s.parts.kind, p);
     t.work += clip_at_slip_walls(ctx, k, &mut new, &vm, mass);
     let a = ctx.accel_kept(s.accel, s.parts.x0, p);
     t.work += m.dt * mass * a.dot(&(old + new)) * 0.5;
@@ -1176,7 +1179,7 @@ fn stress_one<const D: usize, const N: usize>(
         // velocities are neither read nor written here.
         if k.ends.iter().flatten().any(|&e| e) {
             let mut v = s.parts.v[p];
-            let mass = particles::mass_of(ctx.densities, s.parts.mat, s.parts.vol0, p);
+            let mass = particles::mass_of(ctx.kind_mass, s.parts.kind, p);
             t.work += clip_at_slip_walls(ctx, k, &mut v, &vm, mass);
             s.parts.v[p] = v;
         }
@@ -1219,7 +1222,7 @@ pub struct ScatterParts<'a, const D: usize> {
     /// The stress where particles store it, else empty and formed from `def_grad`.
     pub stress: &'a [Mat<D>],
     pub def_grad: &'a [Mat<D>],
-    pub mat: &'a [u16],
+    pub kind: &'a [u16],
     pub vol: &'a [f64],
     pub mass: particles::Masses<'a>,
     pub x0: &'a [Vector<D>],
@@ -1698,7 +1701,7 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
         // vector register live across it is saved and reloaded; before the weights,
         // few are.
         let vs = if m.forces {
-            particles::stress_of(parts.stress, parts.def_grad, parts.mat, ctx.materials, p)
+            particles::stress_of(parts.stress, parts.def_grad, parts.kind, ctx.materials, p)
                 * parts.vol[p]
         } else {
             Mat::<D>::zeros()

@@ -11,7 +11,7 @@
 //! benchmarks, the GIMP half-width only for `gimp`, the out-of-plane stress only for
 //! `brittle` in 2D.
 
-use crate::input::plan::Law;
+use crate::input::plan::{KindPlan, Law};
 use crate::input::scene::{BodySpec, Scene, Shape};
 use crate::physics::benchmark::Benchmark;
 use crate::physics::material::Material;
@@ -62,10 +62,14 @@ carries! {
     /// The Cauchy stress, for materials whose stress is state of its own
     /// ([`Material::stress_is_state`]); the others' follows from `F`.
     stress,
-    /// The mass: never for a scene's particles, whose mass is their material's density
-    /// times `vol0` ([`mass_of`]); only the rows of a checkpoint of version 4 or older
-    /// hold it, read and dropped.
+    /// The mass: never for a scene's particles, whose mass is their kind's ([`Kinds`],
+    /// [`mass_of`]); only the rows of a checkpoint of version 4 or older hold it, read
+    /// and dropped.
     mass,
+    /// The reference volume: never for a scene's particles, whose reference volume is
+    /// their kind's ([`Kinds`]); only the rows of a checkpoint of version 5 or older
+    /// hold it, read and turned into the kind.
+    vol0,
 }
 
 /// How a field's values are named in a checkpoint's `columns`: `name`, `name[a]`, or
@@ -284,12 +288,13 @@ particle_fields! {
     mass: f64, Scalar, mass;
     /// Current volume.
     vol: f64, Scalar, always;
-    /// Reference volume.
-    vol0: f64, Scalar, always;
+    /// Reference volume, only as read from an older checkpoint (see [`Carries::vol0`]).
+    vol0: f64, Scalar, vol0;
     /// Cauchy stress, where it is state (see [`Carries::stress`]).
     stress: Mat<D>, Matrix, stress;
-    /// Material index.
-    mat: u16, Scalar("material"), always;
+    /// The index of the particle's kind ([`Kinds`]): its material and reference
+    /// volume. (A checkpoint of version 5 or older holds the material's index here.)
+    kind: u16, Scalar, always;
     /// Global id, independent of the rank count.
     id: u64, Scalar, always;
     /// Deformation gradient (materials that need it).
@@ -311,17 +316,17 @@ particle_fields! {
 
 /// The Cauchy stress of particle `p` from its arrays: `stress` if the particles store
 /// it (not empty), else formed from `F` (the particles' materials then all have a
-/// stress that is not state, [`Carries::stress`]).
+/// stress that is not state, [`Carries::stress`]). `materials`: per kind.
 #[inline(always)]
 pub fn stress_of<const D: usize>(
     stress: &[Mat<D>],
     def_grad: &[Mat<D>],
-    mat: &[u16],
+    kind: &[u16],
     materials: &[Material],
     p: usize,
 ) -> Mat<D> {
     if stress.is_empty() {
-        let m = &materials[mat[p] as usize];
+        let m = &materials[kind[p] as usize];
         if D == 3 {
             stress_call(m, &def_grad[p])
         } else {
@@ -471,31 +476,86 @@ impl Carries {
                 .iter()
                 .any(|m| Material::from_plan(m).stress_is_state()),
             mass: false,
+            vol0: false,
         }
     }
 }
 
-/// The mass of particle `p`: its material's density (`densities`, per material index)
-/// times its reference volume, the product seeding has always formed, so the same bits
-/// as the mass that particles stored before (checkpoint version 4). Not stored: it is
-/// 8 bytes per particle, of every particle, in memory, migration and checkpoints.
+/// The kinds of particle of a scene ([`KindPlan`]): the particles of one kind share
+/// their material, reference volume and mass, so each stores its kind's index (2
+/// bytes), not its reference volume (8) and mass (8), in memory, migration records
+/// and checkpoints. The same on every rank: it follows from the scene.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Kinds {
+    /// Per kind: the index of its material in the scene's `[[materials]]`.
+    pub material: Vec<u16>,
+    /// Per kind: the reference volume of each particle, the cell's volume over the
+    /// particles per cell.
+    pub vol0: Vec<f64>,
+    /// Per kind: the mass of each particle, its material's density times `vol0` (the
+    /// product seeding formed when particles stored it: the same bits).
+    pub mass: Vec<f64>,
+}
+
+impl Kinds {
+    /// The kinds of `scene` on its grid `geom`.
+    pub fn of_scene<const D: usize>(scene: &Scene, geom: &Geom<D>) -> Self {
+        let materials = Material::all(&scene.plan.materials);
+        Self::new(&scene.plan.kinds, geom, &materials)
+    }
+
+    pub fn new<const D: usize>(kinds: &[KindPlan], geom: &Geom<D>, materials: &[Material]) -> Self {
+        let vol0: Vec<f64> = kinds
+            .iter()
+            .map(|k| geom.cell_volume() / k.particles_per_cell.pow(D as u32) as f64)
+            .collect();
+        Kinds {
+            material: kinds.iter().map(|k| k.material as u16).collect(),
+            mass: kinds
+                .iter()
+                .zip(&vol0)
+                .map(|(k, v)| materials[k.material].density() * v)
+                .collect(),
+            vol0,
+        }
+    }
+
+    /// The kind of a particle of material `material` with reference volume `vol0` (to
+    /// the bit), as a checkpoint before version 6 stores it.
+    pub fn find(&self, material: u16, vol0: f64) -> Option<u16> {
+        (0..self.material.len())
+            .find(|&k| self.material[k] == material && self.vol0[k].to_bits() == vol0.to_bits())
+            .map(|k| k as u16)
+    }
+
+    /// The material of each kind, from the scene's materials.
+    pub fn materials(&self, materials: &[Material]) -> Vec<Material> {
+        self.material
+            .iter()
+            .map(|&m| materials[m as usize].clone())
+            .collect()
+    }
+}
+
+/// The mass of particle `p`: its kind's ([`Kinds::mass`], `kind_mass`), the same bits
+/// as the mass that particles stored before (checkpoint version 4).
 #[inline(always)]
-pub fn mass_of(densities: &[f64], mat: &[u16], vol0: &[f64], p: usize) -> f64 {
-    densities[mat[p] as usize] * vol0[p]
+pub fn mass_of(kind_mass: &[f64], kind: &[u16], p: usize) -> f64 {
+    kind_mass[kind[p] as usize]
 }
 
 /// The particles' masses ([`mass_of`]) as a view the particle loops index.
 #[derive(Clone, Copy)]
 pub struct Masses<'a> {
-    pub densities: &'a [f64],
-    pub mat: &'a [u16],
-    pub vol0: &'a [f64],
+    /// Per kind ([`Kinds::mass`]).
+    pub kind_mass: &'a [f64],
+    pub kind: &'a [u16],
 }
 
 impl Masses<'_> {
     #[inline(always)]
     pub fn get(&self, p: usize) -> f64 {
-        mass_of(self.densities, self.mat, self.vol0, p)
+        mass_of(self.kind_mass, self.kind, p)
     }
 }
 
@@ -511,7 +571,7 @@ impl<const D: usize> Particles<D> {
     /// The Cauchy stress of particle `p`: stored, or formed from its `F`.
     #[inline]
     pub fn stress_of(&self, p: usize, materials: &[Material]) -> Mat<D> {
-        stress_of(&self.stress, &self.def_grad, &self.mat, materials, p)
+        stress_of(&self.stress, &self.def_grad, &self.kind, materials, p)
     }
 
     /// The full 3 × 3 Cauchy stress of particle `p` (for output): in 2D with the
@@ -525,7 +585,7 @@ impl<const D: usize> Particles<D> {
                 .get(p)
                 .copied()
                 .unwrap_or_else(Mat::<D>::identity);
-            m[(2, 2)] = materials[self.mat[p] as usize].stress_zz(
+            m[(2, 2)] = materials[self.kind[p] as usize].stress_zz(
                 s,
                 &f,
                 self.be.get(p),
@@ -537,10 +597,11 @@ impl<const D: usize> Particles<D> {
 
     /// Seed the particles of every body whose current position falls in the owned
     /// cells `[cell_lo, cell_hi)`, in global id order.
+    /// `materials`: per kind of `kinds`.
     pub fn seed(
         scene: &Scene,
         geom: &Geom<D>,
-        materials: &[Material],
+        (kinds, materials): (&Kinds, &[Material]),
         benchmark: Option<&Benchmark<D>>,
         cell_lo: [usize; D],
         cell_hi: [usize; D],
@@ -553,13 +614,13 @@ impl<const D: usize> Particles<D> {
             _ => 0.0,
         };
         let mut id_base = 0u64;
-        for (body, &mi) in scene.bodies.iter().zip(&scene.plan.body_material) {
+        for (body, &k) in scene.bodies.iter().zip(&scene.plan.body_kind) {
             let n = body.particles_per_cell;
             let sub = n.pow(D as u32);
             let seed = BodySeed {
-                mat: &materials[mi],
-                index: mi as u16,
-                vol0: geom.cell_volume() / sub as f64,
+                mat: &materials[k],
+                kind: k as u16,
+                vol0: kinds.vol0[k],
                 half: std::array::from_fn(|a| 0.5 * geom.h[a] / n as f64),
                 carries,
             };
@@ -603,8 +664,10 @@ impl<const D: usize> Particles<D> {
         let j = det(&f);
         self.x.push(x);
         self.v.push(v);
-        debug_assert!(!carries.mass, "a seeded particle's mass is density × vol0");
-        self.vol0.push(vol0);
+        debug_assert!(
+            !carries.mass && !carries.vol0,
+            "a seeded particle's are its kind's"
+        );
         self.vol.push(vol0 * j);
         if carries.stress {
             let mut st = Mat::<D>::zeros();
@@ -621,7 +684,7 @@ impl<const D: usize> Particles<D> {
         if carries.def_grad {
             self.def_grad.push(f);
         }
-        self.mat.push(seed.index);
+        self.kind.push(seed.kind);
         self.id.push(id);
         if carries.x0 {
             self.x0.push(xr);
@@ -637,9 +700,9 @@ impl<const D: usize> Particles<D> {
 /// What the particles of one body share when they are seeded.
 struct BodySeed<'m, const D: usize> {
     mat: &'m Material,
-    /// The material's index.
-    index: u16,
-    /// Initial volume of each particle.
+    /// The body's kind of particle.
+    kind: u16,
+    /// Its reference volume.
     vol0: f64,
     /// GIMP half-widths.
     half: [f64; D],

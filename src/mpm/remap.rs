@@ -367,7 +367,8 @@ mod tests {
             gimp: false,
             alpha: Alpha::ProductOfShapes,
             materials: &materials,
-            densities: &[1.0],
+            kind_mass: &[1.0],
+            kind_vol0: &[1.0],
             gravity: Vector::<D>::from_fn(|a, _| if a == 1 { -9.81 } else { 0.0 }),
             body_force: None,
             faces: [[Face::Slip; 2]; D],
@@ -394,9 +395,9 @@ mod tests {
                         .iter()
                         .map(|c| Vector::<D>::from_fn(|a, _| 0.3 + 0.1 * c[a]))
                         .collect();
-                    // Masses of density 1: the reference volumes.
-                    let vol0: Vec<f64> = (0..n).map(|_| 1e-4 * (0.5 + rng.f64())).collect();
-                    let mat = vec![0u16; n];
+                    // A kind per particle, so that the masses differ.
+                    let kind_mass: Vec<f64> = (0..n).map(|_| 1e-4 * (0.5 + rng.f64())).collect();
+                    let kind: Vec<u16> = (0..n as u16).collect();
                     let accel: Vec<Vector<D>> = if body {
                         (0..n)
                             .map(|_| Vector::<D>::from_fn(|_, _| rng.f64() - 5.0))
@@ -408,9 +409,8 @@ mod tests {
                     let parts = RemapParts {
                         x: &x,
                         mass: crate::mpm::particles::Masses {
-                            densities: &[1.0],
-                            mat: &mat,
-                            vol0: &vol0,
+                            kind_mass: &kind_mass,
+                            kind: &kind,
                         },
                         x0: &x,
                         half: &[],

@@ -8,7 +8,7 @@ use crate::mpm::kernel::lanes::LANES;
 use crate::mpm::kernel::{
     self, AvgRecord, NodeRecord, SlabOrder, VelRecord, FROM_MOMENTUM, UPDATED,
 };
-use crate::mpm::particles::{self, Carries, Particles};
+use crate::mpm::particles::{self, Carries, Kinds, Particles};
 use crate::mpm::remap::remap;
 use crate::physics::benchmark::{Benchmark, Memo};
 use crate::physics::material::Material;
@@ -28,7 +28,8 @@ macro_rules! ctx {
             gimp: $s.scheme.gimp,
             alpha: $s.scheme.alpha,
             materials: &$s.materials,
-            densities: &$s.densities,
+            kind_mass: &$s.kinds.mass,
+            kind_vol0: &$s.kinds.vol0,
             gravity: $s.gravity,
             body_force: $s
                 .benchmark
@@ -121,10 +122,11 @@ pub struct Solver<'c, const D: usize> {
     pub block: Block<D>,
     faces: [[Face; 2]; D],
     pub parts: Particles<D>,
+    /// Per kind of particle: its material.
     pub materials: Vec<Material>,
-    /// Each material's density: with `vol0`, the particles' masses
-    /// ([`particles::mass_of`]).
-    pub densities: Vec<f64>,
+    /// The kinds of particle: with `materials`, what each particle's kind index
+    /// stands for (its reference volume and mass, [`particles::mass_of`]).
+    pub kinds: Kinds,
     pub benchmark: Option<Benchmark<D>>,
     gravity: Vector<D>,
     /// The gradient scheme, resolved once: shape functions, α, two-step or not.
@@ -1129,12 +1131,13 @@ impl<'c, const D: usize> Solver<'c, D> {
     pub fn new(scene: &Scene, comm: &'c dyn Communicator, layout: Layout<D>) -> Self {
         let geom = Self::geometry(scene);
         let block = Block::new(&layout, comm.rank());
-        let materials = Material::all(&scene.plan.materials);
+        let kinds = Kinds::of_scene(scene, &geom);
+        let materials = kinds.materials(&Material::all(&scene.plan.materials));
         let benchmark = Benchmark::<D>::new(scene);
         let parts = Particles::seed(
             scene,
             &geom,
-            &materials,
+            (&kinds, &materials),
             benchmark.as_ref(),
             block.cell_lo,
             block.cell_hi,
@@ -1169,7 +1172,8 @@ impl<'c, const D: usize> Solver<'c, D> {
             std::array::from_fn(|a| [g.boundary.face(a, false), g.boundary.face(a, true)]);
         let geom = Self::geometry(scene);
         let (block, tiles) = Self::block_and_tiles(&layout, comm.rank());
-        let materials = Material::all(&scene.plan.materials);
+        let kinds = Kinds::of_scene(scene, &geom);
+        let materials = kinds.materials(&Material::all(&scene.plan.materials));
         let benchmark = Benchmark::<D>::new(scene);
         let carries = Carries::for_scene(scene);
         let migrator = Migrator::new(&layout, &block, Particles::<D>::record_width(carries));
@@ -1180,8 +1184,8 @@ impl<'c, const D: usize> Solver<'c, D> {
             block,
             faces,
             parts,
-            densities: materials.iter().map(Material::density).collect(),
             materials,
+            kinds,
             benchmark,
             gravity: scene
                 .gravity
@@ -1244,7 +1248,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         s.resolve_phases();
         s.setup_grid();
         let mut mmin = [(0..s.parts.len())
-            .map(|p| particles::mass_of(&s.densities, &s.parts.mat, &s.parts.vol0, p))
+            .map(|p| s.particle_mass(p))
             .fold(f64::INFINITY, f64::min)];
         s.comm.min_f64(&mut mmin);
         s.mass_floor = if mmin[0].is_finite() {
@@ -1586,12 +1590,11 @@ impl<'c, const D: usize> Solver<'c, D> {
             v: &self.parts.v,
             stress: &self.parts.stress,
             def_grad: &self.parts.def_grad,
-            mat: &self.parts.mat,
+            kind: &self.parts.kind,
             vol: &self.parts.vol,
             mass: particles::Masses {
-                densities: &self.densities,
-                mat: &self.parts.mat,
-                vol0: &self.parts.vol0,
+                kind_mass: &self.kinds.mass,
+                kind: &self.parts.kind,
             },
             x0: &self.parts.x0,
             half: &self.parts.half,
@@ -1866,10 +1869,9 @@ impl<'c, const D: usize> Solver<'c, D> {
     fn compute_max_speed(&self) -> f64 {
         let mut m = 0.0f64;
         for p in 0..self.parts.len() {
-            let j = self.parts.vol[p] / self.parts.vol0[p];
-            m = m.max(
-                self.materials[self.parts.mat[p] as usize].wave_speed(j) + self.parts.v[p].norm(),
-            );
+            let kind = self.parts.kind[p] as usize;
+            let j = self.parts.vol[p] / self.kinds.vol0[kind];
+            m = m.max(self.materials[kind].wave_speed(j) + self.parts.v[p].norm());
         }
         m
     }
@@ -1932,7 +1934,7 @@ impl<'c, const D: usize> Solver<'c, D> {
 
     /// The mass of particle `p` ([`particles::mass_of`]).
     pub fn particle_mass(&self, p: usize) -> f64 {
-        particles::mass_of(&self.densities, &self.parts.mat, &self.parts.vol0, p)
+        particles::mass_of(&self.kinds.mass, &self.parts.kind, p)
     }
 
     /// Which optional particle arrays this solver's particles carry.
@@ -2037,9 +2039,8 @@ impl<'c, const D: usize> Solver<'c, D> {
         let parts = crate::mpm::remap::RemapParts {
             x: &self.parts.x,
             mass: particles::Masses {
-                densities: &self.densities,
-                mat: &self.parts.mat,
-                vol0: &self.parts.vol0,
+                kind_mass: &self.kinds.mass,
+                kind: &self.parts.kind,
             },
             x0: &self.parts.x0,
             half: &self.parts.half,
@@ -2487,18 +2488,19 @@ impl<'c, const D: usize> Solver<'c, D> {
 
     /// Totals over all ranks.
     pub fn totals(&self) -> Totals {
-        let (parts, materials, densities) = (&self.parts, &self.materials, &self.densities);
+        let (parts, materials, kinds) = (&self.parts, &self.materials, &self.kinds);
         // Summed per fixed chunk, then in a fixed tree (as `errors`): on threads, and
         // the same on any thread count. Slots: mass, kinetic, strain, (external work),
         // plastic work, momentum per axis.
         let chunk = |k: usize| {
             let mut sums = [0.0; 8];
             for p in k * LOCATE_CHUNK..parts.len().min((k + 1) * LOCATE_CHUNK) {
-                let m = particles::mass_of(densities, &parts.mat, &parts.vol0, p);
+                let kind = parts.kind[p] as usize;
+                let m = kinds.mass[kind];
                 let v = parts.v[p];
                 sums[0] += m;
                 sums[1] += 0.5 * m * v.norm_squared();
-                let mat = &materials[parts.mat[p] as usize];
+                let mat = &materials[kind];
                 let f = if parts.def_grad.is_empty() {
                     Mat::<D>::identity()
                 } else {
@@ -2507,10 +2509,10 @@ impl<'c, const D: usize> Solver<'c, D> {
                 // The energy of a material whose stress is not stored is a function of
                 // `F` alone: no need to form its stress.
                 let stress = parts.stress.get(p).copied().unwrap_or_else(Mat::<D>::zeros);
-                sums[2] +=
-                    mat.strain_energy(&stress, &f, parts.be.get(p), parts.vol[p], parts.vol0[p]);
+                let vol0 = kinds.vol0[kind];
+                sums[2] += mat.strain_energy(&stress, &f, parts.be.get(p), parts.vol[p], vol0);
                 if let Some(&e) = parts.eps_p.get(p) {
-                    sums[4] += mat.plastic_work(e, parts.vol0[p]);
+                    sums[4] += mat.plastic_work(e, vol0);
                 }
                 for a in 0..D {
                     sums[5 + a] += m * v[a];

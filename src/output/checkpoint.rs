@@ -9,9 +9,9 @@
 //! crash during a write leaves the previous checkpoints intact. Then the oldest
 //! checkpoints beyond `keep` of this run's [`Lineage`] are deleted.
 //!
-//! # Format (version 5; versions 3 and 4 are read too)
+//! # Format (version 6; versions 3 to 5 are read too)
 //!
-//! Root attributes: `format` = "mpmcg-checkpoint", `version` = 5, `lineage` (the id
+//! Root attributes: `format` = "mpmcg-checkpoint", `version` = 6, `lineage` (the id
 //! of the run and its restarts; pruning deletes only checkpoints of its own lineage),
 //! `dim`, `step`,
 //! `time`, `dt`, `max_speed` (fastest signal speed over all ranks after the step; the
@@ -19,7 +19,11 @@
 //! `cells`, `particles` (total), `record_width`, `carries_def_grad`, `carries_x0`,
 //! `carries_half`, `carries_plastic`, `carries_damage`, `carries_stress_zz`,
 //! `carries_stress` (0/1; absent in version 3, whose records always hold the stress),
-//! `carries_mass` (0; absent before version 5, whose records hold the mass), and
+//! `carries_mass` (0; absent before version 5, whose records hold the mass),
+//! `carries_vol0` (0; absent before version 6, whose records hold the reference
+//! volume, and the material where the `kind` column is), `kind_material` and
+//! `kind_vol0` (per kind of particle, its material's index and reference volume; the
+//! `kind` column indexes them; absent before version 6), and
 //! the run loop's diagnostics: `initial_totals` and
 //! `last_totals` (mass, kinetic, strain, external work, plastic work, momentum[dim]),
 //! `initial_particles`, `last_particles`, `energy_scale`, `max_energy_deviation`,
@@ -45,7 +49,7 @@
 //! chunks and keeps those in its cells: O(N) reading per rank, fine for the sizes of a
 //! few nodes but not for thousands of ranks.
 
-use crate::mpm::particles::{Carries, Columns, Particles};
+use crate::mpm::particles::{Carries, Columns, Kinds, Particles};
 use crate::mpm::solver::{Solver, Totals};
 use crate::output::io::{self, agree, h5err, lockstep, Entry, IoError, Writer};
 use crate::physics::shape::Geom;
@@ -60,11 +64,14 @@ pub const FORMAT: &str = "mpmcg-checkpoint";
 /// brittle particles) and the attribute `carries_stress_zz`. 4: the stress columns
 /// only where the stress is state (`carries_stress`; a neo-Hookean particle's follows
 /// from `F`). 5: no mass column (`carries_mass` = 0): a particle's mass is its
-/// material's density times `vol0`.
-pub const VERSION: u64 = 5;
+/// material's density times `vol0`. 6: no `vol0` column (`carries_vol0` = 0): the
+/// column `kind` holds the particle's kind (material and reference volume, the
+/// attributes `kind_material` and `kind_vol0`), where before 6 it held the material.
+pub const VERSION: u64 = 6;
 /// The oldest version this build reads: a version 3 record always has the stress
-/// columns, which a scene that does not store the stress drops on reading, and
-/// records before version 5 the mass, dropped too.
+/// columns, which a scene that does not store the stress drops on reading, records
+/// before version 5 the mass, dropped too, and before 6 the material and `vol0`,
+/// read as the kind they make.
 pub const OLDEST: u64 = 3;
 
 /// Rows read at a time when every rank scans the whole file.
@@ -373,6 +380,10 @@ fn write_header<const D: usize>(
     for (name, on) in Carries::NAMES.iter().zip(carries.flags()) {
         o.u64(&format!("carries_{name}"), u64::from(on))?;
     }
+    let kinds = &solver.kinds;
+    let material: Vec<u64> = kinds.material.iter().map(|&m| u64::from(m)).collect();
+    o.u64s("kind_material", &material)?;
+    o.f64s("kind_vol0", &kinds.vol0)?;
     Ok(())
 }
 
@@ -906,19 +917,39 @@ pub struct Restored<const D: usize> {
 ///
 /// Every value the run consumes is checked (a checkpoint may have been edited with
 /// HDF5 tools and sealed again): each particle row must be one the solver can step
-/// (see [`RowCheck`]), with a material index below `materials`.
+/// (see [`RowCheck`]), of one of the scene's `kinds` (its material and `vol0` before
+/// version 6).
 pub fn read<const D: usize>(
     header: &Header,
     rank: usize,
     layout: &Layout<D>,
     geom: &Geom<D>,
     carries: Carries,
-    materials: usize,
+    kinds: &Kinds,
 ) -> Result<Restored<D>, String> {
     let path = &header.path;
     let p = path.display();
     let f = open(path)?;
     let rows = Rows::open::<D>(&f, header, layout, carries)?;
+    if !rows.carries.vol0 {
+        let n = kinds.material.len();
+        let material: Vec<u64> = attr_vec(&f, path, "kind_material", n)?;
+        let vol0: Vec<f64> = attr_vec(&f, path, "kind_vol0", n)?;
+        let same = material
+            .iter()
+            .zip(&kinds.material)
+            .all(|(&a, &b)| a == u64::from(b))
+            && vol0
+                .iter()
+                .zip(&kinds.vol0)
+                .all(|(a, b)| a.to_bits() == b.to_bits());
+        if !same {
+            return Err(format!(
+                "{p}: damaged checkpoint: attributes `kind_material` {material:?} and `kind_vol0` {vol0:?} are not the kinds of particle of the stored scene ({:?}, {:?})",
+                kinds.material, kinds.vol0
+            ));
+        }
+    }
     // Blocks the grid cannot have (too narrow for the ghost layers) were not written
     // by a run: refused rather than silently read as uniform blocks.
     let Some(writer) = header.writer_layout(layout) else {
@@ -931,7 +962,7 @@ pub fn read<const D: usize>(
     };
     let writers = Writers::read(&f, path, header)?;
     let stored = rows.carries;
-    let check = RowCheck::new(geom, stored, materials);
+    let check = RowCheck::new(geom, stored, kinds);
     let same = header.layout(layout).as_ref() == Some(layout);
     let (mut parts, external_work, rows_read) = if same {
         let (p, w) = rows.own(&writers, rank, layout, &check, stored)?;
@@ -952,6 +983,13 @@ pub fn read<const D: usize>(
     }
     // A record's mass before version 5: density × vol0 as seeded, formed where used.
     parts.mass = Vec::new();
+    if stored.vol0 {
+        // Before version 6: the material and `vol0` make the kind (checked per row).
+        for (k, &v) in parts.kind.iter_mut().zip(&parts.vol0) {
+            *k = kinds.find(*k, v).expect("a row's kind is checked");
+        }
+        parts.vol0 = Vec::new();
+    }
     rows.unique_ids(&parts)?;
     let run = read_run_state::<D>(&f, path, rank, header.step)?;
     let dt = attr_f64(&f, path, "dt")?;
@@ -1029,16 +1067,19 @@ impl<'a> Rows<'a> {
             .map(|&name| match name {
                 "stress" if version == 3 => Ok(true),
                 "mass" if version <= 4 => Ok(true),
+                "vol0" if version <= 5 => Ok(true),
                 _ => Ok(attr_u64(f, path, &format!("carries_{name}"))? != 0),
             })
             .collect::<Result<Vec<bool>, String>>()?;
         let stored = Carries::from_flags(&flags);
         let width = Particles::<D>::record_width(stored);
         // The stored stress of a version 3 file and the mass of a version 3 or 4 file
-        // are read and then dropped (`read`).
+        // are read and then dropped, `vol0` before version 6 read into the kind
+        // (`read`).
         let needed = Carries {
             stress: carries.stress || version == 3,
             mass: version <= 4,
+            vol0: version <= 5,
             ..carries
         };
         if stored != needed || attr_u64(f, path, "record_width")? != width as u64 {
@@ -1218,32 +1259,38 @@ impl<'a> Rows<'a> {
 }
 
 /// What a particle row must hold for the solver to step it: finite values, positive
-/// mass, volumes and GIMP half-widths, a material index of the scene, an integer id,
+/// mass, volumes and GIMP half-widths, a kind of the scene (before version 6: a
+/// material and `vol0` that make one), an integer id,
 /// damage in [0, 1], plastic strain >= 0, and a position on the grid (where a step
 /// leaves every particle: below the upper face on periodic axes). A row that breaks
 /// one made the solver index out of its materials or grid (a panic), or run on with
 /// NaN.
 struct RowCheck<'a, const D: usize> {
     geom: &'a Geom<D>,
-    materials: usize,
+    kinds: &'a Kinds,
     /// Per array of the record: column name, first value, values.
     fields: Vec<(&'static str, usize, usize)>,
+    /// Where a record before version 6 holds `vol0` (its `kind` column then holds the
+    /// material).
+    vol0_at: Option<usize>,
 }
 
 impl<'a, const D: usize> RowCheck<'a, D> {
-    fn new(geom: &'a Geom<D>, carries: Carries, materials: usize) -> Self {
+    fn new(geom: &'a Geom<D>, carries: Carries, kinds: &'a Kinds) -> Self {
         let mut at = 0;
-        let fields = Particles::<D>::fields(carries)
+        let fields: Vec<_> = Particles::<D>::fields(carries)
             .iter()
             .map(|f| {
                 at += f.width;
                 (f.column, at - f.width, f.width)
             })
             .collect();
+        let vol0_at = fields.iter().find(|f| f.0 == "vol0").map(|f| f.1);
         Self {
             geom,
-            materials,
+            kinds,
             fields,
+            vol0_at,
         }
     }
 
@@ -1260,13 +1307,7 @@ impl<'a, const D: usize> RowCheck<'a, D> {
                     .iter()
                     .find(|&&x| x <= 0.0)
                     .map(|x| format!("`{name}` = {x} is not positive")),
-                "material" => (v[0] < 0.0 || v[0].fract() != 0.0 || v[0] >= self.materials as f64)
-                    .then(|| {
-                        format!(
-                            "material index {} is not one of the scene's {} materials",
-                            v[0], self.materials
-                        )
-                    }),
+                "kind" => self.kind_fault(v[0], rec),
                 "id" => (v[0] < 0.0 || v[0].fract() != 0.0 || v[0] >= F64_INTEGERS as f64)
                     .then(|| format!("particle id {} is not an integer id", v[0])),
                 "eps_p" => (v[0] < 0.0).then(|| format!("`eps_p` = {} is negative", v[0])),
@@ -1290,6 +1331,26 @@ impl<'a, const D: usize> RowCheck<'a, D> {
             }
         }
         None
+    }
+
+    /// What is wrong with a row's `kind` column `k` (`rec` the row): a kind index of
+    /// the scene, or before version 6 a material index that makes one with `vol0`.
+    fn kind_fault(&self, k: f64, rec: &[f64]) -> Option<String> {
+        let n = self.kinds.material.len();
+        let index = (k >= 0.0 && k.fract() == 0.0 && k <= f64::from(u16::MAX)).then_some(k as u16);
+        match self.vol0_at {
+            None => (index.is_none_or(|i| usize::from(i) >= n))
+                .then(|| format!("kind index {k} is not one of the scene's {n} kinds of particle")),
+            Some(at) => {
+                let vol0 = rec[at];
+                (index.and_then(|m| self.kinds.find(m, vol0)).is_none()).then(|| {
+                    format!(
+                        "material index {k} with `vol0` = {vol0} is not a kind of particle of \
+                         the stored scene (a body's material with its particles per cell)"
+                    )
+                })
+            }
+        }
     }
 
     /// The rank of `layout` whose cells hold the particle of `rec`, or what is wrong
@@ -1463,28 +1524,31 @@ mod tests {
     /// The record layout of format 3, as written before the fields were declared in one
     /// place: a reordered declaration would make old checkpoints unreadable. Format 4
     /// is the same with the stress columns only where `carries.stress`, format 5 with
-    /// the mass only where `carries.mass` (read from formats 3 and 4).
+    /// the mass only where `carries.mass` (read from formats 3 and 4), format 6 with
+    /// `vol0` only where `carries.vol0` (read from formats 3 to 5) and the column
+    /// `material` named `kind` (it holds the material before format 6).
     #[test]
     fn columns_keep_the_format_3_layout() {
         assert_eq!(
             columns::<2>(all(!0)),
             "x[0] x[1] v[0] v[1] mass vol vol0 stress[0][0] stress[1][0] stress[0][1] \
-             stress[1][1] material id def_grad[0][0] def_grad[1][0] def_grad[0][1] \
+             stress[1][1] kind id def_grad[0][0] def_grad[1][0] def_grad[0][1] \
              def_grad[1][1] x0[0] x0[1] half[0] half[1] be[0][0] be[1][0] be[2][0] be[0][1] \
              be[1][1] be[2][1] be[0][2] be[1][2] be[2][2] eps_p damage stress_zz"
         );
         assert_eq!(
-            columns::<1>(all(0b1100_0010)),
-            "x[0] v[0] mass vol vol0 stress[0][0] material id x0[0]"
+            columns::<1>(all(0b1_1100_0010)),
+            "x[0] v[0] mass vol vol0 stress[0][0] kind id x0[0]"
         );
         assert_eq!(
-            columns::<1>(all(0b1000_0010)),
-            "x[0] v[0] mass vol vol0 material id x0[0]"
+            columns::<1>(all(0b1_1000_0010)),
+            "x[0] v[0] mass vol vol0 kind id x0[0]"
         );
         assert_eq!(
-            columns::<1>(all(0b10)),
-            "x[0] v[0] vol vol0 material id x0[0]"
+            columns::<1>(all(0b1_0000_0010)),
+            "x[0] v[0] vol vol0 kind id x0[0]"
         );
+        assert_eq!(columns::<1>(all(0b10)), "x[0] v[0] vol kind id x0[0]");
         assert_eq!(
             Carries::NAMES,
             [
@@ -1495,7 +1559,8 @@ mod tests {
                 "damage",
                 "stress_zz",
                 "stress",
-                "mass"
+                "mass",
+                "vol0"
             ]
         );
     }

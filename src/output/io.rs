@@ -14,7 +14,7 @@
 //! a scene that models part of a body.
 
 use crate::input::scene::{Face, Field, Scene};
-use crate::mpm::particles::{shape_bounds, Particles};
+use crate::mpm::particles::{shape_bounds, Kinds, Particles};
 use crate::physics::material::Material;
 use decomposition::Communicator;
 use hdf5::types::VarLenUnicode;
@@ -181,13 +181,13 @@ impl Snapshots {
     }
 
     /// Collective: write the particles of every rank at `step`, time `t`, then (rank 0)
-    /// rewrite the XDMF index. `materials` derive the stress components the particles
-    /// do not store (plane strain σ_zz).
+    /// rewrite the XDMF index. `materials` (per kind of `kinds`) derive the stress
+    /// components the particles do not store (plane strain σ_zz).
     pub fn write<const D: usize>(
         &mut self,
         comm: &dyn Communicator,
         parts: &Particles<D>,
-        materials: &[Material],
+        (kinds, materials): (&Kinds, &[Material]),
         step: u64,
         t: f64,
     ) -> Result<(), IoError> {
@@ -203,7 +203,7 @@ impl Snapshots {
             &file,
             &path,
             parts,
-            materials,
+            (kinds, materials),
             (step, t),
             offset,
             total,
@@ -238,7 +238,7 @@ impl Snapshots {
         file: &hdf5::File,
         path: &Path,
         parts: &Particles<D>,
-        materials: &[Material],
+        (kinds, materials): (&Kinds, &[Material]),
         (step, t): (u64, f64),
         offset: u64,
         total: u64,
@@ -269,7 +269,11 @@ impl Snapshots {
         let rank = comm.rank() as i64;
         w.blocks("rank", 0, ibuf, |r, b| b.resize(r.len(), rank))?;
         w.blocks("material", 0, ibuf, |r, b| {
-            b.extend(parts.mat[r].iter().map(|&m| i64::from(m)))
+            b.extend(
+                parts.kind[r]
+                    .iter()
+                    .map(|&k| i64::from(kinds.material[k as usize])),
+            )
         })?;
         // What the numbers mean: the names behind `material`, units, symmetry planes.
         lockstep(comm, self.write_labels(file).map_err(|e| h5err(path, e)))?;

@@ -419,7 +419,7 @@ pub fn gather<const D: usize, const N: usize, const B: usize>(
         // What `clip_at_slip_walls` returns where it clips nothing, then the
         // external force's work, as the scalar loop adds them.
         let p = p0 + l;
-        let mass = particles::mass_of(ctx.densities, s.parts.mat, s.parts.vol0, p);
+        let mass = particles::mass_of(ctx.kind_mass, s.parts.kind, p);
         *work += 0.5 * mass * (new.norm_squared() - new.norm_squared());
         let acc = ctx.accel_kept(s.accel, s.parts.x0, p);
         *work += m.dt * mass * acc.dot(&(old + new)) * 0.5;
@@ -602,24 +602,22 @@ pub fn raise_speed<const D: usize, const B: usize>(
     max: f64,
     lanes: &mut [f64; B],
 ) -> f64 {
-    let mat = s.parts.mat[p0];
-    let material = &ctx.materials[mat as usize];
+    let kind = s.parts.kind[p0];
+    let material = &ctx.materials[kind as usize];
     let quick = match material.stretched_wave_speed() {
-        Some(q) if s.parts.mat[p0 + 1..p0 + B].iter().all(|&m| m == mat) => q,
+        Some(q) if s.parts.kind[p0 + 1..p0 + B].iter().all(|&k| k == kind) => q,
         _ => {
             return (p0..p0 + B).fold(max, |m, p| super::raise_speed(ctx, s, p, m));
         }
     };
     let r = p0..p0 + B;
-    let (vol, vol0): (&[f64; B], &[f64; B]) = (
-        s.parts.vol[r.clone()].try_into().expect("a full batch"),
-        s.parts.vol0[r.clone()].try_into().expect("a full batch"),
-    );
+    let vol: &[f64; B] = s.parts.vol[r.clone()].try_into().expect("a full batch");
+    let vol0 = ctx.kind_vol0[kind as usize];
     let vs: &[_; B] = s.parts.v[r].try_into().expect("a full batch");
     let mut j = [0.0; B];
     let mut v = [0.0; B];
     for l in 0..B {
-        j[l] = vol[l] / vol0[l];
+        j[l] = vol[l] / vol0;
         v[l] = vs[l].norm();
     }
     let mut compressed = 0u32;
@@ -675,10 +673,16 @@ mod tests {
     use decomposition::splitmix::Rng;
     use decomposition::Tiles;
 
+    /// The reference volume (and mass: density 1) of [`Setup`]'s kind `k`, one kind
+    /// per lane, so that the lanes' masses differ.
+    fn kind_vol0(k: usize) -> f64 {
+        1e-4 * (0.5 + (k as f64 + 0.5) / LANES as f64)
+    }
+
     /// Eight particles of one cell with random local coordinates (among them ξ = 0
     /// on the first axis, where α = 0, and ξ = ½ on all axes, where α = 1),
     /// deformation gradients, volumes on both sides of J = 1, velocities and
-    /// positions; one lane with a non-finite F.
+    /// positions, of kind `l` in lane `l`; one lane with a non-finite F.
     fn particles<const D: usize>(
         rng: &mut Rng,
         nan_lane: Option<usize>,
@@ -702,19 +706,19 @@ mod tests {
                 f[(1, 0)] = f64::NAN;
             }
             p.def_grad.push(f);
-            let vol0 = 1e-4 * (0.5 + rng.f64());
-            p.vol0.push(vol0);
-            p.vol.push(vol0 * (0.85 + 0.3 * rng.f64()));
-            p.mat.push(0);
+            p.vol.push(kind_vol0(l) * (0.85 + 0.3 * rng.f64()));
+            p.kind.push(l as u16);
         }
         (p, xi)
     }
 
-    /// A material, a grid and the context of a pass with gradient `alpha`.
+    /// A material, a kind of particle per lane ([`kind_vol0`]), a grid and the context
+    /// of a pass with gradient `alpha`.
     struct Setup<const D: usize> {
         geom: Geom<D>,
         tiles: Tiles<D>,
-        materials: [Material; 1],
+        materials: Vec<Material>,
+        kind_vol0: Vec<f64>,
     }
 
     impl<const D: usize> Setup<D> {
@@ -723,11 +727,15 @@ mod tests {
             Setup {
                 geom: Geom::<D>::new([0.0; D], [1.0; D], [10; D], [false; D]),
                 tiles: Tiles::<D>::new([12; D], [1; D]),
-                materials: [Material::NeoHookean(NeoHookean {
-                    lambda,
-                    mu,
-                    density: 1.0,
-                })],
+                materials: vec![
+                    Material::NeoHookean(NeoHookean {
+                        lambda,
+                        mu,
+                        density: 1.0,
+                    });
+                    LANES
+                ],
+                kind_vol0: (0..LANES).map(kind_vol0).collect(),
             }
         }
 
@@ -739,7 +747,8 @@ mod tests {
                 gimp: false,
                 alpha,
                 materials: &self.materials,
-                densities: &[1.0],
+                kind_mass: &self.kind_vol0,
+                kind_vol0: &self.kind_vol0,
                 gravity: Vector::<D>::from_fn(|a, _| if a == 1 { -9.81 } else { 0.0 }),
                 body_force: None,
                 faces: [[Face::Slip; 2]; D],
@@ -984,12 +993,11 @@ mod tests {
                 None => Vector::<2>::from_fn(|_, _| rng.f64() - 0.5),
             });
             p.def_grad.push(Mat::<2>::identity());
-            let vol0 = 1e-4;
-            p.vol0.push(vol0);
             let stretched = (2 * LANES..3 * LANES).contains(&k);
             let j = if stretched { 1.0 } else { 0.8 } + 0.2 * rng.f64();
-            p.vol.push(vol0 * j);
-            p.mat.push(0);
+            // One kind, so that the batches take the quick path.
+            p.vol.push(kind_vol0(0) * j);
+            p.kind.push(0);
         }
         let xi = vec![[0.5; 2]; n];
         let mut dx = vec![Vector::<2>::zeros(); n];
