@@ -332,8 +332,10 @@ fn particle_cases() -> Vec<(&'static str, &'static str, Edit)> {
         case("velocity_infinite", "`v` holds inf", |f| {
             cell(f, 2, "v[1]", f64::INFINITY)
         }),
-        case("volume_zero", "`vol` = 0 is not positive", |f| {
-            cell(f, 1, "vol", 0.0)
+        // The disk's volume is det F · V₀ (checkpoint version 6): an inverted `F` is
+        // a volume that is not positive.
+        case("def_grad_inverted", "`def_grad` has determinant -", |f| {
+            cell(f, 1, "def_grad[0][0]", -1.0)
         }),
         // The mass and reference volume are the kind's (checkpoint version 6).
         case(
@@ -392,7 +394,7 @@ fn other_cases() -> Vec<(&'static str, &'static str, Edit)> {
             attr(f, "cuts", &[0u64, 16, 0, 8]);
         }),
         case("cells_deleted", "attribute `cells`", |f| f.delete_attr("cells").unwrap()),
-        case("particles_count_more", "dataset `particles` has shape [32, 13], expected [33, 13]", |f| scalar(f, "particles", 33u64)),
+        case("particles_count_more", "dataset `particles` has shape [32, 12], expected [33, 12]", |f| scalar(f, "particles", 33u64)),
         case("record_width", "are not those the stored scene needs", |f| scalar(f, "record_width", 18u64)),
         case("carries_half_off", "are not those the stored scene needs", |f| scalar(f, "carries_half", 0u64)),
         case("carries_deleted", "attribute `carries_def_grad`", |f| f.delete_attr("carries_def_grad").unwrap()),
@@ -520,6 +522,10 @@ fn material_state_columns_are_checked() {
         String::from_utf8_lossy(&o.stderr)
     );
     let cases = [
+        // These materials need no `F`: the particles store their volume.
+        case("volume_zero", "`vol` = 0 is not positive", |f| {
+            cell(f, 1, "vol", 0.0)
+        }),
         case("eps_p_negative", "`eps_p` = -0.1 is negative", |f| {
             cell(f, 2, "eps_p", -0.1)
         }),
@@ -601,12 +607,12 @@ fn version_5_rows_are_checked() {
 fn particle_rows_edited_without_their_checksum() {
     let dir = temp_dir("ckpt-rows-sum");
     let good = checkpoint(&dir, 1);
-    let ckpt = edited(&good, &dir, "vol", &|f| {
+    let ckpt = edited(&good, &dir, "v", &|f| {
         let (mut v, w, cols) = checkpoint_table(f);
-        v[w + cols.iter().position(|c| c == "vol").unwrap()] *= 2.0;
+        v[w + cols.iter().position(|c| c == "v[0]").unwrap()] *= 2.0;
         f.dataset("particles").unwrap().write_raw(&v).unwrap();
     });
-    let out = dir.join("out-vol");
+    let out = dir.join("out-v");
     let words = "the particle rows of writer rank 0 do not match their checksum";
     if let Some(m) = fault(&restart(&ckpt, &out), &ckpt, &out, words, false) {
         panic!("{m}");

@@ -912,7 +912,10 @@ fn deform<const D: usize>(
 ) -> bool {
     let inc = Mat::<D>::identity() + l * dt;
     let j = det(&inc);
-    s.parts.vol[p] *= j;
+    // (Where the particles carry `F`, their volume is `det F · V₀`: not stored.)
+    if let Some(v) = s.parts.vol.get_mut(p) {
+        *v *= j;
+    }
     let mat = &ctx.materials[s.parts.kind[p] as usize];
     let f = if s.parts.def_grad.is_empty() {
         Mat::<D>::identity()
@@ -929,10 +932,17 @@ fn deform<const D: usize>(
     if s.parts.stress.is_empty() {
         // The stress follows from F where it is used; for the materials that do this
         // (neo-Hookean) it is finite where F is and J > 0.
-        return j > 0.0 && s.parts.vol[p].is_finite() && f.iter().all(|x| x.is_finite());
+        return j > 0.0 && volume_finite(s, p) && f.iter().all(|x| x.is_finite());
     }
     mat.update_stress(&mut s.parts.stress[p], l, &f, dt, internal);
-    j > 0.0 && s.parts.vol[p].is_finite() && s.parts.stress[p].iter().all(|x| x.is_finite())
+    j > 0.0 && volume_finite(s, p) && s.parts.stress[p].iter().all(|x| x.is_finite())
+}
+
+/// Particle `p`'s stored volume is finite, or it stores none (its `F`, tested beside
+/// this, makes it).
+#[inline(always)]
+fn volume_finite<const D: usize>(s: &Slices<'_, D>, p: usize) -> bool {
+    s.parts.vol.get(p).is_none_or(|v| v.is_finite())
 }
 
 /// The running maximum `max` of the signal speed the time step must resolve (wave
@@ -941,7 +951,11 @@ fn deform<const D: usize>(
 #[inline(always)]
 fn raise_speed<const D: usize>(ctx: &Ctx<'_, D>, s: &Slices<'_, D>, p: usize, max: f64) -> f64 {
     let kind = s.parts.kind[p] as usize;
-    let j = s.parts.vol[p] / ctx.kind_vol0[kind];
+    let j = if s.parts.vol.is_empty() {
+        det(&s.parts.def_grad[p])
+    } else {
+        s.parts.vol[p] / ctx.kind_vol0[kind]
+    };
     ctx.materials[kind].raise_signal_speed(j, s.parts.v[p].norm(), max)
 }
 
@@ -1223,7 +1237,7 @@ pub struct ScatterParts<'a, const D: usize> {
     pub stress: &'a [Mat<D>],
     pub def_grad: &'a [Mat<D>],
     pub kind: &'a [u16],
-    pub vol: &'a [f64],
+    pub vol: particles::Volumes<'a, D>,
     pub mass: particles::Masses<'a>,
     pub x0: &'a [Vector<D>],
     pub half: &'a [[f64; D]],
@@ -1700,11 +1714,10 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
         // The stress first: in 3D it is a call (`particles::stress_call`), and every
         // vector register live across it is saved and reloaded; before the weights,
         // few are.
-        let vs = if m.forces {
-            particles::stress_of(parts.stress, parts.def_grad, parts.kind, ctx.materials, p)
-                * parts.vol[p]
+        let (vol, vs) = if m.forces {
+            particles::volume_and_stress(parts.stress, &parts.vol, ctx.materials, p)
         } else {
-            Mat::<D>::zeros()
+            (parts.vol.get(p), Mat::<D>::zeros())
         };
         let half = if ctx.gimp { Some(&parts.half[p]) } else { None };
         let (k, below, _) = ctx.weights::<NA, N>(&parts.x[p], half, &parts.xi[p]);
@@ -1733,7 +1746,6 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
         } else {
             parts.v[p] * mass
         };
-        let vol = parts.vol[p];
         let fe = if m.forces {
             ctx.accel_kept(parts.accel, parts.x0, p) * mass
         } else {

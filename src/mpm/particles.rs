@@ -70,6 +70,10 @@ carries! {
     /// their kind's ([`Kinds`]); only the rows of a checkpoint of version 5 or older
     /// hold it, read and turned into the kind.
     vol0,
+    /// The current volume, for particles without `F` (their materials need none):
+    /// with `F` it is `det F · V₀` ([`Volumes`]), and only the rows of a checkpoint of
+    /// version 5 or older hold it, read and dropped.
+    vol,
 }
 
 /// How a field's values are named in a checkpoint's `columns`: `name`, `name[a]`, or
@@ -286,8 +290,8 @@ particle_fields! {
     v: Vector<D>, Vector, always;
     /// Mass, only as read from an older checkpoint (see [`Carries::mass`]).
     mass: f64, Scalar, mass;
-    /// Current volume.
-    vol: f64, Scalar, always;
+    /// Current volume, where the particles carry no `F` (see [`Carries::vol`]).
+    vol: f64, Scalar, vol;
     /// Reference volume, only as read from an older checkpoint (see [`Carries::vol0`]).
     vol0: f64, Scalar, vol0;
     /// Cauchy stress, where it is state (see [`Carries::stress`]).
@@ -346,6 +350,42 @@ pub fn stress_of<const D: usize>(
 #[inline(never)]
 fn stress_call<const D: usize>(m: &Material, f: &Mat<D>) -> Mat<D> {
     m.stress_of_def_grad(f)
+}
+
+/// [`Material::kirchhoff_of_def_grad`] as a call of its own in 3D, as [`stress_call`].
+#[inline(never)]
+fn kirchhoff_call<const D: usize>(m: &Material, f: &Mat<D>) -> (Mat<D>, f64) {
+    m.kirchhoff_of_def_grad(f)
+}
+
+/// Particle `p`'s volume `V` and `V σ` (the scatter's): where the particles store
+/// neither the volume nor the stress, `J V₀` and `V₀ τ` from the Kirchhoff stress
+/// `τ = J σ` of `F` (no division by `J`, no second determinant); else the volume
+/// ([`volume_of`]) times the stress ([`stress_of`]). `materials`: per kind.
+#[inline(always)]
+pub fn volume_and_stress<const D: usize>(
+    stress: &[Mat<D>],
+    vols: &Volumes<'_, D>,
+    materials: &[Material],
+    p: usize,
+) -> (f64, Mat<D>) {
+    if vols.vol.is_empty() && stress.is_empty() {
+        let kind = vols.kind[p] as usize;
+        let (m, f) = (&materials[kind], &vols.def_grad[p]);
+        let (tau, j) = if D == 3 {
+            kirchhoff_call(m, f)
+        } else {
+            m.kirchhoff_of_def_grad(f)
+        };
+        let v0 = vols.kind_vol0[kind];
+        (j * v0, tau * v0)
+    } else {
+        let v = vols.get(p);
+        (
+            v,
+            stress_of(stress, vols.def_grad, vols.kind, materials, p) * v,
+        )
+    }
 }
 
 /// Room for `n` elements in `v`: where it must grow, to `n` and a sixteenth, not to
@@ -477,6 +517,11 @@ impl Carries {
                 .any(|m| Material::from_plan(m).stress_is_state()),
             mass: false,
             vol0: false,
+            vol: !scene
+                .plan
+                .materials
+                .iter()
+                .any(|m| Material::from_plan(m).needs_def_grad()),
         }
     }
 }
@@ -544,6 +589,42 @@ pub fn mass_of(kind_mass: &[f64], kind: &[u16], p: usize) -> f64 {
     kind_mass[kind[p] as usize]
 }
 
+/// The current volume of particle `p`: stored (`vol`) where the particles carry no `F`,
+/// else `det F` times its kind's reference volume (`kind_vol0`). The particles stored
+/// it for all before and updated it by each step's increment `det(I + L dt)` as they
+/// update `F`: the same volume up to round-off, and 8 bytes a particle.
+#[inline(always)]
+pub fn volume_of<const D: usize>(
+    vol: &[f64],
+    def_grad: &[Mat<D>],
+    (kind_vol0, kind): (&[f64], &[u16]),
+    p: usize,
+) -> f64 {
+    if vol.is_empty() {
+        det(&def_grad[p]) * kind_vol0[kind[p] as usize]
+    } else {
+        vol[p]
+    }
+}
+
+/// The particles' volumes ([`volume_of`]) as a view the particle loops index.
+#[derive(Clone, Copy)]
+pub struct Volumes<'a, const D: usize> {
+    /// Empty where the particles carry `F`.
+    pub vol: &'a [f64],
+    pub def_grad: &'a [Mat<D>],
+    /// Per kind ([`Kinds::vol0`]).
+    pub kind_vol0: &'a [f64],
+    pub kind: &'a [u16],
+}
+
+impl<const D: usize> Volumes<'_, D> {
+    #[inline(always)]
+    pub fn get(&self, p: usize) -> f64 {
+        volume_of(self.vol, self.def_grad, (self.kind_vol0, self.kind), p)
+    }
+}
+
 /// The particles' masses ([`mass_of`]) as a view the particle loops index.
 #[derive(Clone, Copy)]
 pub struct Masses<'a> {
@@ -566,6 +647,23 @@ impl<const D: usize> Particles<D> {
 
     pub fn is_empty(&self) -> bool {
         self.x.is_empty()
+    }
+
+    /// The current volume of particle `p` ([`volume_of`]; `kind_vol0` per kind).
+    #[inline]
+    pub fn volume(&self, p: usize, kind_vol0: &[f64]) -> f64 {
+        volume_of(&self.vol, &self.def_grad, (kind_vol0, &self.kind), p)
+    }
+
+    /// The volume ratio `J = V / V₀` of particle `p`: `det F` where the particles
+    /// carry `F`.
+    #[inline]
+    pub fn volume_ratio(&self, p: usize, kind_vol0: &[f64]) -> f64 {
+        if self.vol.is_empty() {
+            det(&self.def_grad[p])
+        } else {
+            self.vol[p] / kind_vol0[self.kind[p] as usize]
+        }
     }
 
     /// The Cauchy stress of particle `p`: stored, or formed from its `F`.
@@ -668,7 +766,9 @@ impl<const D: usize> Particles<D> {
             !carries.mass && !carries.vol0,
             "a seeded particle's are its kind's"
         );
-        self.vol.push(vol0 * j);
+        if carries.vol {
+            self.vol.push(vol0 * j);
+        }
         if carries.stress {
             let mut st = Mat::<D>::zeros();
             if mat.needs_def_grad() {

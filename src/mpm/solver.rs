@@ -1096,13 +1096,13 @@ fn tree_sum<const N: usize>(
 #[inline(always)]
 fn add_errors<const D: usize>(
     s: &mut [f64; 3],
-    parts: &Particles<D>,
+    (parts, kind_vol0): (&Particles<D>, &[f64]),
     p: usize,
     (u, v): (Vector<D>, Vector<D>),
 ) {
     let eu = parts.x[p] - parts.x0[p] - u;
     let ev = parts.v[p] - v;
-    let w = parts.vol[p];
+    let w = parts.volume(p, kind_vol0);
     s[0] += w * eu.norm_squared();
     s[1] += w * ev.norm_squared();
     s[2] += w;
@@ -1591,7 +1591,12 @@ impl<'c, const D: usize> Solver<'c, D> {
             stress: &self.parts.stress,
             def_grad: &self.parts.def_grad,
             kind: &self.parts.kind,
-            vol: &self.parts.vol,
+            vol: particles::Volumes {
+                vol: &self.parts.vol,
+                def_grad: &self.parts.def_grad,
+                kind_vol0: &self.kinds.vol0,
+                kind: &self.parts.kind,
+            },
             mass: particles::Masses {
                 kind_mass: &self.kinds.mass,
                 kind: &self.parts.kind,
@@ -1870,7 +1875,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         let mut m = 0.0f64;
         for p in 0..self.parts.len() {
             let kind = self.parts.kind[p] as usize;
-            let j = self.parts.vol[p] / self.kinds.vol0[kind];
+            let j = self.parts.volume_ratio(p, &self.kinds.vol0);
             m = m.max(self.materials[kind].wave_speed(j) + self.parts.v[p].norm());
         }
         m
@@ -2510,7 +2515,8 @@ impl<'c, const D: usize> Solver<'c, D> {
                 // `F` alone: no need to form its stress.
                 let stress = parts.stress.get(p).copied().unwrap_or_else(Mat::<D>::zeros);
                 let vol0 = kinds.vol0[kind];
-                sums[2] += mat.strain_energy(&stress, &f, parts.be.get(p), parts.vol[p], vol0);
+                let vol = parts.volume(p, &kinds.vol0);
+                sums[2] += mat.strain_energy(&stress, &f, parts.be.get(p), vol, vol0);
                 if let Some(&e) = parts.eps_p.get(p) {
                     sums[4] += mat.plastic_work(e, vol0);
                 }
@@ -2542,12 +2548,12 @@ impl<'c, const D: usize> Solver<'c, D> {
     pub fn errors(&self) -> Option<(f64, f64)> {
         let b = self.benchmark.as_ref()?;
         let b = b.at(self.t).with_memo(&self.memo);
-        let parts = &self.parts;
+        let (parts, vol0) = (&self.parts, &self.kinds.vol0[..]);
         // Summed per fixed chunk, then in a fixed tree: the same on any thread count.
         let chunk = |k: usize| {
             let mut s = [0.0; 3];
             for p in k * LOCATE_CHUNK..parts.len().min((k + 1) * LOCATE_CHUNK) {
-                add_errors(&mut s, parts, p, b.exact_of(&parts.x0, p));
+                add_errors(&mut s, (parts, vol0), p, b.exact_of(&parts.x0, p));
             }
             s
         };
@@ -2570,7 +2576,7 @@ impl<'c, const D: usize> Solver<'c, D> {
     pub fn errors_keeping_forces(&mut self) -> Option<(f64, f64)> {
         let b = self.benchmark.as_ref()?;
         let at = b.at(self.t);
-        let parts = &self.parts;
+        let (parts, vol0) = (&self.parts, &self.kinds.vol0[..]);
         let n = parts.len();
         let chunks = n.div_ceil(LOCATE_CHUNK);
         self.error_sums.resize(chunks, [0.0; 3]);
@@ -2585,7 +2591,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                 let first = k * LOCATE_CHUNK;
                 let x0 = &parts.x0[first..first + memo.len()];
                 at.exact_keeping_forces(x0, memo, |i, exact| {
-                    add_errors(&mut s, parts, first + i, exact)
+                    add_errors(&mut s, (parts, vol0), first + i, exact)
                 });
                 *sums = s;
             });
@@ -2934,7 +2940,8 @@ particles_per_cell = 3
                     }
                 } else {
                     let sigma = s.materials[0].stress_of_def_grad(&s.parts.def_grad[p]);
-                    work -= s.parts.vol[p] * sigma.component_mul(&l).sum();
+                    let vol = s.parts.volume(p, &s.kinds.vol0);
+                    work -= vol * sigma.component_mul(&l).sum();
                 }
             }
             if !linear {

@@ -23,7 +23,9 @@
 //! `carries_vol0` (0; absent before version 6, whose records hold the reference
 //! volume, and the material where the `kind` column is), `kind_material` and
 //! `kind_vol0` (per kind of particle, its material's index and reference volume; the
-//! `kind` column indexes them; absent before version 6), and
+//! `kind` column indexes them; absent before version 6), `carries_vol` (0 where the
+//! particles carry `F`, whose volume is `det F · V₀`; absent before version 6, whose
+//! records always hold the volume), and
 //! the run loop's diagnostics: `initial_totals` and
 //! `last_totals` (mass, kinetic, strain, external work, plastic work, momentum[dim]),
 //! `initial_particles`, `last_particles`, `energy_scale`, `max_energy_deviation`,
@@ -53,6 +55,7 @@ use crate::mpm::particles::{Carries, Columns, Kinds, Particles};
 use crate::mpm::solver::{Solver, Totals};
 use crate::output::io::{self, agree, h5err, lockstep, Entry, IoError, Writer};
 use crate::physics::shape::Geom;
+use crate::physics::tensor::{det, Mat};
 use decomposition::splitmix::mix;
 use decomposition::{Communicator, Layout};
 use hdf5::types::VarLenUnicode;
@@ -66,7 +69,9 @@ pub const FORMAT: &str = "mpmcg-checkpoint";
 /// from `F`). 5: no mass column (`carries_mass` = 0): a particle's mass is its
 /// material's density times `vol0`. 6: no `vol0` column (`carries_vol0` = 0): the
 /// column `kind` holds the particle's kind (material and reference volume, the
-/// attributes `kind_material` and `kind_vol0`), where before 6 it held the material.
+/// attributes `kind_material` and `kind_vol0`), where before 6 it held the material;
+/// and no `vol` column where the particles carry `F` (`carries_vol` = 0: the volume
+/// is `det F · V₀`).
 pub const VERSION: u64 = 6;
 /// The oldest version this build reads: a version 3 record always has the stress
 /// columns, which a scene that does not store the stress drops on reading, records
@@ -983,6 +988,10 @@ pub fn read<const D: usize>(
     }
     // A record's mass before version 5: density × vol0 as seeded, formed where used.
     parts.mass = Vec::new();
+    if !carries.vol {
+        // A record's volume before version 6, where the particles carry `F`: det F · V₀.
+        parts.vol = Vec::new();
+    }
     if stored.vol0 {
         // Before version 6: the material and `vol0` make the kind (checked per row).
         for (k, &v) in parts.kind.iter_mut().zip(&parts.vol0) {
@@ -1067,19 +1076,20 @@ impl<'a> Rows<'a> {
             .map(|&name| match name {
                 "stress" if version == 3 => Ok(true),
                 "mass" if version <= 4 => Ok(true),
-                "vol0" if version <= 5 => Ok(true),
+                "vol0" | "vol" if version <= 5 => Ok(true),
                 _ => Ok(attr_u64(f, path, &format!("carries_{name}"))? != 0),
             })
             .collect::<Result<Vec<bool>, String>>()?;
         let stored = Carries::from_flags(&flags);
         let width = Particles::<D>::record_width(stored);
         // The stored stress of a version 3 file and the mass of a version 3 or 4 file
-        // are read and then dropped, `vol0` before version 6 read into the kind
-        // (`read`).
+        // are read and then dropped, `vol0` before version 6 read into the kind, and
+        // the volume before version 6 dropped where the particles carry `F` (`read`).
         let needed = Carries {
             stress: carries.stress || version == 3,
             mass: version <= 4,
             vol0: version <= 5,
+            vol: carries.vol || version <= 5,
             ..carries
         };
         if stored != needed || attr_u64(f, path, "record_width")? != width as u64 {
@@ -1273,6 +1283,8 @@ struct RowCheck<'a, const D: usize> {
     /// Where a record before version 6 holds `vol0` (its `kind` column then holds the
     /// material).
     vol0_at: Option<usize>,
+    /// The record holds `F` and no volume: the volume is `det F · V₀`.
+    volume_of_f: bool,
 }
 
 impl<'a, const D: usize> RowCheck<'a, D> {
@@ -1291,6 +1303,7 @@ impl<'a, const D: usize> RowCheck<'a, D> {
             kinds,
             fields,
             vol0_at,
+            volume_of_f: carries.def_grad && !carries.vol,
         }
     }
 
@@ -1308,6 +1321,14 @@ impl<'a, const D: usize> RowCheck<'a, D> {
                     .find(|&&x| x <= 0.0)
                     .map(|x| format!("`{name}` = {x} is not positive")),
                 "kind" => self.kind_fault(v[0], rec),
+                "def_grad" if self.volume_of_f => {
+                    let j = det(&Mat::<D>::from_column_slice(v));
+                    (j <= 0.0).then(|| {
+                        format!(
+                            "`def_grad` has determinant {j}: the volume det F · V₀ is not positive"
+                        )
+                    })
+                }
                 "id" => (v[0] < 0.0 || v[0].fract() != 0.0 || v[0] >= F64_INTEGERS as f64)
                     .then(|| format!("particle id {} is not an integer id", v[0])),
                 "eps_p" => (v[0] < 0.0).then(|| format!("`eps_p` = {} is negative", v[0])),
@@ -1525,8 +1546,9 @@ mod tests {
     /// place: a reordered declaration would make old checkpoints unreadable. Format 4
     /// is the same with the stress columns only where `carries.stress`, format 5 with
     /// the mass only where `carries.mass` (read from formats 3 and 4), format 6 with
-    /// `vol0` only where `carries.vol0` (read from formats 3 to 5) and the column
-    /// `material` named `kind` (it holds the material before format 6).
+    /// `vol0` only where `carries.vol0` and `vol` only where `carries.vol` (both read
+    /// from formats 3 to 5) and the column `material` named `kind` (it holds the
+    /// material before format 6).
     #[test]
     fn columns_keep_the_format_3_layout() {
         assert_eq!(
@@ -1537,18 +1559,22 @@ mod tests {
              be[1][1] be[2][1] be[0][2] be[1][2] be[2][2] eps_p damage stress_zz"
         );
         assert_eq!(
-            columns::<1>(all(0b1_1100_0010)),
+            columns::<1>(all(0b11_1100_0010)),
             "x[0] v[0] mass vol vol0 stress[0][0] kind id x0[0]"
         );
         assert_eq!(
-            columns::<1>(all(0b1_1000_0010)),
+            columns::<1>(all(0b11_1000_0010)),
             "x[0] v[0] mass vol vol0 kind id x0[0]"
         );
         assert_eq!(
-            columns::<1>(all(0b1_0000_0010)),
+            columns::<1>(all(0b11_0000_0010)),
             "x[0] v[0] vol vol0 kind id x0[0]"
         );
-        assert_eq!(columns::<1>(all(0b10)), "x[0] v[0] vol kind id x0[0]");
+        assert_eq!(
+            columns::<1>(all(0b10_0000_0010)),
+            "x[0] v[0] vol kind id x0[0]"
+        );
+        assert_eq!(columns::<1>(all(0b10)), "x[0] v[0] kind id x0[0]");
         assert_eq!(
             Carries::NAMES,
             [
@@ -1560,7 +1586,8 @@ mod tests {
                 "stress_zz",
                 "stress",
                 "mass",
-                "vol0"
+                "vol0",
+                "vol"
             ]
         );
     }

@@ -109,6 +109,16 @@ impl Material {
         }
     }
 
+    /// The Kirchhoff stress `J σ` and `J` of a material whose stress is not state, from
+    /// `f` (see [`Material::stress_of_def_grad`]).
+    #[inline]
+    pub fn kirchhoff_of_def_grad<const D: usize>(&self, f: &Mat<D>) -> (Mat<D>, f64) {
+        match self {
+            Material::NeoHookean(m) => m.kirchhoff(f),
+            _ => unreachable!("the particles of stateful-stress materials store σ"),
+        }
+    }
+
     /// New Cauchy stress after a step with velocity gradient `l`, given the updated
     /// deformation gradient `f` (meaningful only if [`Material::needs_def_grad`]) and
     /// the particle's internal variables (present if the model has them).
