@@ -247,6 +247,17 @@ fn restart(ckpt: &Path, out: &Path) -> Output {
     output(c)
 }
 
+/// Restarting from `ckpt` (unedited) into `out` succeeds.
+fn restarts(ckpt: &Path, out: &Path) {
+    let o = restart(ckpt, out);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
 type Edit = Box<dyn Fn(&hdf5::File)>;
 
 /// A named case: the edit and the words its error must contain.
@@ -490,13 +501,7 @@ fn each_dataset_edited_and_resealed_is_refused() {
     let dir = temp_dir("ckpt-datasets");
     let good = checkpoint(&dir, 1);
     // The unchanged checkpoint restarts.
-    let o = restart(&good, &dir.join("ok"));
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    restarts(&good, &dir.join("ok"));
     refused_on_one_rank(
         &good,
         &dir,
@@ -514,13 +519,7 @@ fn each_dataset_edited_and_resealed_is_refused() {
 fn material_state_columns_are_checked() {
     let dir = temp_dir("ckpt-states");
     let good = checkpoint_of(&dir, STATES, 1);
-    let o = restart(&good, &dir.join("ok"));
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    restarts(&good, &dir.join("ok"));
     let cases = [
         // These materials need no `F`: the particles store their volume.
         case("volume_zero", "`vol` = 0 is not positive", |f| {
@@ -562,13 +561,7 @@ fn material_state_columns_are_checked() {
 fn version_5_rows_are_checked() {
     let dir = temp_dir("ckpt-v5-rows");
     let v5 = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/checkpoint_v5_kinds.h5");
-    let o = restart(&v5, &dir.join("ok"));
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    restarts(&v5, &dir.join("ok"));
     let cases = [
         case("reference_volume_zero", "`vol0` = 0 is not positive", |f| {
             cell(f, 0, "vol0", 0.0)

@@ -377,16 +377,8 @@ fn version_3_checkpoint_restarts() {
 #[test]
 fn version_4_checkpoint_restarts() {
     let dir = temp_dir("restart-v4");
-    let sc = dir.join("scene.toml");
-    std::fs::write(&sc, two_densities_scene()).unwrap();
-    let full = dir.join("full");
-    ok(1, &["run", s(&sc), "--out", s(&full), "--quiet"]);
-    let v4 =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/checkpoint_v4_two_densities.h5");
+    let (v4, f) = fixture("checkpoint_v4_two_densities.h5", 4);
     let stored: f64 = {
-        let f = hdf5::File::open(&v4).unwrap();
-        let version: u64 = f.attr("version").unwrap().read_scalar().unwrap();
-        assert_eq!(version, 4);
         let (v, w, cols) = common::checkpoint_table(&f);
         let at = cols
             .iter()
@@ -394,28 +386,58 @@ fn version_4_checkpoint_restarts() {
             .expect("a mass column");
         v.chunks(w).map(|r| r[at]).sum()
     };
+    drop(f);
+    let (outs, f) = fixture_restarts(&dir, &two_densities_scene(), &v4, 76);
+    for (n, out) in outs.iter().enumerate() {
+        let mass = summary(out)["mass"]["final"].as_f64().unwrap();
+        assert!(
+            (mass - stored).abs() <= 1e-12 * stored,
+            "v4 1→{}: mass {mass} against the stored {stored}",
+            n + 1
+        );
+    }
+    let (_, _, cols) = common::checkpoint_table(&f);
+    assert!(!cols.iter().any(|c| c == "mass"), "{cols:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The checkpoint `tests/data/{name}`, which must be of format `version`: its path,
+/// opened.
+fn fixture(name: &str, version: u64) -> (PathBuf, hdf5::File) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name);
+    let f = hdf5::File::open(&path).unwrap();
+    let v: u64 = f.attr("version").unwrap().read_scalar().unwrap();
+    assert_eq!(v, version, "{name}");
+    (path, f)
+}
+
+/// `scene` run uninterrupted in `dir`, and restarted on 1 and 2 ranks from `ckpt`
+/// (at its step `step`), each within 1e-12 of the uninterrupted run: the restarts'
+/// folders, and the first checkpoint the uninterrupted run wrote, of this build's
+/// format (version 6), opened.
+fn fixture_restarts(dir: &Path, scene: &str, ckpt: &Path, step: u64) -> (Vec<PathBuf>, hdf5::File) {
+    let sc = dir.join("scene.toml");
+    std::fs::write(&sc, scene).unwrap();
+    let full = dir.join("full");
+    ok(1, &["run", s(&sc), "--out", s(&full), "--quiet"]);
+    let mut outs = Vec::new();
     for n in [1, 2] {
         let out = dir.join(format!("r{n}"));
         ok(
             n,
-            &["run", "--restart", s(&v4), "--out", s(&out), "--quiet"],
+            &["run", "--restart", s(ckpt), "--out", s(&out), "--quiet"],
         );
-        let j = summary(&out);
-        assert_eq!(j["restarted_from"]["step"], 76);
-        let mass = j["mass"]["final"].as_f64().unwrap();
-        assert!(
-            (mass - stored).abs() <= 1e-12 * stored,
-            "v4 1→{n}: mass {mass} against the stored {stored}"
-        );
-        assert_close(&full, &out, 1e-12, &format!("v4 1→{n}"));
+        assert_eq!(summary(&out)["restarted_from"]["step"], step);
+        assert_close(&full, &out, 1e-12, &format!("{} 1→{n}", ckpt.display()));
+        outs.push(out);
     }
     let c = files(&full, "checkpoint_");
     let f = hdf5::File::open(&c[0]).unwrap();
     let version: u64 = f.attr("version").unwrap().read_scalar().unwrap();
-    let (_, _, cols) = common::checkpoint_table(&f);
     assert_eq!(version, 6);
-    assert!(!cols.iter().any(|c| c == "mass"), "{cols:?}");
-    let _ = std::fs::remove_dir_all(&dir);
+    (outs, f)
 }
 
 /// A checkpoint of format version 5 (`tests/data/checkpoint_v5_kinds.h5`, written by
@@ -433,44 +455,29 @@ fn version_4_checkpoint_restarts() {
 #[test]
 fn version_5_checkpoint_restarts_its_kinds() {
     let dir = temp_dir("restart-v5");
-    let sc = dir.join("scene.toml");
-    std::fs::write(&sc, kinds_scene()).unwrap();
-    let full = dir.join("full");
-    ok(1, &["run", s(&sc), "--out", s(&full), "--quiet"]);
-    let v5 = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/checkpoint_v5_kinds.h5");
+    let (v5, f) = fixture("checkpoint_v5_kinds.h5", 5);
     let stored: std::collections::BTreeMap<i64, f64> = {
-        let f = hdf5::File::open(&v5).unwrap();
-        let version: u64 = f.attr("version").unwrap().read_scalar().unwrap();
-        assert_eq!(version, 5);
         let (v, w, cols) = common::checkpoint_table(&f);
         let at = |name: &str| cols.iter().position(|c| c == name).unwrap();
         v.chunks(w)
             .map(|r| (r[at("id")] as i64, r[at("material")]))
             .collect()
     };
-    for n in [1, 2] {
-        let out = dir.join(format!("r{n}"));
-        ok(
-            n,
-            &["run", "--restart", s(&v5), "--out", s(&out), "--quiet"],
-        );
-        assert_eq!(summary(&out)["restarted_from"]["step"], 76);
-        assert_close(&full, &out, 1e-12, &format!("v5 1→{n}"));
-        let material = common::scalar_by_id(&last_snapshot(&out), "material");
+    drop(f);
+    let (outs, f) = fixture_restarts(&dir, &kinds_scene(), &v5, 76);
+    for (n, out) in outs.iter().enumerate() {
+        let material = common::scalar_by_id(&last_snapshot(out), "material");
         assert_eq!(material.len(), stored.len());
         for (id, _, m) in material {
             assert_eq!(
                 Some(&m),
                 stored.get(&id),
-                "v5 1→{n}: particle {id}'s material"
+                "v5 1→{}: particle {id}'s material",
+                n + 1
             );
         }
     }
-    let c = files(&full, "checkpoint_");
-    let f = hdf5::File::open(&c[0]).unwrap();
-    let version: u64 = f.attr("version").unwrap().read_scalar().unwrap();
     let (_, _, cols) = common::checkpoint_table(&f);
-    assert_eq!(version, 6);
     assert!(!cols.iter().any(|c| c == "vol0" || c == "vol"), "{cols:?}");
     let material: Vec<u64> = f.attr("kind_material").unwrap().read_raw().unwrap();
     let vol0: Vec<f64> = f.attr("kind_vol0").unwrap().read_raw().unwrap();

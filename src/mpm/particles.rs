@@ -618,7 +618,17 @@ pub struct Volumes<'a, const D: usize> {
     pub kind: &'a [u16],
 }
 
-impl<const D: usize> Volumes<'_, D> {
+impl<'a, const D: usize> Volumes<'a, D> {
+    /// The volumes of `parts`, of `kinds`.
+    pub fn of(kinds: &'a Kinds, parts: &'a Particles<D>) -> Self {
+        Volumes {
+            vol: &parts.vol,
+            def_grad: &parts.def_grad,
+            kind_vol0: &kinds.vol0,
+            kind: &parts.kind,
+        }
+    }
+
     #[inline(always)]
     pub fn get(&self, p: usize) -> f64 {
         volume_of(self.vol, self.def_grad, (self.kind_vol0, self.kind), p)
@@ -633,7 +643,15 @@ pub struct Masses<'a> {
     pub kind: &'a [u16],
 }
 
-impl Masses<'_> {
+impl<'a> Masses<'a> {
+    /// The masses of particles of kinds `kind` (of `kinds`).
+    pub fn of(kinds: &'a Kinds, kind: &'a [u16]) -> Self {
+        Masses {
+            kind_mass: &kinds.mass,
+            kind,
+        }
+    }
+
     #[inline(always)]
     pub fn get(&self, p: usize) -> f64 {
         mass_of(self.kind_mass, self.kind, p)

@@ -1591,16 +1591,8 @@ impl<'c, const D: usize> Solver<'c, D> {
             stress: &self.parts.stress,
             def_grad: &self.parts.def_grad,
             kind: &self.parts.kind,
-            vol: particles::Volumes {
-                vol: &self.parts.vol,
-                def_grad: &self.parts.def_grad,
-                kind_vol0: &self.kinds.vol0,
-                kind: &self.parts.kind,
-            },
-            mass: particles::Masses {
-                kind_mass: &self.kinds.mass,
-                kind: &self.parts.kind,
-            },
+            vol: particles::Volumes::of(&self.kinds, &self.parts),
+            mass: particles::Masses::of(&self.kinds, &self.parts.kind),
             x0: &self.parts.x0,
             half: &self.parts.half,
             tile: &self.ptile,
@@ -2043,10 +2035,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         ctx.walls = self.has_walls();
         let parts = crate::mpm::remap::RemapParts {
             x: &self.parts.x,
-            mass: particles::Masses {
-                kind_mass: &self.kinds.mass,
-                kind: &self.parts.kind,
-            },
+            mass: particles::Masses::of(&self.kinds, &self.parts.kind),
             x0: &self.parts.x0,
             half: &self.parts.half,
             tile: &self.ptile,

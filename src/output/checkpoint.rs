@@ -937,23 +937,7 @@ pub fn read<const D: usize>(
     let f = open(path)?;
     let rows = Rows::open::<D>(&f, header, layout, carries)?;
     if !rows.carries.vol0 {
-        let n = kinds.material.len();
-        let material: Vec<u64> = attr_vec(&f, path, "kind_material", n)?;
-        let vol0: Vec<f64> = attr_vec(&f, path, "kind_vol0", n)?;
-        let same = material
-            .iter()
-            .zip(&kinds.material)
-            .all(|(&a, &b)| a == u64::from(b))
-            && vol0
-                .iter()
-                .zip(&kinds.vol0)
-                .all(|(a, b)| a.to_bits() == b.to_bits());
-        if !same {
-            return Err(format!(
-                "{p}: damaged checkpoint: attributes `kind_material` {material:?} and `kind_vol0` {vol0:?} are not the kinds of particle of the stored scene ({:?}, {:?})",
-                kinds.material, kinds.vol0
-            ));
-        }
+        same_kinds(&f, path, kinds)?;
     }
     // Blocks the grid cannot have (too narrow for the ghost layers) were not written
     // by a run: refused rather than silently read as uniform blocks.
@@ -1030,6 +1014,31 @@ pub fn read<const D: usize>(
         run,
         rows_read,
     })
+}
+
+/// A checkpoint of version 6 or later names the stored scene's kinds of particle
+/// (`kind_material`, `kind_vol0`), which its `kind` column indexes.
+fn same_kinds(f: &hdf5::File, path: &Path, kinds: &Kinds) -> Result<(), String> {
+    let n = kinds.material.len();
+    let material: Vec<u64> = attr_vec(f, path, "kind_material", n)?;
+    let vol0: Vec<f64> = attr_vec(f, path, "kind_vol0", n)?;
+    let same = material
+        .iter()
+        .zip(&kinds.material)
+        .all(|(&a, &b)| a == u64::from(b))
+        && vol0
+            .iter()
+            .zip(&kinds.vol0)
+            .all(|(a, b)| a.to_bits() == b.to_bits());
+    if same {
+        return Ok(());
+    }
+    Err(format!(
+        "{}: damaged checkpoint: attributes `kind_material` {material:?} and `kind_vol0` {vol0:?} are not the kinds of particle of the stored scene ({:?}, {:?})",
+        path.display(),
+        kinds.material,
+        kinds.vol0
+    ))
 }
 
 /// The `particles` dataset of a checkpoint whose records are those `carries` needs.

@@ -18,22 +18,8 @@ impl NeoHookean {
     #[inline]
     pub fn kirchhoff<const D: usize>(&self, f: &Mat<D>) -> (Mat<D>, f64) {
         let j = det(f);
-        let c = self.lambda * j.ln() - self.mu;
-        // As `stress` forms it, without the division.
-        let off = 0.0 * c;
-        let mut s = Mat::<D>::zeros();
-        for i in 0..D {
-            for k in i..D {
-                let mut b = f[(i, 0)] * f[(k, 0)];
-                for m in 1..D {
-                    b += f[(i, m)] * f[(k, m)];
-                }
-                let v = b * self.mu + if i == k { c } else { off };
-                s[(i, k)] = v;
-                s[(k, i)] = v;
-            }
-        }
-        (s, j)
+        // Times 1: exact, so `μ F Fᵀ + c I` itself (and the compiler drops it).
+        (self.scaled_tau(f, self.lambda * j.ln() - self.mu, 1.0), j)
     }
 
     #[inline]
@@ -41,13 +27,16 @@ impl NeoHookean {
         let j = det(f);
         // One division, not D² (a division takes several times a multiplication's
         // issue slots, and this runs per particle and step): round-off apart, the same.
-        let inv_j = 1.0 / j;
-        let c = self.lambda * j.ln() - self.mu;
-        // `(μ F Fᵀ + c I) / J` entry by entry, the upper triangle mirrored: nalgebra's
-        // product went through an out-of-line `gemv` per column in 3D (1.5 % of the
-        // 3D block drop's step) and formed both triangles. The same operations in the
-        // same order, so the same bits: the sums over `m` in ascending order, and off
-        // the diagonal `I c` adds `0 c` (−0 for c < 0), as the identity's product does.
+        self.scaled_tau(f, self.lambda * j.ln() - self.mu, 1.0 / j)
+    }
+
+    /// `(μ F Fᵀ + c I) · scale`, entry by entry, the upper triangle mirrored:
+    /// nalgebra's product went through an out-of-line `gemv` per column in 3D (1.5 % of
+    /// the 3D block drop's step) and formed both triangles. The same operations in the
+    /// same order, so the same bits: the sums over `m` in ascending order, and off the
+    /// diagonal `I c` adds `0 c` (−0 for c < 0), as the identity's product does.
+    #[inline(always)]
+    fn scaled_tau<const D: usize>(&self, f: &Mat<D>, c: f64, scale: f64) -> Mat<D> {
         let off = 0.0 * c;
         let mut s = Mat::<D>::zeros();
         for i in 0..D {
@@ -56,7 +45,7 @@ impl NeoHookean {
                 for m in 1..D {
                     b += f[(i, m)] * f[(k, m)];
                 }
-                let v = (b * self.mu + if i == k { c } else { off }) * inv_j;
+                let v = (b * self.mu + if i == k { c } else { off }) * scale;
                 s[(i, k)] = v;
                 s[(k, i)] = v;
             }
