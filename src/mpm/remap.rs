@@ -14,7 +14,9 @@
 //! round-off.
 
 use crate::mpm::kernel::lanes::{self, HALF, LANES, QUARTER};
-use crate::mpm::kernel::{self, clip_at_slip_walls, Ctx, GridPtr, Kern, NodeData, Run, SlabOrder};
+use crate::mpm::kernel::{
+    self, clip_at_slip_walls, CellAt, Ctx, GridPtr, Kern, NodeData, Run, SlabOrder,
+};
 use crate::physics::tensor::Vector;
 
 /// Read-only particle arrays of the remap.
@@ -25,8 +27,6 @@ pub struct RemapParts<'a, const D: usize> {
     pub half: &'a [[f64; D]],
     /// Storage index of each particle's cell's lower corner node.
     pub tile: &'a [u32],
-    /// Each particle's local coordinate in its cell (see `kernel::Slices::xi`).
-    pub xi: &'a [[f64; D]],
     /// The external force per unit mass the step's scatter kept, or empty.
     pub accel: &'a [Vector<D>],
 }
@@ -160,6 +160,7 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
     let mut nd = NodeData::<D, N>::new();
     let mut sum = [[0.0; N]; D];
     let mut run = Run::<D, NA, N>::new();
+    let mut cell = CellAt::<D>::new();
     let order = &slabs.order[slabs.start[first]..slabs.start[first + 1]];
     // Hat functions: eight (or four, or two) particles of a run at a time, their weights
     // and interpolated velocities over lanes (`kernel::lanes`), the rest of each
@@ -182,15 +183,16 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
                 }
                 if !run.at_wall() {
                     let ps = &order[i..i + b];
+                    let c = cell.of(ctx, tile);
                     match b {
-                        LANES => {
-                            remap_lanes::<D, N, LANES>(ctx, parts, pp, ps, &nd, m, &mut sum, &mut t)
-                        }
-                        HALF => {
-                            remap_lanes::<D, N, HALF>(ctx, parts, pp, ps, &nd, m, &mut sum, &mut t)
-                        }
+                        LANES => remap_lanes::<D, N, LANES>(
+                            ctx, parts, pp, ps, c, &nd, m, &mut sum, &mut t,
+                        ),
+                        HALF => remap_lanes::<D, N, HALF>(
+                            ctx, parts, pp, ps, c, &nd, m, &mut sum, &mut t,
+                        ),
                         _ => remap_lanes::<D, N, QUARTER>(
-                            ctx, parts, pp, ps, &nd, m, &mut sum, &mut t,
+                            ctx, parts, pp, ps, c, &nd, m, &mut sum, &mut t,
                         ),
                     }
                     i += b;
@@ -202,7 +204,8 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
         i += 1;
         assert!(p < pp.len, "slab order names particle {p} of {}", pp.len);
         let half = if ctx.gimp { Some(&parts.half[p]) } else { None };
-        let (mut k, below, w) = ctx.weights::<NA, N>(&parts.x[p], half, &parts.xi[p]);
+        let xi = ctx.local(&parts.x[p], cell.of(ctx, parts.tile[p]));
+        let (mut k, below, w) = ctx.weights::<NA, N>(&parts.x[p], half, &xi);
         if run.is_new(parts.tile[p], below) {
             if run.started() {
                 add_momentum(grid, m.record, &run.idx, &mut sum);
@@ -269,16 +272,27 @@ fn remap_lanes<const D: usize, const N: usize, const B: usize>(
     parts: &RemapParts<'_, D>,
     pp: ParticlePtr<D>,
     ps: &[u32],
+    cell: &[f64; D],
     nd: &NodeData<D, N>,
     m: RemapMode,
     sum: &mut [[f64; N]; D],
     t: &mut RemapTally,
 ) {
     let ps: &[u32; B] = ps.try_into().expect("a full batch");
+    // `Ctx::local` lane by lane: from a contiguous batch of positions, as the slab
+    // order of sorted particles mostly gives (whole vectors), else one by one.
     let mut xi = [[0.0; B]; D];
-    for (l, &p) in ps.iter().enumerate() {
-        for a in 0..D {
-            xi[a][l] = parts.xi[p as usize][a];
+    let p0 = ps[0] as usize;
+    let contiguous = (1..B).all(|l| ps[l] as usize == p0 + l);
+    match parts.x.get(p0..p0 + B).filter(|_| contiguous) {
+        Some(xs) => lanes::local_lanes(ctx, xs.try_into().expect("B positions"), cell, &mut xi),
+        None => {
+            for a in 0..D {
+                let (lower, inv_h, c) = (ctx.geom.lower[a], ctx.geom.inv_h[a], cell[a]);
+                for (l, &p) in ps.iter().enumerate() {
+                    xi[a][l] = (parts.x[p as usize][a] - lower) * inv_h - c;
+                }
+            }
         }
     }
     let (vn, dv, sh) = lanes::velocities::<D, N, B>(ctx, &xi, nd);
@@ -386,14 +400,14 @@ mod tests {
                     (LANES, false, true),
                 ] {
                     let n = LANES;
-                    let xi: Vec<[f64; D]> = (0..n)
+                    // In cell 3 along every axis (h = 0.1), one at its lower face.
+                    let cell = [3.0; D];
+                    let x: Vec<Vector<D>> = (0..n)
                         .map(|l| {
-                            std::array::from_fn(|a| if l == 0 && a == 0 { 0.0 } else { rng.f64() })
+                            Vector::<D>::from_fn(|a, _| {
+                                0.3 + 0.1 * if l == 0 && a == 0 { 0.0 } else { rng.f64() }
+                            })
                         })
-                        .collect();
-                    let x: Vec<Vector<D>> = xi
-                        .iter()
-                        .map(|c| Vector::<D>::from_fn(|a, _| 0.3 + 0.1 * c[a]))
                         .collect();
                     // A kind per particle, so that the masses differ.
                     let kind_mass: Vec<f64> = (0..n).map(|_| 1e-4 * (0.5 + rng.f64())).collect();
@@ -415,7 +429,6 @@ mod tests {
                         x0: &x,
                         half: &[],
                         tile: &tile,
-                        xi: &xi,
                         accel: &accel,
                     };
                     let mut nd = NodeData::<D, N>::new();
@@ -456,20 +469,20 @@ mod tests {
                     let pa = ptr(&mut va, &mut dxa);
                     for p in 0..width {
                         let (k, _, _): (Kern<D, N>, _, _) =
-                            ctx.weights::<2, N>(&x[p], None, &xi[p]);
+                            ctx.weights::<2, N>(&x[p], None, &ctx.local(&x[p], &cell));
                         remap_one(&ctx, &parts, pa, p, &k, &nd, m, &mut suma, &mut ta);
                     }
                     let pb = ptr(&mut vb, &mut dxb);
                     let ps: Vec<u32> = (0..width as u32).collect();
                     match width {
                         LANES => remap_lanes::<D, N, LANES>(
-                            &ctx, &parts, pb, &ps, &nd, m, &mut sumb, &mut tb,
+                            &ctx, &parts, pb, &ps, &cell, &nd, m, &mut sumb, &mut tb,
                         ),
                         HALF => remap_lanes::<D, N, HALF>(
-                            &ctx, &parts, pb, &ps, &nd, m, &mut sumb, &mut tb,
+                            &ctx, &parts, pb, &ps, &cell, &nd, m, &mut sumb, &mut tb,
                         ),
                         _ => remap_lanes::<D, N, QUARTER>(
-                            &ctx, &parts, pb, &ps, &nd, m, &mut sumb, &mut tb,
+                            &ctx, &parts, pb, &ps, &cell, &nd, m, &mut sumb, &mut tb,
                         ),
                     }
                     let what = format!(

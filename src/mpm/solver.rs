@@ -49,7 +49,6 @@ macro_rules! slices {
             parts: $s.parts.slices(),
             dx: &mut $s.dx,
             tile: &$s.ptile,
-            xi: &$s.pxi,
             accel: &$s.accel,
         }
     };
@@ -160,11 +159,9 @@ pub struct Solver<'c, const D: usize> {
     /// Which tiles of the local node box are stored, and where.
     pub tiles: Tiles<D>,
     /// Per particle: storage index of its cell's lower corner node (set by a scatter
-    /// of moved particles, valid until they move again).
+    /// of moved particles, valid until they move again). The particle loops form the
+    /// local coordinate in that cell from the position ([`kernel::Ctx::local`]).
     ptile: Vec<u32>,
-    /// Per particle: its local coordinate in its cell (`Geom::locate`), set and valid
-    /// with `ptile`; the particle loops' hat functions start from it.
-    pxi: Vec<[f64; D]>,
     /// Scatter records, `sw` numbers per node laid out as [`NodeRecord`] says; once
     /// the grid velocities are formed, two-step schemes' L̄ and v̄ ([`avg_of`]).
     scat: Vec<f64>,
@@ -201,7 +198,7 @@ pub struct Solver<'c, const D: usize> {
     /// Per chunk of [`LOCATE_CHUNK`] particles, whether one left the grid or its block
     /// ([`Solver::wrap_and_flag`]).
     flagged: Vec<bool>,
-    /// Whether `pxi`, the slab order's slabs and `cell_runs` hold the tile pass's
+    /// Whether the slab order's slabs and `cell_runs` hold the tile pass's
     /// location of every particle as it is now: `relocate` locates them with the wrap
     /// (one read of the positions, not two) and keeps it if none left or arrived; the
     /// sort, a new layout and the next tile pass, which uses it, end it.
@@ -840,9 +837,8 @@ impl<const D: usize> CellRun<D> {
     }
 }
 
-/// The tile pass's location of the particles of one chunk, in order: each one's local
-/// coordinate, and in `runs` where a run of particles in one cell starts (the chunk's
-/// first particle starts one).
+/// The tile pass's location of the particles of one chunk, in order: in `runs`, where
+/// a run of particles in one cell starts (the chunk's first particle starts one).
 struct ChunkLocator<'a, const D: usize> {
     geom: &'a Geom<D>,
     /// The chunk's first particle.
@@ -895,29 +891,26 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
         }
     }
 
-    /// Locate the chunk's particle `p`, at `x`, into its `xi`.
+    /// Locate the chunk's particle `p`, at `x`.
     #[inline(always)]
-    fn locate(&mut self, p: usize, x: &Vector<D>, xi: &mut [f64; D]) {
-        let (c, f) = self.geom.locate(&std::array::from_fn(|a| x[a]));
-        self.store(p, c, f, xi);
+    fn locate(&mut self, p: usize, x: &Vector<D>) {
+        let (c, _) = self.geom.locate(&std::array::from_fn(|a| x[a]));
+        self.store(p, c);
     }
 
     /// [`ChunkLocator::locate`] of a particle whose grid coordinates `s` (per axis
     /// `(x − lower) / h`, as `Geom::locate` forms them) lie in the block's cells
     /// ([`block_coordinates`]): they are then at least 0 and below the cell count,
     /// where `Geom::locate`'s floor is the truncation and its clamp changes nothing,
-    /// so this is its cell and ξ without either (a fifth of the tile pass's
-    /// instructions).
+    /// so this is its cell without either (a fifth of the tile pass's instructions).
     #[inline(always)]
-    fn locate_inside(&mut self, p: usize, s: &[f64; D], xi: &mut [f64; D]) {
+    fn locate_inside(&mut self, p: usize, s: &[f64; D]) {
         let mut c = [0i64; D];
-        let mut f = [0.0; D];
         for a in 0..D {
             debug_assert!(s[a] >= 0.0 && s[a] < self.geom.cells[a] as f64);
             c[a] = s[a] as i64;
-            f[a] = s[a] - c[a] as f64;
         }
-        self.store(p, c, f, xi);
+        self.store(p, c);
     }
 
     /// [`block_coordinates`] and [`ChunkLocator::locate_inside`] of the `L` particles
@@ -930,7 +923,6 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
         p0: usize,
         xs: &[Vector<D>; L],
         (lo, hi): (&[usize; D], &[usize; D]),
-        xi: &mut [[f64; D]; L],
     ) -> bool {
         let geom = self.geom;
         let mut s = [[0.0; L]; D];
@@ -956,7 +948,6 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
                 // it), so `s` is finite and truncates to an integer in `[0, hi[a])`,
                 // which an i64 holds: `to_int_unchecked`'s condition.
                 c[a][l] = unsafe { s[a][l].to_int_unchecked::<i64>() };
-                xi[l][a] = s[a][l] - c[a][l] as f64;
             }
         }
         // A run starts where a lane's cell differs from the one before it: a bit per
@@ -982,11 +973,9 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
         true
     }
 
-    /// Store particle `p`'s local coordinate `f`, and start a run where its cell `c`
-    /// differs from the last particle's.
+    /// Start a run where particle `p`'s cell `c` differs from the last particle's.
     #[inline(always)]
-    fn store(&mut self, p: usize, c: [i64; D], f: [f64; D], xi: &mut [f64; D]) {
-        *xi = f;
+    fn store(&mut self, p: usize, c: [i64; D]) {
         if c != self.prev {
             self.prev = c;
             self.runs.push(CellRun::new(self.base + p, c));
@@ -1212,7 +1201,6 @@ impl<'c, const D: usize> Solver<'c, D> {
             max_speed: 0.0,
             tiles,
             ptile: Vec::new(),
-            pxi: Vec::new(),
             scat: Vec::new(),
             sw: 0,
             vel: Vec::new(),
@@ -1388,17 +1376,10 @@ impl<'c, const D: usize> Solver<'c, D> {
             self.locate_all();
         } else if cfg!(debug_assertions) {
             // The tests' builds check that claim: locating again changes nothing.
-            let pxi = self.pxi.clone();
             let runs = self.cell_runs.clone();
             self.locate_all();
-            let same_xi = pxi.len() == self.pxi.len()
-                && pxi
-                    .iter()
-                    .flatten()
-                    .zip(self.pxi.iter().flatten())
-                    .all(|(a, b)| a.to_bits() == b.to_bits());
             assert!(
-                same_xi && runs == self.cell_runs,
+                runs == self.cell_runs,
                 "the particles' location kept from the wrap is stale at step {}",
                 self.step
             );
@@ -1450,22 +1431,22 @@ impl<'c, const D: usize> Solver<'c, D> {
             });
     }
 
-    /// The tile pass's parallel part: locate every particle, keep ξ, and list per chunk of particles where a run of particles in one cell starts (the
-    /// chunk's first particle starts one). Chunks are fixed, so the runs do not depend
-    /// on the thread count.
+    /// The tile pass's parallel part: locate every particle and list per chunk of
+    /// particles where a run of particles in one cell starts (the chunk's first
+    /// particle starts one). Chunks are fixed, so the runs do not depend on the thread
+    /// count.
     fn locate_all(&mut self) {
         let chunks = self.begin_locate();
         let geom = &self.geom;
         self.parts
             .x
             .par_chunks(LOCATE_CHUNK)
-            .zip(self.pxi.par_chunks_mut(LOCATE_CHUNK))
             .zip(self.cell_runs.par_iter_mut())
             .enumerate()
-            .for_each(|(k, ((x, xi), runs))| {
+            .for_each(|(k, (x, runs))| {
                 let mut loc = ChunkLocator::new(geom, k, runs);
                 for (p, x) in x.iter().enumerate() {
-                    loc.locate(p, x, &mut xi[p]);
+                    loc.locate(p, x);
                 }
             });
         self.cell_runs.truncate(chunks);
@@ -1478,10 +1459,8 @@ impl<'c, const D: usize> Solver<'c, D> {
         // spare, [`particles::reserve`]): no more, and it grows when they do.
         let room = self.parts.x.capacity().max(n);
         particles::reserve_exact(&mut self.ptile, room);
-        particles::reserve_exact(&mut self.pxi, room);
         // Every entry is written below: only new ones need a value (no serial fill).
         self.ptile.resize(n, 0);
-        self.pxi.resize(n, [0.0; D]);
         let chunks = n.div_ceil(LOCATE_CHUNK);
         if self.cell_runs.len() < chunks {
             self.cell_runs.resize_with(chunks, Vec::new);
@@ -1596,7 +1575,6 @@ impl<'c, const D: usize> Solver<'c, D> {
             x0: &self.parts.x0,
             half: &self.parts.half,
             tile: &self.ptile,
-            xi: &self.pxi,
             src: &self.xpic_term,
             accel: if forces { &self.accel } else { &[] },
         };
@@ -2039,7 +2017,6 @@ impl<'c, const D: usize> Solver<'c, D> {
             x0: &self.parts.x0,
             half: &self.parts.half,
             tile: &self.ptile,
-            xi: &self.pxi,
             accel: &self.accel,
         };
         let m = crate::mpm::remap::RemapMode {
@@ -2162,22 +2139,18 @@ impl<'c, const D: usize> Solver<'c, D> {
             .x
             .par_chunks_mut(LOCATE_CHUNK)
             .zip(self.flagged.par_iter_mut())
-            .zip(self.pxi.par_chunks_mut(LOCATE_CHUNK))
             .zip(self.cell_runs.par_iter_mut())
             .enumerate()
-            .for_each(|(k, (((xs, flag), xi), runs))| {
+            .for_each(|(k, ((xs, flag), runs))| {
                 let mut loc = ChunkLocator::new(geom, k, runs);
                 // One particle: whether it left the block.
-                let one = |loc: &mut ChunkLocator<'_, D>,
-                           p: usize,
-                           x: &mut Vector<D>,
-                           xi: &mut [f64; D]| {
+                let one = |loc: &mut ChunkLocator<'_, D>, p: usize, x: &mut Vector<D>| {
                     wrap_periodic(geom, x);
                     // In the block is on the grid: one test for both.
                     let (s, inside) = block_coordinates(geom, lo, hi, x);
                     // A flagged chunk is located again after the exchange.
                     if inside {
-                        loc.locate_inside(p, &s, xi);
+                        loc.locate_inside(p, &s);
                     }
                     !inside
                 };
@@ -2193,16 +2166,14 @@ impl<'c, const D: usize> Solver<'c, D> {
                                 .iter_mut()
                                 .for_each(|x| wrap_periodic(geom, x));
                         }
-                        let batch = <&[Vector<D>; LANES]>::try_from(&xs[r.clone()]);
-                        let xi = <&mut [[f64; D]; LANES]>::try_from(&mut xi[r]);
-                        let (batch, xi) = (batch.unwrap(), xi.unwrap());
-                        if loc.locate_lanes(p, batch, (lo, hi), xi) {
+                        let batch = <&[Vector<D>; LANES]>::try_from(&xs[r]).unwrap();
+                        if loc.locate_lanes(p, batch, (lo, hi)) {
                             p += LANES;
                             continue;
                         }
                     }
                     for q in p..p + b {
-                        *flag |= one(&mut loc, q, &mut xs[q], &mut xi[q]);
+                        *flag |= one(&mut loc, q, &mut xs[q]);
                     }
                     p += b;
                 }
@@ -2411,9 +2382,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.block = block;
         self.tiles = tiles;
         self.ptile.clear();
-        self.pxi.clear();
         particles::reserve(&mut self.ptile, self.parts.len());
-        particles::reserve(&mut self.pxi, self.parts.len());
         self.size_fields();
         self.rebalances += 1;
         // Arrival order depends on the old owners: sort for the same order as a run
@@ -2428,44 +2397,70 @@ impl<'c, const D: usize> Solver<'c, D> {
         let located = std::mem::take(&mut self.located);
         self.sorts += 1;
         let n = self.parts.len();
-        // Each particle's cell as one number. They are kept in `pxi`, whose values are
-        // stale once particles move and rewritten by the next tile pass before any
-        // read: no memory of their own (the bits of a cell number in every word).
+        // Each particle's cell as one number, the last axis first as the order by
+        // cell is (a number in mixed radix whose digits are the cell's coordinates).
+        // Counted from the block's first cell it mostly fits 32 bits, and is then
+        // kept in `ptile`, with the slab order's array as the radix sort's room: both
+        // are stale once particles move and rebuilt by the next tile pass before any
+        // read, so the keys need no memory of their own.
+        let (lo, hi) = (&self.block.cell_lo, &self.block.cell_hi);
+        let mut stride = [0u64; D];
+        let mut span = Some(1u64);
+        for a in 0..D {
+            stride[a] = span.unwrap_or(0);
+            span = span.and_then(|s| s.checked_mul((hi[a] - lo[a]) as u64));
+        }
         let geom = &self.geom;
-        let cell_key = |c: &[i64; D]| {
-            let mut key = 0u64;
-            for a in (0..D).rev() {
-                key = key * (geom.cells[a] as u64 + 1) + c[a] as u64;
+        let block_key = |c: &[i64; D]| {
+            let mut key = 0;
+            for a in 0..D {
+                let digit = c[a] - lo[a] as i64;
+                assert!(
+                    (0..(hi[a] - lo[a]) as i64).contains(&digit),
+                    "a particle in cell {c:?} is outside its block {lo:?} .. {hi:?}"
+                );
+                key += digit as u64 * stride[a];
             }
-            [f64::from_bits(key); D]
+            key
         };
-        particles::reserve(&mut self.pxi, n);
-        self.pxi.resize(n, [0.0; D]);
-        let runs = &self.cell_runs;
-        self.pxi
-            .par_chunks_mut(LOCATE_CHUNK)
-            .zip(self.parts.x.par_chunks(LOCATE_CHUNK))
-            .enumerate()
-            .for_each(|(k, (keys, x))| {
-                if !located {
-                    for (key, x) in keys.iter_mut().zip(x) {
-                        *key = cell_key(&geom.locate(&std::array::from_fn(|a| x[a])).0);
+        let cell_of = |p: usize| geom.locate(&std::array::from_fn(|a| self.parts.x[p][a])).0;
+        if span.is_some_and(|s| s <= 1 << 32) {
+            let keys = &mut self.ptile;
+            particles::reserve(keys, n);
+            keys.resize(n, 0);
+            let runs = &self.cell_runs;
+            keys.par_chunks_mut(LOCATE_CHUNK)
+                .enumerate()
+                .for_each(|(k, keys)| {
+                    let base = k * LOCATE_CHUNK;
+                    if !located {
+                        for (p, key) in keys.iter_mut().enumerate() {
+                            *key = block_key(&cell_of(base + p)) as u32;
+                        }
+                        return;
                     }
-                    return;
-                }
-                // A key per run, not a location per particle.
-                let base = k * LOCATE_CHUNK;
-                for (r, run) in runs[k].iter().enumerate() {
-                    let end = runs[k]
-                        .get(r + 1)
-                        .map_or(keys.len(), |e| e.first as usize - base);
-                    keys[run.first as usize - base..end].fill(cell_key(&run.cell()));
-                }
-            });
-        let keys = &self.pxi;
-        let key = |p: u32| keys[p as usize][0].to_bits();
-        // The radix sort's room in `ptile`, stale now too (a u32 per particle).
-        particles::order_by_key_then_id(key, &self.parts.id, &mut self.perm, &mut self.ptile);
+                    // A key per run, not a location per particle.
+                    for (r, run) in runs[k].iter().enumerate() {
+                        let end = runs[k]
+                            .get(r + 1)
+                            .map_or(keys.len(), |e| e.first as usize - base);
+                        keys[run.first as usize - base..end].fill(block_key(&run.cell()) as u32);
+                    }
+                });
+            let keys = &self.ptile;
+            let key = |p: u32| u64::from(keys[p as usize]);
+            particles::order_by_key_then_id(
+                key,
+                &self.parts.id,
+                &mut self.perm,
+                &mut self.slabs.order,
+            );
+        } else {
+            // A block of more than 2^32 cells (sparse): each key formed where the sort
+            // asks for it, `ptile` the room.
+            let key = |p: u32| block_key(&cell_of(p as usize));
+            particles::order_by_key_then_id(key, &self.parts.id, &mut self.perm, &mut self.ptile);
+        }
         let perm = std::mem::take(&mut self.perm);
         // A benchmark's memo goes with its particles where it has one entry each:
         // formed again, its factors cost an `atan2` and sines per particle (the
@@ -3059,6 +3054,40 @@ velocity_gradient = {{ value = {grad}, about = {c} }}
         compare(&tight, &huge, "gimp 3D");
     }
 
+    /// The particle loops form the hat functions' local coordinate from the position
+    /// and the cell of the tile pass's corner node (`Ctx::cell_of`, `Ctx::local`):
+    /// that cell is `Geom::locate`'s and that coordinate its ξ, to the bit, for every
+    /// particle after steps that moved them across cells and a sort, in a tight
+    /// box and in a huge one (a block of more than 2^32 cells in 3D, whose sort forms
+    /// its keys where it asks for them).
+    #[test]
+    fn the_loops_local_coordinate_is_geom_locate_s() {
+        fn check<const D: usize>(upper: f64, cells: usize) {
+            let (mut s, _) = run::<D>(upper, cells, "mpmcg", 25);
+            s.sort();
+            s.activate_tiles();
+            let ctx = ctx!(s);
+            for (p, x) in s.parts.x.iter().enumerate() {
+                let (c, xi) = s.geom.locate(&std::array::from_fn(|a| x[a]));
+                let cell = ctx.cell_of(s.ptile[p]);
+                assert_eq!(
+                    cell,
+                    c.map(|c| c as f64),
+                    "{D}D, {cells} cells, particle {p}"
+                );
+                assert_eq!(
+                    ctx.local(x, &cell).map(f64::to_bits),
+                    xi.map(f64::to_bits),
+                    "{D}D, {cells} cells, particle {p}"
+                );
+            }
+        }
+        check::<2>(1.0, 16);
+        check::<2>(4096.0, 65536);
+        check::<3>(1.0, 16);
+        check::<3>(256.0, 4096);
+    }
+
     fn compare<const D: usize>(
         (tight, x0): &(Solver<'static, D>, Vec<Vector<D>>),
         (huge, _): &(Solver<'static, D>, Vec<Vector<D>>),
@@ -3602,7 +3631,7 @@ mod locate_tests {
 
     /// Inside the block is exactly "on the grid and in the block" (NaN, the grid's
     /// faces and beyond, the block's faces included), and an inside particle gets
-    /// `Geom::locate`'s ξ to the bit and the same runs, on bounded and
+    /// `Geom::locate`'s cell, particle by particle, and the same runs, on bounded and
     /// periodic axes, for a block at the grid's edge and one inside it.
     #[test]
     fn inside_particles_locate_as_geom_locate() {
@@ -3640,10 +3669,9 @@ mod locate_tests {
                         continue;
                     }
                     inside_count += 1;
-                    let (mut xi_a, mut xi_b) = ([0.0; 2], [0.0; 2]);
-                    la.locate(p, x, &mut xi_a);
-                    lb.locate_inside(p, &s, &mut xi_b);
-                    assert_eq!(xi_a.map(f64::to_bits), xi_b.map(f64::to_bits), "{x:?}");
+                    la.locate(p, x);
+                    lb.locate_inside(p, &s);
+                    assert_eq!(la.prev, lb.prev, "{x:?}");
                 }
                 assert!(inside_count > 1000, "{inside_count} inside");
                 assert_eq!(runs_a, runs_b);
@@ -3653,7 +3681,7 @@ mod locate_tests {
 
     /// Eight particles at a time ([`ChunkLocator::locate_lanes`]) give what one at a
     /// time gives ([`block_coordinates`], [`ChunkLocator::locate_inside`]): the same
-    /// ξ to the bit and runs, in 2D and 3D, with
+    /// cells and runs, in 2D and 3D, with
     /// runs that start at any lane and span batches; and a batch with a particle
     /// outside the block (beyond a face, on the upper face, NaN) is refused whole,
     /// with nothing stored.
@@ -3692,22 +3720,22 @@ mod locate_tests {
             let mut refused = 0;
             for p0 in (0..xs.len()).step_by(LANES) {
                 let batch: &[Vector<D>; LANES] = xs[p0..p0 + LANES].try_into().unwrap();
-                let mut xi_a = [[-1.0; D]; LANES];
-                let ok = la.locate_lanes(p0, batch, (&lo, &hi), &mut xi_a);
+                let (runs, prev) = (la.runs.len(), la.prev);
+                let ok = la.locate_lanes(p0, batch, (&lo, &hi));
                 let mut all = true;
                 for (l, x) in batch.iter().enumerate() {
                     let (s, inside) = block_coordinates(&geom, &lo, &hi, x);
                     all &= inside;
                     if ok {
-                        let mut xi_b = [0.0; D];
-                        lb.locate_inside(p0 + l, &s, &mut xi_b);
-                        assert_eq!(xi_a[l].map(f64::to_bits), xi_b.map(f64::to_bits));
+                        lb.locate_inside(p0 + l, &s);
                     }
                 }
                 assert_eq!(ok, all, "batch at {p0}");
-                if !ok {
+                if ok {
+                    assert_eq!(la.prev, lb.prev, "batch at {p0}");
+                } else {
                     refused += 1;
-                    assert_eq!(xi_a, [[-1.0; D]; LANES]);
+                    assert_eq!((la.runs.len(), la.prev), (runs, prev));
                 }
             }
             // The planted ones (random positions at a cell's upper face may round

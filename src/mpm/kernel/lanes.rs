@@ -79,33 +79,36 @@ pub fn batch<const D: usize, const N: usize>(
     s: &mut Slices<'_, D>,
     p0: usize,
     width: usize,
+    cell: &[f64; D],
     nd: &NodeData<D, N>,
     m: Pass<'_>,
     t: &mut Tally,
     marks: &mut [f64; LANES],
 ) {
+    #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn of<const D: usize, const N: usize, const B: usize>(
         ctx: &Ctx<'_, D>,
         s: &mut Slices<'_, D>,
         p0: usize,
+        cell: &[f64; D],
         nd: &NodeData<D, N>,
         m: Pass<'_>,
         t: &mut Tally,
         marks: &mut [f64; LANES],
     ) {
         let bad = match m {
-            Pass::Stress(m) => deform_and_move::<D, N, B>(ctx, s, p0, nd, m),
-            Pass::Gather(m) => gather::<D, N, B>(ctx, s, p0, nd, m, &mut t.work),
+            Pass::Stress(m) => deform_and_move::<D, N, B>(ctx, s, p0, cell, nd, m),
+            Pass::Gather(m) => gather::<D, N, B>(ctx, s, p0, cell, nd, m, &mut t.work),
         };
         for l in 0..B {
             marks[l] += bad[l];
         }
     }
     match width {
-        LANES => of::<D, N, LANES>(ctx, s, p0, nd, m, t, marks),
-        HALF => of::<D, N, HALF>(ctx, s, p0, nd, m, t, marks),
-        _ => of::<D, N, QUARTER>(ctx, s, p0, nd, m, t, marks),
+        LANES => of::<D, N, LANES>(ctx, s, p0, cell, nd, m, t, marks),
+        HALF => of::<D, N, HALF>(ctx, s, p0, cell, nd, m, t, marks),
+        _ => of::<D, N, QUARTER>(ctx, s, p0, cell, nd, m, t, marks),
     }
 }
 
@@ -141,15 +144,16 @@ impl<const D: usize, const N: usize, const B: usize> Batch<D, N, B> {
         }
     }
 
-    /// The weights of particles `r` of `s` and, if `two`, their `L̄` from `nd`, in
-    /// place: a batch built and returned (3.4 kB in 3D) was copied by `memcpy` into
-    /// its caller's, 2 % of the 3D step.
+    /// The weights of particles `r` of `s`, in `cell` ([`Ctx::local`]), and, if
+    /// `two`, their `L̄` from `nd`, in place: a batch built and returned (3.4 kB in
+    /// 3D) was copied by `memcpy` into its caller's, 2 % of the 3D step.
     #[inline(always)]
     fn fill(
         &mut self,
         ctx: &Ctx<'_, D>,
         s: &Slices<'_, D>,
         r: Range<usize>,
+        cell: &[f64; D],
         nd: &NodeData<D, N>,
         two: bool,
     ) {
@@ -157,13 +161,9 @@ impl<const D: usize, const N: usize, const B: usize> Batch<D, N, B> {
         // the loads are whole vectors. (Plain loops over fixed arrays throughout:
         // `array::from_fn`'s closures were left as calls, with the lanes spilled
         // around them.)
-        let xs: &[[f64; D]; B] = s.xi[r].try_into().expect("a full batch");
+        let xs: &[Vector<D>; B] = s.parts.x[r].try_into().expect("a full batch");
         let b = self;
-        for l in 0..B {
-            for a in 0..D {
-                b.xi[a][l] = xs[l][a];
-            }
-        }
+        local_lanes(ctx, xs, cell, &mut b.xi);
         b.alpha = weights_into::<D, N, B>(ctx, &b.xi, &mut b.sh, &mut b.g);
         // `lbar_at`: the nodal L̄ at the particle, all nodes and the upper side per
         // column.
@@ -373,12 +373,13 @@ pub fn deform_and_move<const D: usize, const N: usize, const B: usize>(
     ctx: &Ctx<'_, D>,
     s: &mut Slices<'_, D>,
     p0: usize,
+    cell: &[f64; D],
     nd: &NodeData<D, N>,
     m: &StressMode,
 ) -> [f64; B] {
     let r = p0..p0 + B;
     let mut batch = Batch::<D, N, B>::zeroed();
-    batch.fill(ctx, s, r.clone(), nd, m.two_step);
+    batch.fill(ctx, s, r.clone(), cell, nd, m.two_step);
     let bad = batch.deform(s, r.clone(), nd, m.two_step, m.dt);
     if m.moves {
         let u = batch.moving_velocity(ctx, nd);
@@ -404,13 +405,21 @@ pub fn gather<const D: usize, const N: usize, const B: usize>(
     ctx: &Ctx<'_, D>,
     s: &mut Slices<'_, D>,
     p0: usize,
+    cell: &[f64; D],
     nd: &NodeData<D, N>,
     m: &GatherMode,
     work: &mut f64,
 ) -> [f64; B] {
     let r = p0..p0 + B;
     let mut batch = Batch::<D, N, B>::zeroed();
-    batch.fill(ctx, s, r.clone(), nd, m.two_step && (m.recon || m.stress));
+    batch.fill(
+        ctx,
+        s,
+        r.clone(),
+        cell,
+        nd,
+        m.two_step && (m.recon || m.stress),
+    );
     let (vn, dv) = interpolate(&batch.sh, nd);
     let vs: &mut [Vector<D>; B] = (&mut s.parts.v[r.clone()])
         .try_into()
@@ -499,6 +508,23 @@ fn interpolate<const D: usize, const N: usize, const B: usize>(
         }
     }
     (vn, dv)
+}
+
+/// [`Ctx::local`] of the particles at `xs`, all in `cell`, lane by lane into `xi`
+/// (the same arithmetic, so the same bits).
+#[inline(always)]
+pub(crate) fn local_lanes<const D: usize, const B: usize>(
+    ctx: &Ctx<'_, D>,
+    xs: &[Vector<D>; B],
+    cell: &[f64; D],
+    xi: &mut [[f64; B]; D],
+) {
+    for a in 0..D {
+        let (lower, inv_h, c) = (ctx.geom.lower[a], ctx.geom.inv_h[a], cell[a]);
+        for l in 0..B {
+            xi[a][l] = (xs[l][a] - lower) * inv_h - c;
+        }
+    }
 }
 
 /// [`Ctx::weights`] with hat functions, lane by lane: the shape functions `sh[n]`,
@@ -701,9 +727,8 @@ mod tests {
     fn particles<const D: usize>(
         rng: &mut Rng,
         nan_lane: Option<usize>,
-    ) -> (Particles<D>, Vec<[f64; D]>) {
+    ) -> (Particles<D>, [f64; D]) {
         let mut p = Particles::<D>::default();
-        let mut xi = Vec::new();
         for l in 0..LANES {
             let mut c = [0.5; D];
             if l != 1 {
@@ -712,7 +737,6 @@ mod tests {
             if l == 0 {
                 c[0] = 0.0;
             }
-            xi.push(c);
             p.x.push(Vector::<D>::from_fn(|a, _| [0.3, 0.6, 0.4][a] + 0.1 * c[a]));
             p.v.push(Vector::<D>::from_fn(|_, _| rng.f64() - 0.5));
             let mut f =
@@ -724,7 +748,9 @@ mod tests {
             p.vol.push(kind_vol0(l) * (0.85 + 0.3 * rng.f64()));
             p.kind.push(l as u16);
         }
-        (p, xi)
+        // Their cell (the grid's h is 0.1, [`Setup::new`]): `Ctx::local` gives the
+        // lanes' ξ of 0 and ½ exactly.
+        (p, std::array::from_fn(|a| [3.0, 6.0, 4.0][a]))
     }
 
     /// A material, a kind of particle per lane ([`kind_vol0`]), a grid and the context
@@ -823,25 +849,25 @@ mod tests {
         p: &'a mut Particles<D>,
         dx: &'a mut [Vector<D>],
         tile: &'a [u32],
-        xi: &'a [[f64; D]],
         accel: &'a [Vector<D>],
     ) -> Slices<'a, D> {
         Slices {
             parts: p.slices(),
             dx,
             tile,
-            xi,
             accel,
         }
     }
 
-    /// One batch of `width` particles from the first of `sb` through pass `m` (the
-    /// gather's external work into `work`): whether every state is physical, and the
-    /// signal speed raised from `max0` after it.
+    /// One batch of `width` particles from the first of `sb`, in `cell`, through
+    /// pass `m` (the gather's external work into `work`): whether every state is
+    /// physical, and the signal speed raised from `max0` after it.
+    #[allow(clippy::too_many_arguments)]
     fn one_batch<const D: usize, const N: usize>(
         ctx: &Ctx<'_, D>,
         sb: &mut Slices<'_, D>,
         width: usize,
+        cell: &[f64; D],
         nd: &NodeData<D, N>,
         m: Pass<'_>,
         max0: f64,
@@ -850,21 +876,22 @@ mod tests {
         fn of<const D: usize, const N: usize, const B: usize>(
             ctx: &Ctx<'_, D>,
             sb: &mut Slices<'_, D>,
+            cell: &[f64; D],
             nd: &NodeData<D, N>,
             m: Pass<'_>,
             max0: f64,
             work: &mut f64,
         ) -> (bool, f64) {
             let bad = match m {
-                Pass::Stress(m) => deform_and_move::<D, N, B>(ctx, sb, 0, nd, m),
-                Pass::Gather(m) => gather::<D, N, B>(ctx, sb, 0, nd, m, work),
+                Pass::Stress(m) => deform_and_move::<D, N, B>(ctx, sb, 0, cell, nd, m),
+                Pass::Gather(m) => gather::<D, N, B>(ctx, sb, 0, cell, nd, m, work),
             };
             (physical(&bad), batch_speed::<D, B>(ctx, sb, max0))
         }
         match width {
-            LANES => of::<D, N, LANES>(ctx, sb, nd, m, max0, work),
-            HALF => of::<D, N, HALF>(ctx, sb, nd, m, max0, work),
-            _ => of::<D, N, QUARTER>(ctx, sb, nd, m, max0, work),
+            LANES => of::<D, N, LANES>(ctx, sb, cell, nd, m, max0, work),
+            HALF => of::<D, N, HALF>(ctx, sb, cell, nd, m, max0, work),
+            _ => of::<D, N, QUARTER>(ctx, sb, cell, nd, m, max0, work),
         }
     }
 
@@ -944,7 +971,7 @@ mod tests {
                         moves_kept,
                         speed: true,
                     };
-                    let (mut a, xi) = particles::<D>(&mut rng, nan_lane);
+                    let (mut a, cell) = particles::<D>(&mut rng, nan_lane);
                     // Every other case without stored volumes: then `det F · V₀`.
                     if cases % 2 == 1 {
                         a.vol = Vec::new();
@@ -956,23 +983,34 @@ mod tests {
                     let mut dx_b = dx.clone();
                     let tile = vec![0u32; LANES];
                     // One by one: the scalar pass's body.
-                    let mut sa = slices(&mut a, &mut dx, &tile, &xi, &[]);
+                    let mut sa = slices(&mut a, &mut dx, &tile, &[]);
                     let mut ta = Tally {
                         max_speed: max0,
                         ..Tally::ZERO
                     };
                     for p in 0..width {
-                        let (k, _, _): (Kern<D, N>, _, _) =
-                            ctx.weights::<2, N>(&sa.parts.x[p], None, &xi[p]);
+                        let (k, _, _): (Kern<D, N>, _, _) = ctx.weights::<2, N>(
+                            &sa.parts.x[p],
+                            None,
+                            &ctx.local(&sa.parts.x[p], &cell),
+                        );
                         stress_one(&ctx, &mut sa, p, &k, &nd, &m, &mut ta);
                     }
                     // The signal speed, particle by particle after the pass.
                     ta.max_speed = (0..width).fold(ta.max_speed, |v, p| speed_one(&ctx, &sa, p, v));
                     // A batch at a time.
-                    let mut sb = slices(&mut b, &mut dx_b, &tile, &xi, &[]);
+                    let mut sb = slices(&mut b, &mut dx_b, &tile, &[]);
                     assert!(applies(false, &sb));
-                    let (ok, top) =
-                        one_batch(&ctx, &mut sb, width, &nd, Pass::Stress(&m), max0, &mut 0.0);
+                    let (ok, top) = one_batch(
+                        &ctx,
+                        &mut sb,
+                        width,
+                        &cell,
+                        &nd,
+                        Pass::Stress(&m),
+                        max0,
+                        &mut 0.0,
+                    );
                     let what = format!(
                         "{width} lanes, {alpha:?}, two-step {two_step}, moves {moves}/{moves_kept}, steep {steep}, max {max0}, NaN {nan_lane:?}"
                     );
@@ -1020,10 +1058,9 @@ mod tests {
             p.vol.push(kind_vol0(0) * j);
             p.kind.push(0);
         }
-        let xi = vec![[0.5; 2]; n];
         let mut dx = vec![Vector::<2>::zeros(); n];
         let tile = vec![0u32; n];
-        let s = slices(&mut p, &mut dx, &tile, &xi, &[]);
+        let s = slices(&mut p, &mut dx, &tile, &[]);
         let one_by_one = |max: f64| (0..n).fold(max, |m, q| speed_one(&ctx, &s, q, m));
         let all = one_by_one(0.0);
         let (mut below, mut above) = (0, 0);
@@ -1057,12 +1094,22 @@ mod tests {
         };
         let mut pass = |marks: &mut [f64; LANES], nan_lane, steep, width| {
             let nd = nodes::<2, 4>(&mut rng, steep, 0);
-            let (mut p, xi) = particles::<2>(&mut rng, nan_lane);
+            let (mut p, cell) = particles::<2>(&mut rng, nan_lane);
             let mut dx = vec![Vector::<2>::zeros(); LANES];
             let tile = vec![0u32; LANES];
-            let mut s = slices(&mut p, &mut dx, &tile, &xi, &[]);
+            let mut s = slices(&mut p, &mut dx, &tile, &[]);
             let mut t = Tally::ZERO;
-            batch(&ctx, &mut s, 0, width, &nd, Pass::Stress(&m), &mut t, marks);
+            batch(
+                &ctx,
+                &mut s,
+                0,
+                width,
+                &cell,
+                &nd,
+                Pass::Stress(&m),
+                &mut t,
+                marks,
+            );
         };
         let mut marks = [0.0; LANES];
         for width in [LANES, HALF, QUARTER, LANES] {
@@ -1128,7 +1175,7 @@ mod tests {
                         recon,
                         speed: true,
                     };
-                    let (mut a, xi) = particles::<D>(&mut rng, nan_lane);
+                    let (mut a, cell) = particles::<D>(&mut rng, nan_lane);
                     let mut b = a.clone();
                     let mut dx = vec![Vector::<D>::zeros(); LANES];
                     let mut dx_b = dx.clone();
@@ -1145,22 +1192,33 @@ mod tests {
                         Vec::new()
                     };
                     let tile = vec![0u32; LANES];
-                    let mut sa = slices(&mut a, &mut dx, &tile, &xi, &accel);
+                    let mut sa = slices(&mut a, &mut dx, &tile, &accel);
                     let mut ta = Tally {
                         max_speed: max0,
                         work: 0.25,
                         ..Tally::ZERO
                     };
                     for p in 0..width {
-                        let (k, _, _): (Kern<D, N>, _, _) =
-                            ctx.weights::<2, N>(&sa.parts.x[p], None, &xi[p]);
+                        let (k, _, _): (Kern<D, N>, _, _) = ctx.weights::<2, N>(
+                            &sa.parts.x[p],
+                            None,
+                            &ctx.local(&sa.parts.x[p], &cell),
+                        );
                         gather_one(&ctx, &mut sa, p, &k, &nd, None, &m, &mut ta);
                     }
                     ta.max_speed = (0..width).fold(ta.max_speed, |v, p| speed_one(&ctx, &sa, p, v));
-                    let mut sb = slices(&mut b, &mut dx_b, &tile, &xi, &accel);
+                    let mut sb = slices(&mut b, &mut dx_b, &tile, &accel);
                     let mut work = 0.25;
-                    let (ok, top) =
-                        one_batch(&ctx, &mut sb, width, &nd, Pass::Gather(&m), max0, &mut work);
+                    let (ok, top) = one_batch(
+                        &ctx,
+                        &mut sb,
+                        width,
+                        &cell,
+                        &nd,
+                        Pass::Gather(&m),
+                        max0,
+                        &mut work,
+                    );
                     let what = format!(
                         "{width} lanes, {alpha:?}, two-step {two_step}, recon {recon}, stress {stress}, move now {move_now}, flip {flip}, steep {steep}, max {max0}, NaN {nan_lane:?}"
                     );
