@@ -244,13 +244,20 @@ impl<const D: usize> Ctx<'_, D> {
     #[cold]
     #[inline(never)]
     pub fn cell_of(&self, cell_node: u32) -> [f64; D] {
+        self.cell(cell_node).map(|c| c as f64)
+    }
+
+    /// The global index of the cell (its lower corner node) whose lower corner is
+    /// stored at `cell_node`.
+    #[inline(always)]
+    fn cell(&self, cell_node: u32) -> [i64; D] {
         let tn = Tiles::<D>::TILE_NODES;
         let cn = cell_node as usize;
         let l = self
             .tiles
             .local(cn / tn, cn % tn)
             .expect("a particle's cell corner lies in the local box");
-        std::array::from_fn(|a| (self.node_lo[a] + l[a] as i64) as f64)
+        std::array::from_fn(|a| self.node_lo[a] + l[a] as i64)
     }
 
     /// Per axis and node of a run ([`Ctx::node_indices`]'s arguments), whether the
@@ -262,14 +269,9 @@ impl<const D: usize> Ctx<'_, D> {
         if !self.walls {
             return sides;
         }
-        let tn = Tiles::<D>::TILE_NODES;
-        let cn = cell_node as usize;
-        let l = self
-            .tiles
-            .local(cn / tn, cn % tn)
-            .expect("a particle's cell corner lies in the local box");
+        let c = self.cell(cell_node);
         for a in 0..D {
-            let first = self.node_lo[a] + l[a] as i64 - below[a] as i64;
+            let first = c[a] - below[a] as i64;
             for (o, side) in sides[a].iter_mut().enumerate() {
                 *side = self.geom.end(a, first + o as i64);
             }

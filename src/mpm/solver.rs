@@ -2403,12 +2403,13 @@ impl<'c, const D: usize> Solver<'c, D> {
         // kept in `ptile`, with the slab order's array as the radix sort's room: both
         // are stale once particles move and rebuilt by the next tile pass before any
         // read, so the keys need no memory of their own.
+        // (A scene's grid has at most 2^40 nodes, `MAX_GRID_NODES`: the products fit.)
         let (lo, hi) = (&self.block.cell_lo, &self.block.cell_hi);
         let mut stride = [0u64; D];
-        let mut span = Some(1u64);
+        let mut span = 1u64;
         for a in 0..D {
-            stride[a] = span.unwrap_or(0);
-            span = span.and_then(|s| s.checked_mul((hi[a] - lo[a]) as u64));
+            stride[a] = span;
+            span *= (hi[a] - lo[a]) as u64;
         }
         let geom = &self.geom;
         let block_key = |c: &[i64; D]| {
@@ -2424,7 +2425,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             key
         };
         let cell_of = |p: usize| geom.locate(&std::array::from_fn(|a| self.parts.x[p][a])).0;
-        if span.is_some_and(|s| s <= 1 << 32) {
+        if span <= 1 << 32 {
             let keys = &mut self.ptile;
             particles::reserve(keys, n);
             keys.resize(n, 0);
