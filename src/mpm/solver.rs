@@ -3056,7 +3056,7 @@ velocity_gradient = {{ value = {grad}, about = {c} }}
     }
 
     /// The particle loops form the hat functions' local coordinate from the position
-    /// and the cell of the tile pass's corner node (`Ctx::cell_of`, `Ctx::local`):
+    /// and the cell of the tile pass's corner node (`CellAt`, `Ctx::local`):
     /// that cell is `Geom::locate`'s and that coordinate its ξ, to the bit, for every
     /// particle after steps that moved them across cells and a sort, in a tight
     /// box and in a huge one (a block of more than 2^32 cells in 3D, whose sort forms
@@ -3068,9 +3068,12 @@ velocity_gradient = {{ value = {grad}, about = {c} }}
             s.sort();
             s.activate_tiles();
             let ctx = ctx!(s);
+            // As the loops ask: one `CellAt` over the particles in order.
+            let mut at = kernel::CellAt::<D>::new();
             for (p, x) in s.parts.x.iter().enumerate() {
                 let (c, xi) = s.geom.locate(&std::array::from_fn(|a| x[a]));
-                let cell = ctx.cell_of(s.ptile[p]);
+                let cell = *at.of(&ctx, s.ptile[p]);
+                assert_eq!(cell, ctx.cell_of(s.ptile[p]));
                 assert_eq!(
                     cell,
                     c.map(|c| c as f64),
