@@ -2575,8 +2575,10 @@ impl<'c, const D: usize> Solver<'c, D> {
                 let mut s = [0.0; 3];
                 let first = k * LOCATE_CHUNK;
                 let x0 = &parts.x0[first..first + memo.len()];
-                at.exact_keeping_forces(x0, memo, |i, exact| {
-                    add_errors(&mut s, (parts, vol0), first + i, exact)
+                at.exact_keeping_forces(x0, memo, |i, out| {
+                    for (k, &exact) in out.iter().enumerate() {
+                        add_errors(&mut s, (parts, vol0), first + i + k, exact);
+                    }
                 });
                 *sums = s;
             });
