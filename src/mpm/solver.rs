@@ -2500,7 +2500,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                 // `F` alone: no need to form its stress.
                 let stress = parts.stress.get(p).copied().unwrap_or_else(Mat::<D>::zeros);
                 let vol0 = kinds.vol0[kind];
-                let vol = parts.volume(p, &kinds.vol0);
+                let vol = || parts.volume(p, &kinds.vol0);
                 sums[2] += mat.strain_energy(&stress, &f, parts.be.get(p), vol, vol0);
                 if let Some(&e) = parts.eps_p.get(p) {
                     sums[4] += mat.plastic_work(e, vol0);

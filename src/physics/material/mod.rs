@@ -254,21 +254,26 @@ impl Material {
         }
     }
 
-    /// Stored energy of a particle with current volume `vol` and reference volume
+    /// Stored energy of a particle with current volume `vol()` and reference volume
     /// `vol0`; `be` is its elastic left Cauchy–Green tensor where it carries one.
+    /// The current volume is asked for only by the materials whose energy density is
+    /// per current volume.
+    // Inline: a call per particle in the history's totals, with `vol` formed for every
+    // material, was half of their time.
+    #[inline]
     pub fn strain_energy<const D: usize>(
         &self,
         stress: &Mat<D>,
         f: &Mat<D>,
         be: Option<&Matrix3<f64>>,
-        vol: f64,
+        vol: impl FnOnce() -> f64,
         vol0: f64,
     ) -> f64 {
         match self {
-            Material::LinearElastic(m) => vol * m.energy_density(stress),
+            Material::LinearElastic(m) => vol() * m.energy_density(stress),
             Material::NeoHookean(m) => vol0 * m.energy_density(f),
             Material::J2Plastic(m) => vol0 * m.energy_density(be.expect("j2_plastic carries be")),
-            Material::Brittle(m) => vol * m.energy_density(stress),
+            Material::Brittle(m) => vol() * m.energy_density(stress),
         }
     }
 

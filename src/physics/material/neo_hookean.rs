@@ -61,6 +61,7 @@ impl NeoHookean {
     }
 
     /// Energy per reference volume.
+    #[inline]
     pub fn energy_density<const D: usize>(&self, f: &Mat<D>) -> f64 {
         let j = det(f);
         let lj = j.ln();
