@@ -1091,6 +1091,7 @@ fn by_runs<const D: usize, const NA: usize, const N: usize>(
     let mut run = Run::<D, NA, N>::new();
     let mut cell = CellAt::<D>::new();
     let mut marks = [0.0; LANES];
+    let mut room = lanes::Room::<D, N>::new();
     let mut p = 0;
     while p < s.len() {
         let b = batch_width(batches, s.tile, p);
@@ -1100,7 +1101,7 @@ fn by_runs<const D: usize, const NA: usize, const N: usize>(
             }
             if !run.at_wall {
                 let c = cell.of(ctx, s.tile[p]);
-                lanes::batch(ctx, s, p, b, c, &nd, pass, &mut t, &mut marks);
+                lanes::batch(ctx, s, p, b, c, &nd, pass, &mut room, &mut t, &mut marks);
                 p += b;
                 continue;
             }

@@ -82,6 +82,7 @@ pub fn batch<const D: usize, const N: usize>(
     cell: &[f64; D],
     nd: &NodeData<D, N>,
     m: Pass<'_>,
+    room: &mut Room<D, N>,
     t: &mut Tally,
     marks: &mut [f64; LANES],
 ) {
@@ -94,21 +95,45 @@ pub fn batch<const D: usize, const N: usize>(
         cell: &[f64; D],
         nd: &NodeData<D, N>,
         m: Pass<'_>,
+        batch: &mut Batch<D, N, B>,
         t: &mut Tally,
         marks: &mut [f64; LANES],
     ) {
         let bad = match m {
-            Pass::Stress(m) => deform_and_move::<D, N, B>(ctx, s, p0, cell, nd, m),
-            Pass::Gather(m) => gather::<D, N, B>(ctx, s, p0, cell, nd, m, &mut t.work),
+            Pass::Stress(m) => deform_and_move::<D, N, B>(ctx, s, p0, cell, nd, m, batch),
+            Pass::Gather(m) => gather::<D, N, B>(ctx, s, p0, cell, nd, m, batch, &mut t.work),
         };
         for l in 0..B {
             marks[l] += bad[l];
         }
     }
     match width {
-        LANES => of::<D, N, LANES>(ctx, s, p0, cell, nd, m, t, marks),
-        HALF => of::<D, N, HALF>(ctx, s, p0, cell, nd, m, t, marks),
-        _ => of::<D, N, QUARTER>(ctx, s, p0, cell, nd, m, t, marks),
+        LANES => of::<D, N, LANES>(ctx, s, p0, cell, nd, m, &mut room.lanes, t, marks),
+        HALF => of::<D, N, HALF>(ctx, s, p0, cell, nd, m, &mut room.half, t, marks),
+        _ => of::<D, N, QUARTER>(ctx, s, p0, cell, nd, m, &mut room.quarter, t, marks),
+    }
+}
+
+/// A batch of each width, zeroed once for a task's particles and filled again by
+/// each batch of a pass ([`Batch::fill`]): zeroed per batch, it was a `memset` of
+/// 3.4 kB for every eight particles, 3 % of the 3D step. Every fill writes the
+/// weights whole, and `L̄` whole in a two-step pass and never otherwise, where it
+/// stays zero as a fresh batch's: so a pass reads what a zeroed batch would hold.
+/// One room serves one pass.
+pub struct Room<const D: usize, const N: usize> {
+    lanes: Batch<D, N, LANES>,
+    half: Batch<D, N, HALF>,
+    quarter: Batch<D, N, QUARTER>,
+}
+
+impl<const D: usize, const N: usize> Room<D, N> {
+    #[inline(always)]
+    pub fn new() -> Self {
+        Room {
+            lanes: Batch::zeroed(),
+            half: Batch::zeroed(),
+            quarter: Batch::zeroed(),
+        }
     }
 }
 
@@ -369,16 +394,16 @@ fn advance<const D: usize, const B: usize>(
 /// lanes' marks of an unphysical state ([`unphysical`]); the signal speed is left to
 /// the caller.
 #[inline(always)]
-pub fn deform_and_move<const D: usize, const N: usize, const B: usize>(
+fn deform_and_move<const D: usize, const N: usize, const B: usize>(
     ctx: &Ctx<'_, D>,
     s: &mut Slices<'_, D>,
     p0: usize,
     cell: &[f64; D],
     nd: &NodeData<D, N>,
     m: &StressMode,
+    batch: &mut Batch<D, N, B>,
 ) -> [f64; B] {
     let r = p0..p0 + B;
-    let mut batch = Batch::<D, N, B>::zeroed();
     batch.fill(ctx, s, r.clone(), cell, nd, m.two_step);
     let bad = batch.deform(s, r.clone(), nd, m.two_step, m.dt);
     if m.moves {
@@ -400,18 +425,19 @@ pub fn deform_and_move<const D: usize, const N: usize, const B: usize>(
 /// kept increment. The same bits as the scalar gather; returns the lanes' marks of an
 /// unphysical state, a non-finite velocity included ([`unphysical`]; the signal speed
 /// is left to the caller).
+#[allow(clippy::too_many_arguments)]
 #[inline(always)]
-pub fn gather<const D: usize, const N: usize, const B: usize>(
+fn gather<const D: usize, const N: usize, const B: usize>(
     ctx: &Ctx<'_, D>,
     s: &mut Slices<'_, D>,
     p0: usize,
     cell: &[f64; D],
     nd: &NodeData<D, N>,
     m: &GatherMode,
+    batch: &mut Batch<D, N, B>,
     work: &mut f64,
 ) -> [f64; B] {
     let r = p0..p0 + B;
-    let mut batch = Batch::<D, N, B>::zeroed();
     batch.fill(
         ctx,
         s,
@@ -860,8 +886,9 @@ mod tests {
     }
 
     /// One batch of `width` particles from the first of `sb`, in `cell`, through
-    /// pass `m` (the gather's external work into `work`): whether every state is
-    /// physical, and the signal speed raised from `max0` after it.
+    /// pass `m` (the gather's external work into `work`) in `room`, which may have
+    /// served earlier batches of the same pass: whether every state is physical,
+    /// and the signal speed raised from `max0` after it.
     #[allow(clippy::too_many_arguments)]
     fn one_batch<const D: usize, const N: usize>(
         ctx: &Ctx<'_, D>,
@@ -870,28 +897,31 @@ mod tests {
         cell: &[f64; D],
         nd: &NodeData<D, N>,
         m: Pass<'_>,
+        room: &mut Room<D, N>,
         max0: f64,
         work: &mut f64,
     ) -> (bool, f64) {
+        #[allow(clippy::too_many_arguments)]
         fn of<const D: usize, const N: usize, const B: usize>(
             ctx: &Ctx<'_, D>,
             sb: &mut Slices<'_, D>,
             cell: &[f64; D],
             nd: &NodeData<D, N>,
             m: Pass<'_>,
+            batch: &mut Batch<D, N, B>,
             max0: f64,
             work: &mut f64,
         ) -> (bool, f64) {
             let bad = match m {
-                Pass::Stress(m) => deform_and_move::<D, N, B>(ctx, sb, 0, cell, nd, m),
-                Pass::Gather(m) => gather::<D, N, B>(ctx, sb, 0, cell, nd, m, work),
+                Pass::Stress(m) => deform_and_move::<D, N, B>(ctx, sb, 0, cell, nd, m, batch),
+                Pass::Gather(m) => gather::<D, N, B>(ctx, sb, 0, cell, nd, m, batch, work),
             };
             (physical(&bad), batch_speed::<D, B>(ctx, sb, max0))
         }
         match width {
-            LANES => of::<D, N, LANES>(ctx, sb, cell, nd, m, max0, work),
-            HALF => of::<D, N, HALF>(ctx, sb, cell, nd, m, max0, work),
-            _ => of::<D, N, QUARTER>(ctx, sb, cell, nd, m, max0, work),
+            LANES => of::<D, N, LANES>(ctx, sb, cell, nd, m, &mut room.lanes, max0, work),
+            HALF => of::<D, N, HALF>(ctx, sb, cell, nd, m, &mut room.half, max0, work),
+            _ => of::<D, N, QUARTER>(ctx, sb, cell, nd, m, &mut room.quarter, max0, work),
         }
     }
 
@@ -960,6 +990,9 @@ mod tests {
                 (false, false, true),
                 (false, false, false),
             ] {
+                // One room for the pass's batches, as `by_runs` keeps one: each
+                // batch after the first finds the last one's numbers in it.
+                let mut room = Room::new();
                 for (steep, max0, nan_lane, width) in VARIANTS {
                     let slot = rng.below(2);
                     let nd = nodes::<D, N>(&mut rng, steep, slot);
@@ -1008,6 +1041,7 @@ mod tests {
                         &cell,
                         &nd,
                         Pass::Stress(&m),
+                        &mut room,
                         max0,
                         &mut 0.0,
                     );
@@ -1107,6 +1141,7 @@ mod tests {
                 &cell,
                 &nd,
                 Pass::Stress(&m),
+                &mut Room::new(),
                 &mut t,
                 marks,
             );
@@ -1164,6 +1199,8 @@ mod tests {
                 (false, false, true, true, 1.0),
                 (false, false, true, false, 0.5),
             ] {
+                // One room for the pass's batches, as in `stress_lanes_match`.
+                let mut room = Room::new();
                 for (steep, max0, nan_lane, width) in VARIANTS {
                     let nd = nodes::<D, N>(&mut rng, steep, UPDATED);
                     let m = GatherMode {
@@ -1216,6 +1253,7 @@ mod tests {
                         &cell,
                         &nd,
                         Pass::Gather(&m),
+                        &mut room,
                         max0,
                         &mut work,
                     );
