@@ -259,7 +259,7 @@ impl Material {
     /// The current volume is asked for only by the materials whose energy density is
     /// per current volume.
     // Inline: a call per particle in the history's totals, with `vol` formed for every
-    // material, was half of their time.
+    // material, was a quarter of their time.
     #[inline]
     pub fn strain_energy<const D: usize>(
         &self,
