@@ -296,6 +296,20 @@ fn remap_lanes<const D: usize, const N: usize, const B: usize>(
         }
     }
     let (vn, dv, sh) = lanes::velocities::<D, N, B>(ctx, &xi, nd);
+    // In 2D each particle's weights over the nodes as one row, so that its momentum
+    // is added into the sums a vector over the nodes at a time: read down the lanes'
+    // columns, they were a scalar product and add per node (31 instructions a
+    // particle). (In 3D the 8 × 8 transposition cost more than it saved: the remap's
+    // time 1.16×.)
+    let by_rows = N <= 4;
+    let mut rows = [[0.0; N]; B];
+    if by_rows {
+        for (n, col) in sh.iter().enumerate() {
+            for (l, row) in rows.iter_mut().enumerate() {
+                row[n] = col[l];
+            }
+        }
+    }
     for (l, &p) in ps.iter().enumerate() {
         let p = p as usize;
         assert!(p < pp.len, "slab order names particle {p} of {}", pp.len);
@@ -324,7 +338,7 @@ fn remap_lanes<const D: usize, const N: usize, const B: usize>(
         let mv = new * mass;
         for a in 0..D {
             for n in 0..N {
-                sum[a][n] += mv[a] * sh[n][l];
+                sum[a][n] += mv[a] * if by_rows { rows[l][n] } else { sh[n][l] };
             }
         }
     }
