@@ -2576,9 +2576,13 @@ impl<'c, const D: usize> Solver<'c, D> {
                 let first = k * LOCATE_CHUNK;
                 let x0 = &parts.x0[first..first + memo.len()];
                 at.exact_keeping_forces(x0, memo, |i, out| {
+                    // The sums in registers over the batch (the closure's `s` is
+                    // kept in memory: each particle's adds waited on the last's).
+                    let mut acc = s;
                     for (k, &exact) in out.iter().enumerate() {
-                        add_errors(&mut s, (parts, vol0), first + i + k, exact);
+                        add_errors(&mut acc, (parts, vol0), first + i + k, exact);
                     }
+                    s = acc;
                 });
                 *sums = s;
             });
