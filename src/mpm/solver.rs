@@ -292,11 +292,34 @@ macro_rules! by_pad {
     };
 }
 
-/// Padded index offset of corner `r` of a cell from its lower corner.
+/// Padded index offset of corner `r` of a cell from its lower corner: a table
+/// ([`PAD_OFFS`]), since the stencils' loops over corners are not unrolled, and formed
+/// there it was a loop with `pow` per corner (7 % of the 3D stencils' instructions).
 #[inline(always)]
 fn pad_off<const D: usize>(r: usize) -> usize {
-    (0..D).map(|a| ((r >> a) & 1) * PAD.pow(a as u32)).sum()
+    PAD_OFFS[D][r & 7]
 }
+
+/// [`pad_off`] per dimension (0 to 3) and corner (bit `a` of `r`: the upper side
+/// along axis `a`): `Σ_a r_a PAD^a`.
+const PAD_OFFS: [[usize; 8]; 4] = {
+    let mut t = [[0; 8]; 4];
+    let mut d = 0;
+    while d < 4 {
+        let mut r = 0;
+        while r < 8 {
+            let (mut a, mut pow) = (0, 1);
+            while a < d {
+                t[d][r] += ((r >> a) & 1) * pow;
+                pow *= PAD;
+                a += 1;
+            }
+            r += 1;
+        }
+        d += 1;
+    }
+    t
+};
 
 /// The grid fields a node pass reads, borrowed from the solver so that the pass can run
 /// on several threads (the solver itself holds a communicator, which is not `Sync`).
@@ -416,46 +439,63 @@ impl<const D: usize> NodeView<'_, D> {
         mut f: impl FnMut(usize, [usize; D], usize, &mut [f64]),
     ) {
         let tn = self.tiles.tile_nodes();
-        for (o, rec) in recs.chunks_exact_mut(width).enumerate() {
-            if let Some(c) = self.tiles.local(slot, o) {
-                if (0..D).all(|a| c[a] >= self.own_lo[a] && c[a] < self.own_hi[a]) {
-                    let p = (0..D)
-                        .map(|a| {
-                            (((o >> (TILE_LOG * a as u32)) & (TILE - 1)) + 1) * PAD.pow(a as u32)
-                        })
-                        .sum();
-                    f(slot * tn + o, c, p, rec);
+        // A row along the first axis at a time (`Tiles::local_row`), nodes in order.
+        for (row, recs) in recs.chunks_exact_mut(width * TILE).enumerate() {
+            let locs = self.tiles.local_row(slot, row * TILE);
+            for (x, rec) in recs.chunks_exact_mut(width).enumerate() {
+                let o = row * TILE + x;
+                if let Some(c) = locs[x] {
+                    if (0..D).all(|a| c[a] >= self.own_lo[a] && c[a] < self.own_hi[a]) {
+                        let p = (0..D)
+                            .map(|a| {
+                                (((o >> (TILE_LOG * a as u32)) & (TILE - 1)) + 1)
+                                    * PAD.pow(a as u32)
+                            })
+                            .sum();
+                        f(slot * tn + o, c, p, rec);
+                    }
                 }
             }
         }
     }
 
     /// For every row of [`TILE`] nodes along the first axis of tile `slot` that holds
-    /// an owned node: `f(o0, p0, own, cs)`, with `o0` the tile offset of the row's
+    /// an owned node: `f(o0, p0, own, cs, low)`, with `o0` the tile offset of the row's
     /// first node, `p0` its index in the tile's padded arrays ([`NodeView::par_tiles`];
-    /// the row's node `x` is at `p0 + x`), which of the row's nodes are owned, and their
-    /// local coordinates. The node stencils work a row at a time, one node per lane.
+    /// the row's node `x` is at `p0 + x`), which of the row's nodes are owned, their
+    /// local coordinates, and per node the axes (bit `a`) along which it has no cell
+    /// below ([`NodeView::row_cells`]). The node stencils work a row at a time, one node
+    /// per lane.
     #[inline]
     fn pad_rows(
         &self,
         slot: usize,
-        mut f: impl FnMut(usize, usize, &[bool; TILE], &[[usize; D]; TILE]),
+        mut f: impl FnMut(usize, usize, &[bool; TILE], &[[usize; D]; TILE], &[usize; TILE]),
     ) {
         for row in 0..TILE.pow(D as u32 - 1) {
             let o0 = row * TILE;
             let mut own = [false; TILE];
             let mut cs = [[0usize; D]; TILE];
+            let locs = self.tiles.local_row(slot, o0);
             for x in 0..TILE {
-                if let Some(c) = self.tiles.local(slot, o0 + x) {
+                if let Some(c) = locs[x] {
                     own[x] = (0..D).all(|a| c[a] >= self.own_lo[a] && c[a] < self.own_hi[a]);
                     cs[x] = c;
+                }
+            }
+            // Per node, the axes along which it has no cell below (local coordinate
+            // 0, or outside the box): [`NodeView::row_cells`]' test per corner.
+            let mut low = [0usize; TILE];
+            for x in 0..TILE {
+                for a in 0..D {
+                    low[x] |= usize::from(cs[x][a] == 0) << a;
                 }
             }
             if own.iter().any(|&o| o) {
                 let p0 = (0..D)
                     .map(|a| (((o0 >> (TILE_LOG * a as u32)) & (TILE - 1)) + 1) * PAD.pow(a as u32))
                     .sum();
-                f(o0, p0, &own, &cs);
+                f(o0, p0, &own, &cs, &low);
             }
         }
     }
@@ -469,14 +509,16 @@ impl<const D: usize> NodeView<'_, D> {
     #[inline(always)]
     fn row_cells<const NP: usize>(
         cw: &[f64; NP],
-        cs: &[[usize; D]; TILE],
+        low: &[usize; TILE],
         p0: usize,
         q: usize,
     ) -> (usize, [f64; TILE]) {
         let cell = p0 - pad_off::<D>(q);
         let mut w = [0.0; TILE];
         for x in 0..TILE {
-            if (0..D).all(|a| cs[x][a] >= (q >> a) & 1) {
+            // The cell is there unless corner q is on the upper side along an axis
+            // where the node has no cell below.
+            if q & low[x] == 0 {
                 w[x] = cw[cell + x];
             }
         }
@@ -517,10 +559,10 @@ impl<const D: usize> NodeView<'_, D> {
                 }
                 cw[k] = self.cell_w[pad[k]];
             }
-            self.pad_rows(slot, |o0, p0, own, cs| {
+            self.pad_rows(slot, |o0, p0, own, _, low| {
                 let mut f = [[0.0; TILE]; D];
                 for q in 0..(1 << D) {
-                    let (cell, w) = Self::row_cells(&cw, cs, p0, q);
+                    let (cell, w) = Self::row_cells(&cw, low, p0, q);
                     // `∫_c S_r ∂_b S_q` does not depend on `r_b` (a hat's derivative
                     // along b is constant across the cell): the corners r and r + e_b
                     // share it, so their stresses are added first, half the products.
@@ -587,7 +629,7 @@ impl<const D: usize> NodeView<'_, D> {
             // A row of TILE nodes at a time, one per lane, as in `force_tiles`: each
             // lane does its node's operations in its order, and a skipped cell adds an
             // exact zero to sums that never hold −0, so the same bits.
-            self.pad_rows(tile, |o0, p0, own, cs| {
+            self.pad_rows(tile, |o0, p0, own, cs, low| {
                 // One visit of the cells: with m_ji = w_c ∫_c S_j S_i dv,
                 // Σ m_ji (v_i + L̄ (x_j − x_i)) = Σ m_ji v_i + L̄ Σ m_ji (x_j − x_i), and
                 // the last sum is Σ_c w_c `cell_md` of the node's corner: it needs no
@@ -596,7 +638,7 @@ impl<const D: usize> NodeView<'_, D> {
                 let mut mv = [[0.0; TILE]; D];
                 let mut md = [[0.0; TILE]; D];
                 for q in 0..(1 << D) {
-                    let (cell, w) = Self::row_cells(&cw, cs, p0, q);
+                    let (cell, w) = Self::row_cells(&cw, low, p0, q);
                     let mut mc = [[0.0; TILE]; D];
                     for r in 0..(1 << D) {
                         let (m, at) = (cell_m[q][r], cell + pad_off::<D>(r));
