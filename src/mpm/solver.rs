@@ -566,17 +566,22 @@ impl<const D: usize> NodeView<'_, D> {
                     // `∫_c S_r ∂_b S_q` does not depend on `r_b` (a hat's derivative
                     // along b is constant across the cell): the corners r and r + e_b
                     // share it, so their stresses are added first, half the products.
+                    // One component at a time, so that its sum over the pairs is one
+                    // vector the whole way (over all three at once, the compiler kept
+                    // the sums as pieces and reassembled them for every pair, about
+                    // fifteen shuffles each); each sum takes its terms in the same
+                    // order, b then i.
                     let mut t = [[0.0; TILE]; D];
-                    for b in 0..D {
-                        for i in 0..(1 << (D - 1)) {
-                            let (r, r1) = kernel::pair(b, i);
-                            let k = cell_k[r][q][b];
-                            let (c0, c1) = (cell + pad_off::<D>(r), cell + pad_off::<D>(r1));
-                            for a in 0..D {
-                                let s = &sp[kernel::sym_index::<D>(a, b)];
+                    for (a, t) in t.iter_mut().enumerate() {
+                        for b in 0..D {
+                            let s = &sp[kernel::sym_index::<D>(a, b)];
+                            for i in 0..(1 << (D - 1)) {
+                                let (r, r1) = kernel::pair(b, i);
+                                let k = cell_k[r][q][b];
+                                let (c0, c1) = (cell + pad_off::<D>(r), cell + pad_off::<D>(r1));
                                 let (s0, s1) = (&s[c0..c0 + TILE], &s[c1..c1 + TILE]);
                                 for x in 0..TILE {
-                                    t[a][x] += k * (s0[x] + s1[x]);
+                                    t[x] += k * (s0[x] + s1[x]);
                                 }
                             }
                         }
