@@ -102,10 +102,36 @@ impl<const D: usize> NodeRecord<D> {
 
 /// Place of entry `(a, b)` (either triangle) of a symmetric D × D tensor stored as its
 /// upper triangle row by row: `(0,0), (0,1), …, (0,D−1), (1,1), …`.
+///
+/// From a table ([`SYM_PLACES`]): the loops that ask are not unrolled, and formed per
+/// call it was 1 % of the 3D step's instructions.
+#[inline(always)]
 pub const fn sym_index<const D: usize>(a: usize, b: usize) -> usize {
-    let (a, b) = if a <= b { (a, b) } else { (b, a) };
-    a * D - a * a.saturating_sub(1) / 2 + (b - a)
+    SYM_PLACES[D & 3][a & 3][b & 3]
 }
+
+/// [`sym_index`] per dimension (0 to 3) and entry `(a, b)`, both below the dimension.
+const SYM_PLACES: [[[usize; 4]; 4]; 4] = {
+    let mut t = [[[0; 4]; 4]; 4];
+    let mut d = 0;
+    while d < 4 {
+        let mut a = 0;
+        while a < 4 {
+            let mut b = 0;
+            while b < 4 {
+                let (lo, hi) = if a <= b { (a, b) } else { (b, a) };
+                // Entries of a D × D tensor only (the rest stay 0, never asked for).
+                if hi < d {
+                    t[d][a][b] = lo * d - lo * lo.saturating_sub(1) / 2 + (hi - lo);
+                }
+                b += 1;
+            }
+            a += 1;
+        }
+        d += 1;
+    }
+    t
+};
 
 /// Velocity slot: the grid velocity `p / m`, before this step's forces (with walls).
 pub const FROM_MOMENTUM: usize = 0;
