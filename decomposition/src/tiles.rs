@@ -376,13 +376,16 @@ impl<const D: usize> Tiles<D> {
         let o = self.origin[slot];
         let mut l = [0usize; D];
         for a in 0..D {
-            let m = o[a] + ((offset >> (TILE_LOG * a as u32)) & (TILE - 1));
-            if m < self.shift[a] || m - self.shift[a] >= self.dims[a] {
-                return None;
-            }
-            l[a] = m - self.shift[a];
+            l[a] = self.within(a, o[a] + ((offset >> (TILE_LOG * a as u32)) & (TILE - 1)))?;
         }
         Some(l)
+    }
+
+    /// The local coordinate along axis `a` of shifted node coordinate `m`, `None`
+    /// outside the box.
+    #[inline(always)]
+    fn within(&self, a: usize, m: usize) -> Option<usize> {
+        (m >= self.shift[a] && m - self.shift[a] < self.dims[a]).then(|| m - self.shift[a])
     }
 
     /// [`Tiles::local`] of the [`TILE`] nodes of the row along the first axis that
@@ -397,18 +400,16 @@ impl<const D: usize> Tiles<D> {
         let o = self.origin[slot];
         let mut l = [0usize; D];
         for a in 1..D {
-            let m = o[a] + ((offset >> (TILE_LOG * a as u32)) & (TILE - 1));
-            if m < self.shift[a] || m - self.shift[a] >= self.dims[a] {
-                return out;
+            match self.within(a, o[a] + ((offset >> (TILE_LOG * a as u32)) & (TILE - 1))) {
+                Some(c) => l[a] = c,
+                None => return out,
             }
-            l[a] = m - self.shift[a];
         }
         for (x, out) in out.iter_mut().enumerate() {
-            let m = o[0] + x;
-            if m >= self.shift[0] && m - self.shift[0] < self.dims[0] {
-                l[0] = m - self.shift[0];
-                *out = Some(l);
-            }
+            *out = self.within(0, o[0] + x).map(|c| {
+                l[0] = c;
+                l
+            });
         }
         out
     }
