@@ -559,13 +559,28 @@ impl<const D: usize> NodeView<'_, D> {
                 }
                 cw[k] = self.cell_w[pad[k]];
             }
+            // The sums of σ̄_ab over padded neighbours along b,
+            // `ssp[b][a][k] = σ̄_ab(k) + σ̄_ab(k + e_b)`, once per tile: each cell's pair
+            // of corners along b enters the force of each of its corners' nodes, which
+            // added them each time. The same addition, so the same bits. (The last
+            // PAD^b entries, which no cell reads, stay 0.)
+            let mut ssp = [[[0.0; NP]; D]; D];
+            for (b, ssp) in ssp.iter_mut().enumerate() {
+                let st = PAD.pow(b as u32);
+                for (a, ss) in ssp.iter_mut().enumerate() {
+                    let s = &sp[kernel::sym_index::<D>(a, b)];
+                    for k in 0..NP - st {
+                        ss[k] = s[k] + s[k + st];
+                    }
+                }
+            }
             self.pad_rows(slot, |o0, p0, own, _, low| {
                 let mut f = [[0.0; TILE]; D];
                 for q in 0..(1 << D) {
                     let (cell, w) = Self::row_cells(&cw, low, p0, q);
                     // `∫_c S_r ∂_b S_q` does not depend on `r_b` (a hat's derivative
                     // along b is constant across the cell): the corners r and r + e_b
-                    // share it, so their stresses are added first, half the products.
+                    // share it, so their stresses are added first (`ssp`), half the products.
                     // One component at a time, so that its sum over the pairs is one
                     // vector the whole way (over all three at once, the compiler kept
                     // the sums as pieces and reassembled them for every pair, about
@@ -573,15 +588,14 @@ impl<const D: usize> NodeView<'_, D> {
                     // order, b then i.
                     let mut t = [[0.0; TILE]; D];
                     for (a, t) in t.iter_mut().enumerate() {
-                        for b in 0..D {
-                            let s = &sp[kernel::sym_index::<D>(a, b)];
+                        for (b, ssp) in ssp.iter().enumerate() {
                             for i in 0..(1 << (D - 1)) {
-                                let (r, r1) = kernel::pair(b, i);
+                                let r = kernel::pair(b, i).0;
                                 let k = cell_k[r][q][b];
-                                let (c0, c1) = (cell + pad_off::<D>(r), cell + pad_off::<D>(r1));
-                                let (s0, s1) = (&s[c0..c0 + TILE], &s[c1..c1 + TILE]);
+                                let c0 = cell + pad_off::<D>(r);
+                                let s = &ssp[a][c0..c0 + TILE];
                                 for x in 0..TILE {
-                                    t[x] += k * (s0[x] + s1[x]);
+                                    t[x] += k * s[x];
                                 }
                             }
                         }
@@ -631,6 +645,21 @@ impl<const D: usize> NodeView<'_, D> {
                 }
                 cw[k] = self.cell_w[pad[k]];
             }
+            // The velocity's differences along each axis b between padded neighbours,
+            // `dvp[b][a][k] = v_a(k + e_b) − v_a(k)`, once per tile: every cell's
+            // edge along b enters the gradient of each of its corners' nodes (eight
+            // times in 3D), which formed the difference each time. The same
+            // subtraction, so the same bits. (The last PAD^b entries, which no cell
+            // reads, stay 0.)
+            let mut dvp = [[[0.0; NP]; D]; D];
+            for (b, dvp) in dvp.iter_mut().enumerate() {
+                let st = PAD.pow(b as u32);
+                for (dv, v) in dvp.iter_mut().zip(&vp) {
+                    for k in 0..NP - st {
+                        dv[k] = v[k + st] - v[k];
+                    }
+                }
+            }
             // A row of TILE nodes at a time, one per lane, as in `force_tiles`: each
             // lane does its node's operations in its order, and a skipped cell adds an
             // exact zero to sums that never hold −0, so the same bits.
@@ -657,15 +686,15 @@ impl<const D: usize> NodeView<'_, D> {
                     // `∫_c S_q ∂_b S_r` changes only its sign with `r_b`: the corners
                     // r and r + e_b enter as the velocity's difference along b.
                     let mut lc = [[0.0; TILE]; 9];
-                    for b in 0..D {
+                    for (b, dvp) in dvp.iter().enumerate() {
                         for i in 0..(1 << (D - 1)) {
                             let (r, r1) = kernel::pair(b, i);
                             let k = cell_k[q][r1][b];
-                            let (c0, c1) = (cell + pad_off::<D>(r), cell + pad_off::<D>(r1));
-                            for a in 0..D {
-                                let (v0, v1) = (&vp[a][c0..c0 + TILE], &vp[a][c1..c1 + TILE]);
+                            let c0 = cell + pad_off::<D>(r);
+                            for (a, dv) in dvp.iter().enumerate() {
+                                let d = &dv[c0..c0 + TILE];
                                 for x in 0..TILE {
-                                    lc[a * D + b][x] += k * (v1[x] - v0[x]);
+                                    lc[a * D + b][x] += k * d[x];
                                 }
                             }
                         }
