@@ -1837,13 +1837,15 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
     let acc = std::hint::black_box(&mut acc);
     let mut run = Run::<D, NA, N>::new();
     let mut cell = CellAt::<D>::new();
+    let mut kinds = particles::KindCache::new(ctx.kind_mass, ctx.kind_vol0, ctx.materials);
     for &p in &slabs.order[slabs.start[first]..slabs.start[first + 1]] {
         let p = p as usize;
+        let at = kinds.get(parts.kind[p]);
         // The stress first: in 3D it is a call (`particles::stress_call`), and every
         // vector register live across it is saved and reloaded; before the weights,
         // few are.
         let (vol, vs) = if m.forces {
-            particles::volume_and_stress(parts.stress, &parts.vol, ctx.materials, p)
+            particles::volume_and_stress_at(parts.stress, &parts.vol, ctx.materials, &at, p)
         } else {
             (parts.vol.get(p), Mat::<D>::zeros())
         };
@@ -1864,7 +1866,7 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
             }
         }
         let idx = &run.idx;
-        let mass = parts.mass.get(p);
+        let mass = at.mass;
         let mv = if m.from_grid {
             let mut u = Vector::<D>::zeros();
             for n in 0..N {

@@ -388,6 +388,84 @@ pub fn volume_and_stress<const D: usize>(
     }
 }
 
+/// A kind's mass, reference volume and material ([`Kinds`]), as a particle loop
+/// keeps them while the kind stays the same ([`KindCache`]).
+#[derive(Clone, Copy)]
+pub struct KindAt<'a> {
+    pub kind: u16,
+    pub mass: f64,
+    pub vol0: f64,
+    pub material: &'a Material,
+}
+
+/// The per-kind tables of a particle loop, looked up only when the kind changes
+/// from one particle to the next. Particles sorted by cell mostly share their kind,
+/// and each lookup (the kind, then each table, each with its index check) came to
+/// about 30 instructions per particle in the 2D scatter. The values are the
+/// tables' own, so the same bits. (In the remap, which looks up the mass alone, the
+/// cache cost more than the lookup.)
+pub struct KindCache<'a> {
+    mass: &'a [f64],
+    vol0: &'a [f64],
+    materials: &'a [Material],
+    at: Option<KindAt<'a>>,
+}
+
+impl<'a> KindCache<'a> {
+    /// Tables per kind: masses, reference volumes and materials.
+    pub fn new(mass: &'a [f64], vol0: &'a [f64], materials: &'a [Material]) -> Self {
+        KindCache {
+            mass,
+            vol0,
+            materials,
+            at: None,
+        }
+    }
+
+    #[inline(always)]
+    pub fn get(&mut self, kind: u16) -> KindAt<'a> {
+        match self.at {
+            Some(at) if at.kind == kind => at,
+            _ => self.load(kind),
+        }
+    }
+
+    #[inline(never)]
+    fn load(&mut self, kind: u16) -> KindAt<'a> {
+        let k = kind as usize;
+        let at = KindAt {
+            kind,
+            mass: self.mass[k],
+            vol0: self.vol0[k],
+            material: &self.materials[k],
+        };
+        self.at = Some(at);
+        at
+    }
+}
+
+/// [`volume_and_stress`] of particle `p` of kind `at`.
+#[inline(always)]
+pub fn volume_and_stress_at<const D: usize>(
+    stress: &[Mat<D>],
+    vols: &Volumes<'_, D>,
+    materials: &[Material],
+    at: &KindAt<'_>,
+    p: usize,
+) -> (f64, Mat<D>) {
+    if vols.vol.is_empty() && stress.is_empty() {
+        let (m, f) = (at.material, &vols.def_grad[p]);
+        let (tau, j) = if D == 3 {
+            kirchhoff_call(m, f)
+        } else {
+            m.kirchhoff_of_def_grad(f)
+        };
+        (j * at.vol0, tau * at.vol0)
+    } else {
+        volume_and_stress(stress, vols, materials, p)
+    }
+}
+
 /// Room for `n` elements in `v`: where it must grow, to `n` and a sixteenth, not to
 /// twice its capacity as pushes would (particle state is most of a run's memory), so
 /// arrivals rarely reallocate and never double the arrays.
@@ -1053,6 +1131,52 @@ impl<const R: usize, const C: usize> Record for nalgebra::SMatrix<f64, R, C> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A particle loop's [`KindCache`] gives the tables' values of each particle's
+    /// kind, to the bit, along a sequence of kinds that stays, changes, and returns to
+    /// a kind it left (a cache that kept the first kind, or did not reload on a
+    /// return, would fail it); and `volume_and_stress_at` is `volume_and_stress`.
+    #[test]
+    fn kind_cache_gives_each_kinds_tables() {
+        use crate::physics::material::neo_hookean::NeoHookean;
+        let materials: Vec<Material> = (0..3)
+            .map(|k| {
+                Material::NeoHookean(NeoHookean {
+                    lambda: 1.0 + k as f64,
+                    mu: 2.0 + 0.5 * k as f64,
+                    density: 3.0,
+                })
+            })
+            .collect();
+        let mass = [0.1, 0.2, 0.3];
+        let vol0 = [0.7, 0.11, 0.13];
+        let kind: Vec<u16> = vec![0, 0, 1, 1, 1, 0, 2, 2, 1];
+        let def_grad: Vec<Mat<2>> = (0..kind.len())
+            .map(|p| Mat::<2>::new(1.0 + 0.01 * p as f64, 0.02, -0.03, 0.98))
+            .collect();
+        let vols = Volumes {
+            vol: &[],
+            def_grad: &def_grad,
+            kind_vol0: &vol0,
+            kind: &kind,
+        };
+        let mut cache = KindCache::new(&mass, &vol0, &materials);
+        for (p, &k) in kind.iter().enumerate() {
+            let at = cache.get(k);
+            let i = k as usize;
+            assert_eq!(at.kind, k);
+            assert_eq!(at.mass.to_bits(), mass[i].to_bits(), "particle {p}");
+            assert_eq!(at.vol0.to_bits(), vol0[i].to_bits(), "particle {p}");
+            assert!(std::ptr::eq(at.material, &materials[i]), "particle {p}");
+            let (v, s) = volume_and_stress_at(&[], &vols, &materials, &at, p);
+            let (w, t) = volume_and_stress(&[], &vols, &materials, p);
+            assert_eq!(v.to_bits(), w.to_bits(), "particle {p}");
+            assert!(s
+                .iter()
+                .zip(t.iter())
+                .all(|(a, b)| a.to_bits() == b.to_bits()));
+        }
+    }
 
     /// Three particles carrying every array, each value distinct.
     fn sample() -> (Particles<2>, Carries) {
