@@ -1838,9 +1838,19 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
     let mut run = Run::<D, NA, N>::new();
     let mut cell = CellAt::<D>::new();
     let mut kinds = particles::KindCache::new(ctx.kind_mass, ctx.kind_vol0, ctx.materials);
+    // The arrays every particle has, each as long as the positions: one index check
+    // per particle then covers them all.
+    let len = parts.x.len();
+    let (xs, vels, tiles, kind) = (
+        &parts.x[..len],
+        &parts.v[..len],
+        &parts.tile[..len],
+        &parts.kind[..len],
+    );
     for &p in &slabs.order[slabs.start[first]..slabs.start[first + 1]] {
         let p = p as usize;
-        let at = kinds.get(parts.kind[p]);
+        assert!(p < len, "slab order names particle {p} of {len}");
+        let at = kinds.get(kind[p]);
         // The stress first: in 3D it is a call (`particles::stress_call`), and every
         // vector register live across it is saved and reloaded; before the weights,
         // few are.
@@ -1852,13 +1862,13 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
         let half = if ctx.gimp { Some(&parts.half[p]) } else { None };
         // (ξ formed here, not before the stress: there, the 2D scatter's share
         // grew 1.13 against ξ kept by the tile pass, here 1.06.)
-        let xi = ctx.local(&parts.x[p], cell.of(ctx, parts.tile[p]));
-        let (k, below, _) = ctx.weights::<NA, N>(&parts.x[p], half, &xi);
-        if run.is_new(parts.tile[p], below) {
+        let xi = ctx.local(&xs[p], cell.of(ctx, tiles[p]));
+        let (k, below, _) = ctx.weights::<NA, N>(&xs[p], half, &xi);
+        if run.is_new(tiles[p], below) {
             if run.started() {
                 acc.flush(ctx, grid, &run.idx, m);
             }
-            run.enter(ctx, parts.tile[p], below);
+            run.enter(ctx, tiles[p], below);
             // The run's records are added into at its end, after its particles:
             // fetched meanwhile, not waited for then.
             for &n in &run.idx {
@@ -1877,7 +1887,7 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
             }
             u * mass
         } else {
-            parts.v[p] * mass
+            vels[p] * mass
         };
         let fe = if m.forces {
             ctx.accel_kept(parts.accel, parts.x0, p) * mass
