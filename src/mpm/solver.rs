@@ -2558,15 +2558,20 @@ impl<'c, const D: usize> Solver<'c, D> {
         // Summed per fixed chunk, then in a fixed tree (as `errors`): on threads, and
         // the same on any thread count. Slots: mass, kinetic, strain, (external work),
         // plastic work, momentum per axis.
+        // The arrays every particle has, as long as the positions (one index check
+        // per particle), and each kind's values looked up when the kind changes.
+        let len = parts.len();
+        let (vs, kind_of) = (&parts.v[..len], &parts.kind[..len]);
         let chunk = |k: usize| {
             let mut sums = [0.0; 8];
-            for p in k * LOCATE_CHUNK..parts.len().min((k + 1) * LOCATE_CHUNK) {
-                let kind = parts.kind[p] as usize;
-                let m = kinds.mass[kind];
-                let v = parts.v[p];
+            let mut cache = particles::KindCache::new(&kinds.mass, &kinds.vol0, materials);
+            for p in k * LOCATE_CHUNK..len.min((k + 1) * LOCATE_CHUNK) {
+                let at = cache.get(kind_of[p]);
+                let m = at.mass;
+                let v = vs[p];
                 sums[0] += m;
                 sums[1] += 0.5 * m * v.norm_squared();
-                let mat = &materials[kind];
+                let mat = at.material;
                 let f = if parts.def_grad.is_empty() {
                     Mat::<D>::identity()
                 } else {
@@ -2575,7 +2580,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                 // The energy of a material whose stress is not stored is a function of
                 // `F` alone: no need to form its stress.
                 let stress = parts.stress.get(p).copied().unwrap_or_else(Mat::<D>::zeros);
-                let vol0 = kinds.vol0[kind];
+                let vol0 = at.vol0;
                 let vol = || parts.volume(p, &kinds.vol0);
                 sums[2] += mat.strain_energy(&stress, &f, parts.be.get(p), vol, vol0);
                 if let Some(&e) = parts.eps_p.get(p) {
