@@ -17,6 +17,7 @@ use crate::physics::tensor::{vector, Mat, Vector};
 use decomposition::tiles::TILE_LOG;
 use decomposition::{Block, Communicator, Layout, Migrator, Tiles, Traffic, TILE};
 use rayon::prelude::*;
+use std::mem::MaybeUninit;
 
 /// The read-only context of the particle loops, borrowed field by field from a solver.
 macro_rules! ctx {
@@ -300,6 +301,22 @@ fn pad_off<const D: usize>(r: usize) -> usize {
     PAD_OFFS[D][r & 7]
 }
 
+/// A node stencil's per-tile table (`[b][a][k]`: per axis, component and padded
+/// node) once its loops have written every entry: built in place from
+/// `MaybeUninit`, since an initialised array is zeroed first (a `memset` of 15.5 kB per
+/// tile and stencil in 3D, about 0.5 % of the 3D step).
+#[inline(always)]
+fn filled<const D: usize, const NP: usize>(
+    t: &[[[MaybeUninit<f64>; NP]; D]; D],
+) -> &[[[f64; NP]; D]; D] {
+    // SAFETY: `MaybeUninit<f64>` has the size, alignment and bit validity of `f64`
+    // where initialised, so nested arrays of it have the layout of the same arrays of
+    // `f64`; both callers write every entry (`0 .. NP − PAD^b` by the pair loop, the
+    // rest to 0) of every `[b][a]` before calling this, so all are initialised. The
+    // result borrows `t`, which is not written again.
+    unsafe { &*(t as *const [[[MaybeUninit<f64>; NP]; D]; D]).cast::<[[[f64; NP]; D]; D]>() }
+}
+
 /// [`pad_off`] per dimension (0 to 3) and corner (bit `a` of `r`: the upper side
 /// along axis `a`): `Σ_a r_a PAD^a`.
 const PAD_OFFS: [[usize; 8]; 4] = {
@@ -563,17 +580,22 @@ impl<const D: usize> NodeView<'_, D> {
             // `ssp[b][a][k] = σ̄_ab(k) + σ̄_ab(k + e_b)`, once per tile: each cell's pair
             // of corners along b enters the force of each of its corners' nodes, which
             // added them each time. The same addition, so the same bits. (The last
-            // PAD^b entries, which no cell reads, stay 0.)
-            let mut ssp = [[[0.0; NP]; D]; D];
+            // PAD^b entries, which no cell reads, are 0; the array is not zeroed
+            // first: [`filled`].)
+            let mut ssp = [[[MaybeUninit::uninit(); NP]; D]; D];
             for (b, ssp) in ssp.iter_mut().enumerate() {
                 let st = PAD.pow(b as u32);
                 for (a, ss) in ssp.iter_mut().enumerate() {
                     let s = &sp[kernel::sym_index::<D>(a, b)];
                     for k in 0..NP - st {
-                        ss[k] = s[k] + s[k + st];
+                        ss[k].write(s[k] + s[k + st]);
+                    }
+                    for x in &mut ss[NP - st..] {
+                        x.write(0.0);
                     }
                 }
             }
+            let ssp = filled(&ssp);
             self.pad_rows(slot, |o0, p0, own, _, low| {
                 let mut f = [[0.0; TILE]; D];
                 for q in 0..(1 << D) {
@@ -650,16 +672,20 @@ impl<const D: usize> NodeView<'_, D> {
             // edge along b enters the gradient of each of its corners' nodes (eight
             // times in 3D), which formed the difference each time. The same
             // subtraction, so the same bits. (The last PAD^b entries, which no cell
-            // reads, stay 0.)
-            let mut dvp = [[[0.0; NP]; D]; D];
+            // reads, are 0; the array is not zeroed first: [`filled`].)
+            let mut dvp = [[[MaybeUninit::uninit(); NP]; D]; D];
             for (b, dvp) in dvp.iter_mut().enumerate() {
                 let st = PAD.pow(b as u32);
                 for (dv, v) in dvp.iter_mut().zip(&vp) {
                     for k in 0..NP - st {
-                        dv[k] = v[k + st] - v[k];
+                        dv[k].write(v[k + st] - v[k]);
+                    }
+                    for x in &mut dv[NP - st..] {
+                        x.write(0.0);
                     }
                 }
             }
+            let dvp = filled(&dvp);
             // A row of TILE nodes at a time, one per lane, as in `force_tiles`: each
             // lane does its node's operations in its order, and a skipped cell adds an
             // exact zero to sums that never hold −0, so the same bits.
