@@ -1855,7 +1855,7 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
         // vector register live across it is saved and reloaded; before the weights,
         // few are.
         let (vol, vs) = if m.forces {
-            particles::volume_and_stress_at(parts.stress, &parts.vol, ctx.materials, &at, p)
+            particles::volume_and_stress(parts.stress, &parts.vol, ctx.materials, &at, p)
         } else {
             (parts.vol.get(p), Mat::<D>::zeros())
         };

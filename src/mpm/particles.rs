@@ -358,36 +358,6 @@ fn kirchhoff_call<const D: usize>(m: &Material, f: &Mat<D>) -> (Mat<D>, f64) {
     m.kirchhoff_of_def_grad(f)
 }
 
-/// Particle `p`'s volume `V` and `V σ` (the scatter's): where the particles store
-/// neither the volume nor the stress, `J V₀` and `V₀ τ` from the Kirchhoff stress
-/// `τ = J σ` of `F` (no division by `J`, no second determinant); else the volume
-/// ([`volume_of`]) times the stress ([`stress_of`]). `materials`: per kind.
-#[inline(always)]
-pub fn volume_and_stress<const D: usize>(
-    stress: &[Mat<D>],
-    vols: &Volumes<'_, D>,
-    materials: &[Material],
-    p: usize,
-) -> (f64, Mat<D>) {
-    if vols.vol.is_empty() && stress.is_empty() {
-        let kind = vols.kind[p] as usize;
-        let (m, f) = (&materials[kind], &vols.def_grad[p]);
-        let (tau, j) = if D == 3 {
-            kirchhoff_call(m, f)
-        } else {
-            m.kirchhoff_of_def_grad(f)
-        };
-        let v0 = vols.kind_vol0[kind];
-        (j * v0, tau * v0)
-    } else {
-        let v = vols.get(p);
-        (
-            v,
-            stress_of(stress, vols.def_grad, vols.kind, materials, p) * v,
-        )
-    }
-}
-
 /// A kind's mass, reference volume and material ([`Kinds`]), as a particle loop
 /// keeps them while the kind stays the same ([`KindCache`]).
 #[derive(Clone, Copy)]
@@ -444,9 +414,13 @@ impl<'a> KindCache<'a> {
     }
 }
 
-/// [`volume_and_stress`] of particle `p` of kind `at`.
+/// Particle `p`'s volume `V` and `V σ` (the scatter's), `at` its kind
+/// ([`KindCache`]): where the particles store neither the volume nor the stress,
+/// `J V₀` and `V₀ τ` from the Kirchhoff stress `τ = J σ` of `F` (no division by `J`,
+/// no second determinant); else the volume ([`volume_of`]) times the stress
+/// ([`stress_of`]). `materials`: per kind.
 #[inline(always)]
-pub fn volume_and_stress_at<const D: usize>(
+pub fn volume_and_stress<const D: usize>(
     stress: &[Mat<D>],
     vols: &Volumes<'_, D>,
     materials: &[Material],
@@ -462,7 +436,11 @@ pub fn volume_and_stress_at<const D: usize>(
         };
         (j * at.vol0, tau * at.vol0)
     } else {
-        volume_and_stress(stress, vols, materials, p)
+        let v = vols.get(p);
+        (
+            v,
+            stress_of(stress, vols.def_grad, vols.kind, materials, p) * v,
+        )
     }
 }
 
@@ -1135,7 +1113,8 @@ mod tests {
     /// A particle loop's [`KindCache`] gives the tables' values of each particle's
     /// kind, to the bit, along a sequence of kinds that stays, changes, and returns to
     /// a kind it left (a cache that kept the first kind, or did not reload on a
-    /// return, would fail it); and `volume_and_stress_at` is `volume_and_stress`.
+    /// return, would fail it); and `volume_and_stress` with it forms `J V₀` and
+    /// `V₀ τ` from the tables' own volume and material.
     #[test]
     fn kind_cache_gives_each_kinds_tables() {
         use crate::physics::material::neo_hookean::NeoHookean;
@@ -1168,8 +1147,9 @@ mod tests {
             assert_eq!(at.mass.to_bits(), mass[i].to_bits(), "particle {p}");
             assert_eq!(at.vol0.to_bits(), vol0[i].to_bits(), "particle {p}");
             assert!(std::ptr::eq(at.material, &materials[i]), "particle {p}");
-            let (v, s) = volume_and_stress_at(&[], &vols, &materials, &at, p);
-            let (w, t) = volume_and_stress(&[], &vols, &materials, p);
+            let (v, s) = volume_and_stress(&[], &vols, &materials, &at, p);
+            let (tau, j) = materials[i].kirchhoff_of_def_grad(&def_grad[p]);
+            let (w, t) = (j * vol0[i], tau * vol0[i]);
             assert_eq!(v.to_bits(), w.to_bits(), "particle {p}");
             assert!(s
                 .iter()
