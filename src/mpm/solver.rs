@@ -301,19 +301,34 @@ fn pad_off<const D: usize>(r: usize) -> usize {
     PAD_OFFS[D][r & 7]
 }
 
-/// A node stencil's per-tile table (`[b][a][k]`: per axis, component and padded
-/// node) once its loops have written every entry: built in place from
-/// `MaybeUninit`, since an initialised array is zeroed first (a `memset` of 15.5 kB per
-/// tile and stencil in 3D, about 0.5 % of the 3D step).
+/// A node stencil's per-tile table of pairs along each axis: entry `[b][a][k]` is
+/// `op(src(a, b)[k], src(a, b)[k + PAD^b])` for `k < NP − PAD^b`, and 0 for the last
+/// `PAD^b` (which no cell reads), written into `t` and returned as `f64`s. Built in
+/// place from `MaybeUninit`: an initialised array is zeroed first (a `memset` of
+/// 15.5 kB per tile and stencil in 3D, about 0.5 % of the 3D step).
 #[inline(always)]
-fn filled<const D: usize, const NP: usize>(
-    t: &[[[MaybeUninit<f64>; NP]; D]; D],
-) -> &[[[f64; NP]; D]; D] {
+fn pair_table<'t, const D: usize, const NP: usize>(
+    t: &'t mut [[[MaybeUninit<f64>; NP]; D]; D],
+    src: impl Fn(usize, usize) -> &'t [f64; NP],
+    op: impl Fn(f64, f64) -> f64,
+) -> &'t [[[f64; NP]; D]; D] {
+    for (b, tb) in t.iter_mut().enumerate() {
+        let st = PAD.pow(b as u32);
+        for (a, row) in tb.iter_mut().enumerate() {
+            let s = src(a, b);
+            for k in 0..NP - st {
+                row[k].write(op(s[k], s[k + st]));
+            }
+            for x in &mut row[NP - st..] {
+                x.write(0.0);
+            }
+        }
+    }
     // SAFETY: `MaybeUninit<f64>` has the size, alignment and bit validity of `f64`
     // where initialised, so nested arrays of it have the layout of the same arrays of
-    // `f64`; both callers write every entry (`0 .. NP − PAD^b` by the pair loop, the
-    // rest to 0) of every `[b][a]` before calling this, so all are initialised. The
-    // result borrows `t`, which is not written again.
+    // `f64`; the loops above wrote every entry of every `[b][a]` (`0 .. NP − PAD^b`,
+    // then the rest), so all are initialised. The result borrows `t` for as long as
+    // the mutable borrow it came from, so `t` is not written again meanwhile.
     unsafe { &*(t as *const [[[MaybeUninit<f64>; NP]; D]; D]).cast::<[[[f64; NP]; D]; D]>() }
 }
 
@@ -581,21 +596,13 @@ impl<const D: usize> NodeView<'_, D> {
             // of corners along b enters the force of each of its corners' nodes, which
             // added them each time. The same addition, so the same bits. (The last
             // PAD^b entries, which no cell reads, are 0; the array is not zeroed
-            // first: [`filled`].)
+            // first: [`pair_table`].)
             let mut ssp = [[[MaybeUninit::uninit(); NP]; D]; D];
-            for (b, ssp) in ssp.iter_mut().enumerate() {
-                let st = PAD.pow(b as u32);
-                for (a, ss) in ssp.iter_mut().enumerate() {
-                    let s = &sp[kernel::sym_index::<D>(a, b)];
-                    for k in 0..NP - st {
-                        ss[k].write(s[k] + s[k + st]);
-                    }
-                    for x in &mut ss[NP - st..] {
-                        x.write(0.0);
-                    }
-                }
-            }
-            let ssp = filled(&ssp);
+            let ssp = pair_table(
+                &mut ssp,
+                |a, b| &sp[kernel::sym_index::<D>(a, b)],
+                |lo, hi| lo + hi,
+            );
             self.pad_rows(slot, |o0, p0, own, _, low| {
                 let mut f = [[0.0; TILE]; D];
                 for q in 0..(1 << D) {
@@ -672,20 +679,9 @@ impl<const D: usize> NodeView<'_, D> {
             // edge along b enters the gradient of each of its corners' nodes (eight
             // times in 3D), which formed the difference each time. The same
             // subtraction, so the same bits. (The last PAD^b entries, which no cell
-            // reads, are 0; the array is not zeroed first: [`filled`].)
+            // reads, are 0; the array is not zeroed first: [`pair_table`].)
             let mut dvp = [[[MaybeUninit::uninit(); NP]; D]; D];
-            for (b, dvp) in dvp.iter_mut().enumerate() {
-                let st = PAD.pow(b as u32);
-                for (dv, v) in dvp.iter_mut().zip(&vp) {
-                    for k in 0..NP - st {
-                        dv[k].write(v[k + st] - v[k]);
-                    }
-                    for x in &mut dv[NP - st..] {
-                        x.write(0.0);
-                    }
-                }
-            }
-            let dvp = filled(&dvp);
+            let dvp = pair_table(&mut dvp, |a, _| &vp[a], |lo, hi| hi - lo);
             // A row of TILE nodes at a time, one per lane, as in `force_tiles`: each
             // lane does its node's operations in its order, and a skipped cell adds an
             // exact zero to sums that never hold −0, so the same bits.
