@@ -381,6 +381,22 @@ impl<const D: usize> Tiles<D> {
         Some(l)
     }
 
+    /// Local coordinates of the first node of `slot`'s tile when all its nodes are in
+    /// the box, `None` where the tile overhangs it: then [`Tiles::local`] of the node
+    /// at `offset` is these plus the offset's position along each axis.
+    #[inline]
+    pub fn local_first(&self, slot: usize) -> Option<[usize; D]> {
+        let o = self.origin[slot];
+        let mut l = [0usize; D];
+        for a in 0..D {
+            if o[a] < self.shift[a] || o[a] - self.shift[a] + TILE > self.dims[a] {
+                return None;
+            }
+            l[a] = o[a] - self.shift[a];
+        }
+        Some(l)
+    }
+
     /// The local coordinate along axis `a` of shifted node coordinate `m`, `None`
     /// outside the box.
     #[inline(always)]
@@ -603,6 +619,37 @@ mod tests {
         assert!(count > 0 && count <= t.active() * t.tile_nodes());
         assert!(t.index([5, 3, 2]).is_some() && t.index([12, 10, 5]).is_some());
         assert!(t.index([0, 10, 5]).is_none());
+    }
+
+    /// `local_first` names the tiles wholly in the box, and of each the first node's
+    /// local coordinates, from which `local` of every node follows.
+    #[test]
+    fn local_first_is_local_of_a_whole_tile() {
+        fn check<const D: usize>(dims: [usize; D], shift: [usize; D]) -> usize {
+            let mut t = Tiles::<D>::new(dims, shift);
+            t.begin();
+            t.touch([0; D].map(|v: i64| v - 1), dims.map(|n| n as i64));
+            t.finish();
+            let mut inside = 0;
+            for slot in 1..t.slots() {
+                let whole = (0..t.tile_nodes()).all(|o| t.local(slot, o).is_some());
+                let first = t.local_first(slot);
+                assert_eq!(first.is_some(), whole, "slot {slot}");
+                if let Some(l) = first {
+                    inside += 1;
+                    for o in 0..t.tile_nodes() {
+                        let want: [usize; D] = std::array::from_fn(|a| {
+                            l[a] + ((o >> (TILE_LOG * a as u32)) & (TILE - 1))
+                        });
+                        assert_eq!(t.local(slot, o), Some(want), "slot {slot}, node {o}");
+                    }
+                }
+            }
+            inside
+        }
+        assert!(check([13, 11, 6], [2, 0, 1]) > 0);
+        assert!(check([9, 5], [3, 1]) > 0);
+        assert!(check([14, 9], [0, 3]) > 0);
     }
 
     /// `local_row` is `local` node by node, for every row of every active tile, where

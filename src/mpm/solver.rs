@@ -494,6 +494,34 @@ impl<const D: usize> NodeView<'_, D> {
         });
     }
 
+    /// The local coordinates of the first node of tile `slot` when every node of the
+    /// tile is owned and has a cell below it along every axis (local coordinates at
+    /// least 1), as in the body's interior; else `None`. Such a tile's nodes need no
+    /// per-node test ([`NodeView::pad_rows`], [`NodeView::pad_nodes`]): those tests
+    /// were about 1.5 % of the 3D step's instructions.
+    #[inline]
+    fn inner_first(&self, slot: usize) -> Option<[usize; D]> {
+        let first = self.tiles.local_first(slot)?;
+        (0..D)
+            .all(|a| first[a] >= self.own_lo[a].max(1) && first[a] + TILE <= self.own_hi[a])
+            .then_some(first)
+    }
+
+    /// [`Tiles::local_row`] of the row at offset `o0` of a tile whose first node is at
+    /// local coordinates `first` and which lies wholly in the box.
+    #[inline(always)]
+    fn inner_row(first: [usize; D], o0: usize) -> [Option<[usize; D]>; TILE] {
+        let mut c = first;
+        for (a, c) in c.iter_mut().enumerate().skip(1) {
+            *c += (o0 >> (TILE_LOG * a as u32)) & (TILE - 1);
+        }
+        std::array::from_fn(|x| {
+            let mut c = c;
+            c[0] += x;
+            Some(c)
+        })
+    }
+
     /// `f(n, c, p, record)` for every owned node of tile `slot`, with `p` its index in
     /// the tile's padded arrays ([`NodeView::par_tiles`]).
     #[inline]
@@ -505,13 +533,17 @@ impl<const D: usize> NodeView<'_, D> {
         mut f: impl FnMut(usize, [usize; D], usize, &mut [f64]),
     ) {
         let tn = self.tiles.tile_nodes();
+        let inner = self.inner_first(slot);
         // A row along the first axis at a time (`Tiles::local_row`), nodes in order.
         for (row, recs) in recs.chunks_exact_mut(width * TILE).enumerate() {
-            let locs = self.tiles.local_row(slot, row * TILE);
+            let (locs, owned) = match inner {
+                Some(first) => (Self::inner_row(first, row * TILE), true),
+                None => (self.tiles.local_row(slot, row * TILE), false),
+            };
             for (x, rec) in recs.chunks_exact_mut(width).enumerate() {
                 let o = row * TILE + x;
                 if let Some(c) = locs[x] {
-                    if (0..D).all(|a| c[a] >= self.own_lo[a] && c[a] < self.own_hi[a]) {
+                    if owned || (0..D).all(|a| c[a] >= self.own_lo[a] && c[a] < self.own_hi[a]) {
                         let p = (0..D)
                             .map(|a| {
                                 (((o >> (TILE_LOG * a as u32)) & (TILE - 1)) + 1)
@@ -538,23 +570,30 @@ impl<const D: usize> NodeView<'_, D> {
         slot: usize,
         mut f: impl FnMut(usize, usize, &[bool; TILE], &[[usize; D]; TILE], &[usize; TILE]),
     ) {
+        let inner = self.inner_first(slot);
         for row in 0..TILE.pow(D as u32 - 1) {
             let o0 = row * TILE;
             let mut own = [false; TILE];
             let mut cs = [[0usize; D]; TILE];
-            let locs = self.tiles.local_row(slot, o0);
-            for x in 0..TILE {
-                if let Some(c) = locs[x] {
-                    own[x] = (0..D).all(|a| c[a] >= self.own_lo[a] && c[a] < self.own_hi[a]);
-                    cs[x] = c;
-                }
-            }
             // Per node, the axes along which it has no cell below (local coordinate
             // 0, or outside the box): [`NodeView::row_cells`]' test per corner.
             let mut low = [0usize; TILE];
-            for x in 0..TILE {
-                for a in 0..D {
-                    low[x] |= usize::from(cs[x][a] == 0) << a;
+            if let Some(first) = inner {
+                // Every node owned, none at local coordinate 0.
+                own = [true; TILE];
+                cs = Self::inner_row(first, o0).map(|c| c.unwrap_or([0; D]));
+            } else {
+                let locs = self.tiles.local_row(slot, o0);
+                for x in 0..TILE {
+                    if let Some(c) = locs[x] {
+                        own[x] = (0..D).all(|a| c[a] >= self.own_lo[a] && c[a] < self.own_hi[a]);
+                        cs[x] = c;
+                    }
+                }
+                for x in 0..TILE {
+                    for a in 0..D {
+                        low[x] |= usize::from(cs[x][a] == 0) << a;
+                    }
                 }
             }
             if own.iter().any(|&o| o) {
