@@ -352,10 +352,14 @@ fn stress_call<const D: usize>(m: &Material, f: &Mat<D>) -> Mat<D> {
     m.stress_of_def_grad(f)
 }
 
-/// [`Material::kirchhoff_of_def_grad`] as a call of its own in 3D, as [`stress_call`].
+/// `J V₀` and `V₀ τ` ([`Material::kirchhoff_of_def_grad`]) as a call of its own in 3D,
+/// as [`stress_call`]. Scaled here, not by the caller: the caller's vector products
+/// read `τ` back from the call's scalar stores, which the CPU cannot forward to a
+/// wider load, and that one product took a fifth of the 3D scatter's samples.
 #[inline(never)]
-fn kirchhoff_call<const D: usize>(m: &Material, f: &Mat<D>) -> (Mat<D>, f64) {
-    m.kirchhoff_of_def_grad(f)
+fn kirchhoff_call<const D: usize>(m: &Material, f: &Mat<D>, vol0: f64) -> (f64, Mat<D>) {
+    let (tau, j) = m.kirchhoff_of_def_grad(f);
+    (j * vol0, tau * vol0)
 }
 
 /// A kind's mass, reference volume and material ([`Kinds`]), as a particle loop
@@ -429,12 +433,12 @@ pub fn volume_and_stress<const D: usize>(
 ) -> (f64, Mat<D>) {
     if vols.vol.is_empty() && stress.is_empty() {
         let (m, f) = (at.material, &vols.def_grad[p]);
-        let (tau, j) = if D == 3 {
-            kirchhoff_call(m, f)
+        if D == 3 {
+            kirchhoff_call(m, f, at.vol0)
         } else {
-            m.kirchhoff_of_def_grad(f)
-        };
-        (j * at.vol0, tau * at.vol0)
+            let (tau, j) = m.kirchhoff_of_def_grad(f);
+            (j * at.vol0, tau * at.vol0)
+        }
     } else {
         let v = vols.get(p);
         (
