@@ -117,7 +117,7 @@ pub fn batch<const D: usize, const N: usize>(
 /// A batch of each width, zeroed once for a task's particles and filled again by
 /// each batch of a pass ([`Batch::fill`]): zeroed per batch, it was a `memset` of
 /// 3.4 kB for every eight particles, 3 % of the 3D step. Every fill writes the
-/// weights whole, and `L̄` whole in a two-step pass and never otherwise, where it
+/// weights whole (of the gradients, every entry that is read), and `L̄` whole in a two-step pass and never otherwise, where it
 /// stays zero as a fresh batch's: so a pass reads what a zeroed batch would hold.
 /// One room serves one pass.
 pub struct Room<const D: usize, const N: usize> {
@@ -149,6 +149,10 @@ pub fn physical<const B: usize>(marks: &[f64; B]) -> bool {
 struct Batch<const D: usize, const N: usize, const B: usize> {
     xi: [[f64; B]; D],
     sh: [[f64; B]; N],
+    /// `g[d][n]` is written and read only where node `n` is the upper one of its pair
+    /// along `d` ([`pair`]): a hat's derivative at the lower node is minus the upper
+    /// one's, and the pair enters the gradient as the velocity's difference
+    /// ([`NodeData::dv`]).
     g: [[[f64; B]; N]; D],
     alpha: [f64; B],
     all: [[[f64; B]; D]; D],
@@ -554,7 +558,8 @@ pub(crate) fn local_lanes<const D: usize, const B: usize>(
 }
 
 /// [`Ctx::weights`] with hat functions, lane by lane: the shape functions `sh[n]`,
-/// their gradients `g[d][n]` (every entry written) and α (returned) of particles with
+/// their gradients `g[d][n]` at the upper node `n` of each pair along `d` ([`pair`];
+/// the other entries are left as they were) and α (returned) of particles with
 /// local coordinates `xi[a]`.
 #[inline(always)]
 fn weights_into<const D: usize, const N: usize, const B: usize>(
@@ -600,6 +605,12 @@ fn weights_into<const D: usize, const N: usize, const B: usize>(
         }
         sh[n] = sn;
         for d in 0..D {
+            // The gradient's entries at the lower node of a pair along `d` are never
+            // read (see `g`'s docs): half the products and stores of the 3D batch's
+            // gradients.
+            if o[d] == 0 {
+                continue;
+            }
             let mut p = [dw[d][o[d]]; B];
             for e in 0..D {
                 if e != d {
