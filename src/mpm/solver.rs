@@ -338,11 +338,11 @@ fn pair_table<'t, const D: usize, const NP: usize>(
 /// place from `MaybeUninit`, as [`pair_table`]: an initialised array is zeroed first
 /// (`memset`s of 17 kB per tile in the two 3D stencils).
 #[inline(always)]
-fn pad_table<'t, const R: usize, const NP: usize>(
-    t: &'t mut [[MaybeUninit<f64>; NP]; R],
+fn pad_table<const R: usize, const NP: usize>(
+    t: &mut [[MaybeUninit<f64>; NP]; R],
     rows: usize,
     value: impl Fn(usize, usize) -> f64,
-) -> &'t [[f64; NP]] {
+) -> &[[f64; NP]] {
     let t = &mut t[..rows];
     for k in 0..NP {
         for (i, row) in t.iter_mut().enumerate() {
@@ -699,7 +699,7 @@ impl<const D: usize> NodeView<'_, D> {
             self.pad_rows(slot, |o0, p0, own, _, low| {
                 let mut f = [[0.0; TILE]; D];
                 for q in 0..(1 << D) {
-                    let (cell, w) = Self::row_cells(&cw, low, p0, q);
+                    let (cell, w) = Self::row_cells(cw, low, p0, q);
                     // `∫_c S_r ∂_b S_q` does not depend on `r_b` (a hat's derivative
                     // along b is constant across the cell): the corners r and r + e_b
                     // share it, so their stresses are added first (`ssp`), half the products.
@@ -790,7 +790,7 @@ impl<const D: usize> NodeView<'_, D> {
                 let mut mv = [[0.0; TILE]; D];
                 let mut md = [[0.0; TILE]; D];
                 for q in 0..(1 << D) {
-                    let (cell, w) = Self::row_cells(&cw, low, p0, q);
+                    let (cell, w) = Self::row_cells(cw, low, p0, q);
                     let mut mc = [[0.0; TILE]; D];
                     for r in 0..(1 << D) {
                         let (m, at) = (cell_m[q][r], cell + pad_off::<D>(r));
