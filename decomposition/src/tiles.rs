@@ -621,15 +621,22 @@ mod tests {
         assert!(t.index([0, 10, 5]).is_none());
     }
 
+    /// Tiles over a box of `dims` nodes shifted by `shift`, with every tile that holds
+    /// a node of the box (and the layer one node wide around it) active.
+    fn every_tile<const D: usize>(dims: [usize; D], shift: [usize; D]) -> Tiles<D> {
+        let mut t = Tiles::<D>::new(dims, shift);
+        t.begin();
+        t.touch([0; D].map(|v: i64| v - 1), dims.map(|n| n as i64));
+        t.finish();
+        t
+    }
+
     /// `local_first` names the tiles wholly in the box, and of each the first node's
     /// local coordinates, from which `local` of every node follows.
     #[test]
     fn local_first_is_local_of_a_whole_tile() {
         fn check<const D: usize>(dims: [usize; D], shift: [usize; D]) -> usize {
-            let mut t = Tiles::<D>::new(dims, shift);
-            t.begin();
-            t.touch([0; D].map(|v: i64| v - 1), dims.map(|n| n as i64));
-            t.finish();
+            let t = every_tile(dims, shift);
             let mut inside = 0;
             for slot in 1..t.slots() {
                 let whole = (0..t.tile_nodes()).all(|o| t.local(slot, o).is_some());
@@ -658,10 +665,7 @@ mod tests {
     #[test]
     fn local_row_is_local_per_node() {
         fn check<const D: usize>(dims: [usize; D], shift: [usize; D]) -> usize {
-            let mut t = Tiles::<D>::new(dims, shift);
-            t.begin();
-            t.touch([0; D].map(|v: i64| v - 1), dims.map(|n| n as i64));
-            t.finish();
+            let t = every_tile(dims, shift);
             let mut rows = 0;
             for slot in 1..t.slots() {
                 for o0 in (0..t.tile_nodes()).step_by(TILE) {
