@@ -1913,11 +1913,17 @@ impl<'c, const D: usize> Solver<'c, D> {
             .with_min_len(4)
             .for_each(|(slot, cw)| {
                 let mut corners = [0; 8];
+                // A tile whose every cell has its corners in the box needs no test per
+                // node (as `NodeView::inner_first`).
+                let whole = tiles
+                    .local_first(slot)
+                    .is_some_and(|l| (0..D).all(|a| l[a] + TILE < dims[a]));
                 for (o, w) in cw.iter_mut().enumerate() {
                     let n = slot * tn + o;
-                    let inside = tiles
-                        .local(slot, o)
-                        .is_some_and(|l| (0..D).all(|a| l[a] + 1 < dims[a]));
+                    let inside = whole
+                        || tiles
+                            .local(slot, o)
+                            .is_some_and(|l| (0..D).all(|a| l[a] + 1 < dims[a]));
                     *w = if inside {
                         tiles.octant(n, true, &mut corners);
                         corners[..1 << D]
