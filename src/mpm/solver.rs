@@ -715,6 +715,10 @@ impl<const D: usize> NodeView<'_, D> {
             );
             self.pad_rows(slot, |o0, p0, own, _, low| {
                 let mut f = [[0.0; TILE]; D];
+                // Kept whole in memory (as the scatter's run sums): in registers the
+                // compiler split the sums into pieces and put them together again for
+                // every corner.
+                let f = std::hint::black_box(&mut f);
                 for q in 0..(1 << D) {
                     let (cell, w) = Self::row_cells(cw, low, p0, q);
                     // `∫_c S_r ∂_b S_q` does not depend on `r_b` (a hat's derivative
