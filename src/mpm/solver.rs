@@ -365,10 +365,10 @@ fn keep_mask(w: &[f64; TILE]) -> [u64; TILE] {
 }
 
 /// `x` where `mask` is all ones, `+0` where it is zero: `if keep { x } else { 0.0 }`,
-/// bit for bit, as an `and` of the bits. Written as a select over a row, the
-/// compiler made the stencil's sums single numbers on the stack with a branch per
-/// lane (a third of the 3D averaged velocity gradient's time); the `and` stays one
-/// vector operation over the row.
+/// bit for bit, as an `and` of the bits; both node stencils add a cell's terms through
+/// it. Written as a select over a row, the compiler made the averaged velocity
+/// gradient's sums single numbers on the stack with a branch per lane (a third of its
+/// time in 3D); the `and` stays one vector operation over the row.
 #[inline(always)]
 fn kept(x: f64, mask: u64) -> f64 {
     f64::from_bits(x.to_bits() & mask)
@@ -743,10 +743,10 @@ impl<const D: usize> NodeView<'_, D> {
                             }
                         }
                     }
+                    let keep = keep_mask(&w);
                     for a in 0..D {
                         for x in 0..TILE {
-                            let add = w[x] * t[a][x];
-                            f[a][x] += if w[x] > 0.0 { add } else { 0.0 };
+                            f[a][x] += kept(w[x] * t[a][x], keep[x]);
                         }
                     }
                 }
