@@ -1907,6 +1907,13 @@ fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
 /// arithmetic or bounds checks and do not wait on the previous particle's store into
 /// the grid; the records see one addition per run instead of one per particle.
 /// Each sum is per node, nodes innermost.
+///
+/// Aligned to 32 bytes: the clear after each run (`memset`) then stores whole aligned
+/// vectors where the next run's first particle loads them, and each load finds its
+/// store to forward from. Unaligned, every such load spans two of `memset`'s stores
+/// and waits for them to reach the cache: the 3D scatter's two hottest instructions
+/// (12 % and 8.5 % of its samples), gone from the profile once aligned.
+#[repr(C, align(32))]
 struct ScatterSums<const D: usize, const N: usize> {
     mass: [f64; N],
     mom: [[f64; N]; D],
