@@ -179,6 +179,7 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
                         add_momentum(grid, m.record, &run.idx, &mut sum);
                     }
                     run.enter(ctx, tile, [0; D]);
+                    prefetch_momentum::<D, N>(grid, m.record, &run.idx);
                     nd.load(&run.idx, vel, &[], None);
                 }
                 if !run.at_wall() {
@@ -211,6 +212,7 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
                 add_momentum(grid, m.record, &run.idx, &mut sum);
             }
             run.enter(ctx, parts.tile[p], below);
+            prefetch_momentum::<D, N>(grid, m.record, &run.idx);
             nd.load(&run.idx, vel, &[], None);
         }
         k.ends = run.ends(ctx, &w);
@@ -341,6 +343,21 @@ fn remap_lanes<const D: usize, const N: usize, const B: usize>(
                 sum[a][n] += mv[a] * if by_rows { rows[l][n] } else { sh[n][l] };
             }
         }
+    }
+}
+
+/// Ask for the momentum of nodes `idx` (records as in [`add_momentum`]) at a run's
+/// start: it is added into at the run's end, and waiting for it there was a sixth of
+/// the 3D remap's samples (the records' other numbers, and so their cache lines, are
+/// the scatter's, long evicted). As `kernel::scatter` does for its records.
+#[inline(always)]
+fn prefetch_momentum<const D: usize, const N: usize>(
+    grid: GridPtr,
+    (width, at): (usize, usize),
+    idx: &[usize; N],
+) {
+    for &n in idx {
+        grid.prefetch(n * width + at, D);
     }
 }
 
