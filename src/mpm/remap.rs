@@ -348,8 +348,9 @@ fn remap_lanes<const D: usize, const N: usize, const B: usize>(
 
 /// Ask for the momentum of nodes `idx` (records as in [`add_momentum`]) at a run's
 /// start: it is added into at the run's end, and waiting for it there was a sixth of
-/// the 3D remap's samples (the records' other numbers, and so their cache lines, are
-/// the scatter's, long evicted). As `kernel::scatter` does for its records.
+/// the 3D remap's samples (the lines were last touched when `Solver::remap` cleared
+/// every record's momentum, and the 3D grid's records outgrow the core's caches). As
+/// `kernel::scatter` does for its records.
 #[inline(always)]
 fn prefetch_momentum<const D: usize, const N: usize>(
     grid: GridPtr,
