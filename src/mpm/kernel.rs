@@ -661,11 +661,12 @@ impl<const D: usize, const N: usize> NodeData<D, N> {
     pub fn load(&mut self, idx: &[usize; N], vel: &[f64], avg: &[f64], xpic: Option<&[f64]>) {
         let aw = AvgRecord::<D>::WIDTH;
         if D > 1 && N.is_multiple_of(4) {
-            // Four nodes at a time, four numbers of their records at a time, as
-            // whole-array transpositions (vector shuffles, not one store per number).
+            // Four nodes at a time, four numbers of their records at a time
+            // ([`rows4`]: vector shuffles, not a store per number).
+            let vw = VelRecord::<D>::WIDTH;
             for n0 in (0..N).step_by(4) {
-                let at: [usize; 4] = std::array::from_fn(|l| VelRecord::<D>::at(idx[n0 + l], 0));
-                for c0 in blocks_of_four(VelRecord::<D>::WIDTH) {
+                let at: [usize; 4] = std::array::from_fn(|l| idx[n0 + l] * vw);
+                for c0 in blocks_of_four(vw) {
                     let r = rows4(vel, at.map(|i| i + c0));
                     for (k, r) in r.iter().enumerate() {
                         let c = c0 + k;
@@ -688,16 +689,23 @@ impl<const D: usize, const N: usize> NodeData<D, N> {
                     }
                 }
             }
-            if let Some(x) = xpic {
-                for n in 0..N {
-                    let r = &x[idx[n] * D..(idx[n] + 1) * D];
-                    for a in 0..D {
-                        self.x[a][n] = r[a];
-                    }
+        } else {
+            self.load_by_nodes(idx, vel, avg);
+        }
+        if let Some(x) = xpic {
+            for n in 0..N {
+                let r = &x[idx[n] * D..(idx[n] + 1) * D];
+                for a in 0..D {
+                    self.x[a][n] = r[a];
                 }
             }
-            return;
         }
+    }
+
+    /// [`NodeData::load`]'s velocities and averages a node at a time (1D, GIMP).
+    #[inline(always)]
+    fn load_by_nodes(&mut self, idx: &[usize; N], vel: &[f64], avg: &[f64]) {
+        let aw = AvgRecord::<D>::WIDTH;
         for n in 0..N {
             let at = VelRecord::<D>::at(idx[n], FROM_MOMENTUM);
             let r = &vel[at..at + VelRecord::<D>::WIDTH];
@@ -712,12 +720,6 @@ impl<const D: usize, const N: usize> NodeData<D, N> {
                         self.lb[a][b][n] = r[a * D + b];
                     }
                     self.vb[a][n] = r[AvgRecord::<D>::VBAR + a];
-                }
-            }
-            if let Some(x) = xpic {
-                let r = &x[idx[n] * D..(idx[n] + 1) * D];
-                for a in 0..D {
-                    self.x[a][n] = r[a];
                 }
             }
         }
