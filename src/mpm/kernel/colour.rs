@@ -147,7 +147,9 @@ impl SlabOrder {
     pub const CHUNK: usize = 4096;
 
     /// An order of no slab, to be filled by [`SlabOrder::begin`] and
-    /// [`SlabOrder::finish`].
+    /// [`SlabOrder::finish`]. (No `Default`: an order is made here or built, never
+    /// filled in field by field.)
+    #[allow(clippy::new_without_default)]
     pub fn new() -> Self {
         SlabOrder {
             start: vec![0],
