@@ -1,7 +1,7 @@
 """Check that ParaView reads a run's particles.xmf as written (run by pvpython).
 
     scripts/check_paraview.sh OUT...     (runs this under xvfb-run if there is no display)
-    pvpython --force-offscreen-rendering scripts/check_paraview.py OUT... [--png-dir DIR]
+    pvpython --force-offscreen-rendering scripts/check_paraview.py OUT... [--png-dir DIR | --no-picture]
 
 For every run folder OUT, open OUT/particles.xmf with each of ParaView's XDMF readers
 (the legacy XDMFReader and both Xdmf3 readers) and check, at every time step, that the
@@ -9,8 +9,8 @@ reader loads one point and one vertex cell per particle of the snapshot, every f
 array with its number of components, the snapshot's time, and the bounds of its
 positions. The sizes come from the .h5 files themselves (h5py if pvpython can import
 it, else `h5ls`), not from the XDMF, so a wrong declaration fails too. Then it renders
-the last time step to OUT/paraview.png (or DIR/<run>.png). Exit status 1 if any check
-fails.
+the last time step to OUT/paraview.png (or DIR/<run>.png), unless --no-picture (the
+readers need no window; the picture does). Exit status 1 if any check fails.
 """
 
 import math
@@ -97,7 +97,7 @@ def check_run(out, png):
                         fails.append(f"{where}: bounds {b} differ from the positions' {bounds}")
                         break
         print(f"{out}: {name}: {len(times)} time steps checked")
-        if name == "Xdmf3ReaderT":
+        if name == "Xdmf3ReaderT" and png:
             render(r, times[-1], png)
         pv.Delete(r)
     return fails
@@ -133,6 +133,8 @@ def render(r, t, png):
 
 def main(argv):
     png_dir = None
+    picture = "--no-picture" not in argv
+    argv = [a for a in argv if a != "--no-picture"]
     if "--png-dir" in argv:
         i = argv.index("--png-dir")
         png_dir = argv[i + 1]
@@ -144,6 +146,7 @@ def main(argv):
     for out in argv:
         out = out.rstrip("/")
         png = os.path.join(png_dir, os.path.basename(out) + ".png") if png_dir else os.path.join(out, "paraview.png")
+        png = png if picture else None
         fails = check_run(out, png)
         for f in fails:
             print(f"FAIL {out}: {f}")

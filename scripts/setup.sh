@@ -29,9 +29,28 @@ if ! command -v cargo >/dev/null 2>&1; then
     . "$HOME/.cargo/env"
 fi
 
-# The parallel HDF5 that .cargo/config.toml points the build at.
-hdf5_dir=/usr/lib/x86_64-linux-gnu/hdf5/openmpi
-if [ ! -f "$hdf5_dir/lib/libhdf5.so" ] && [ ! -f "$hdf5_dir/libhdf5.so" ]; then
-    echo "setup: parallel HDF5 not found in $hdf5_dir (non-x86_64 machine?); set HDF5_DIR in .cargo/config.toml" >&2
+# The parallel HDF5 that .cargo/config.toml points the build at (as `.hdf5`): the user's
+# HDF5_DIR if set, else Debian's multiarch path for this machine's architecture, else the
+# installation point `h5pcc -showconfig` reports.
+root=$(cd "$(dirname "$0")/.." && pwd)
+find_hdf5() {
+    if [ -n "${HDF5_DIR:-}" ]; then echo "$HDF5_DIR"; return; fi
+    local multiarch
+    multiarch=$(gcc -print-multiarch 2>/dev/null || true)
+    [ -n "$multiarch" ] || multiarch="$(uname -m)-linux-gnu"
+    if [ -d "/usr/lib/$multiarch/hdf5/openmpi/include" ]; then
+        echo "/usr/lib/$multiarch/hdf5/openmpi"; return
+    fi
+    if command -v h5pcc >/dev/null 2>&1; then
+        h5pcc -showconfig 2>/dev/null | sed -n 's/^ *Installation point: *//p' | head -1
+    fi
+}
+hdf5_dir=$(find_hdf5)
+if [ -z "$hdf5_dir" ] || [ ! -d "$hdf5_dir/include" ] \
+   || { [ ! -f "$hdf5_dir/lib/libhdf5.so" ] && [ ! -f "$hdf5_dir/libhdf5.so" ]; }; then
+    echo "setup: no parallel HDF5 found (looked at HDF5_DIR, /usr/lib/<multiarch>/hdf5/openmpi, h5pcc -showconfig); install libhdf5-openmpi-dev or set HDF5_DIR to a parallel HDF5's installation (with include/ and lib/)" >&2
     exit 1
+fi
+if [ "$(readlink "$root/.hdf5" 2>/dev/null)" != "$hdf5_dir" ]; then
+    ln -sfn "$hdf5_dir" "$root/.hdf5"
 fi

@@ -98,6 +98,7 @@ pub fn remap<const D: usize, const NA: usize, const N: usize>(
         dx: dx.as_mut_ptr(),
         len: v.len(),
     };
+    slabs.check_reach::<NA>();
     let grid = GridPtr::new(mom);
     let ns = slabs.slabs();
     let mut t = RemapTally {
@@ -161,7 +162,7 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
     let mut sum = [[0.0; N]; D];
     let mut run = Run::<D, NA, N>::new();
     let mut cell = CellAt::<D>::new();
-    let order = &slabs.order[slabs.start[first]..slabs.start[first + 1]];
+    let order = slabs.slab(first);
     // Hat functions: eight (or four, or two) particles of a run at a time, their weights
     // and interpolated velocities over lanes (`kernel::lanes`), the rest of each
     // particle's update one by one in order, so the same bits. (In 3D too: unlike

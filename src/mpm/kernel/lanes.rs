@@ -41,13 +41,13 @@ pub const QUARTER: usize = 2;
 /// In 3D a batch's numbers do not fit the registers (24 shape-gradient terms and
 /// nine-entry matrices per lane) and part of them live on the stack, but the stack is
 /// L1: the 3D block drop's stress pass took 0.56× the time of one particle at a time
-/// (perf samples).
-/// (Only with the build's `prefer-no-gather` and `prefer-no-scatter`, .cargo/config.toml:
-/// without them LLVM vectorised the three-long loops over the axes with gathers and
-/// scatters, and the lanes were 1.3× slower than one by one.)
+/// (perf samples). Not in 3D where the build has AVX-512: there LLVM vectorises the
+/// three-long loops over the axes with gathers and scatters, and the 3D lanes ran 1.3×
+/// slower than one particle at a time.
 #[inline(always)]
 pub fn applies<const D: usize>(gimp: bool, s: &Slices<'_, D>) -> bool {
-    !gimp && s.parts.stress.is_empty() && !s.parts.def_grad.is_empty()
+    let wide_gathers = D == 3 && cfg!(target_feature = "avx512f");
+    !gimp && !wide_gathers && s.parts.stress.is_empty() && !s.parts.def_grad.is_empty()
 }
 
 /// A particle pass the lanes take in batches: the stress pass or the gather.

@@ -30,6 +30,68 @@ pub struct Internal<'a> {
     pub stress_zz: Option<&'a mut f64>,
 }
 
+/// A model whose Cauchy stress follows from the deformation gradient alone: its
+/// particles carry `F`, store no stress, and the stress is formed where it is used.
+/// Every method is required, so a model that misses one does not compile; each model
+/// passes the closed-form checks of `tests::check_hyperelastic`.
+pub trait Hyperelastic {
+    /// The Kirchhoff stress `τ = J σ` and `J = det F`: a particle's volume times its
+    /// Cauchy stress is `V₀ τ`, without the division by `J`.
+    fn kirchhoff<const D: usize>(&self, f: &Mat<D>) -> (Mat<D>, f64);
+    /// The Cauchy stress `σ`.
+    fn stress<const D: usize>(&self, f: &Mat<D>) -> Mat<D>;
+    /// Plane strain (D = 2): the out-of-plane stress σ_zz, with `F₃₃ = 1`.
+    fn stress_zz<const D: usize>(&self, f: &Mat<D>) -> f64;
+    /// Stored energy per reference volume, `W(F)`.
+    fn energy_density<const D: usize>(&self, f: &Mat<D>) -> f64;
+}
+
+/// Where a model's stress comes from; [`Material::stress_source`] decides it in one
+/// exhaustive match, so a new model must say which it is.
+pub enum StressSource<'a> {
+    /// Formed from `F` where it is used: particles carry `F` and no stress.
+    DefGrad(Hyper<'a>),
+    /// State of its own (rate or history forms), which particles store.
+    State,
+}
+
+/// The hyperelastic models, borrowed: [`Hyperelastic`]'s methods dispatched by an
+/// exhaustive match.
+#[derive(Clone, Copy)]
+pub enum Hyper<'a> {
+    NeoHookean(&'a neo_hookean::NeoHookean),
+}
+
+impl Hyper<'_> {
+    #[inline(always)]
+    pub fn kirchhoff<const D: usize>(self, f: &Mat<D>) -> (Mat<D>, f64) {
+        match self {
+            Hyper::NeoHookean(m) => m.kirchhoff(f),
+        }
+    }
+
+    #[inline(always)]
+    pub fn stress<const D: usize>(self, f: &Mat<D>) -> Mat<D> {
+        match self {
+            Hyper::NeoHookean(m) => m.stress(f),
+        }
+    }
+
+    #[inline(always)]
+    pub fn stress_zz<const D: usize>(self, f: &Mat<D>) -> f64 {
+        match self {
+            Hyper::NeoHookean(m) => m.stress_zz(f),
+        }
+    }
+
+    #[inline(always)]
+    pub fn energy_density<const D: usize>(self, f: &Mat<D>) -> f64 {
+        match self {
+            Hyper::NeoHookean(m) => m.energy_density(f),
+        }
+    }
+}
+
 /// Lamé parameters from Young's modulus and Poisson's ratio.
 pub fn lame(e: f64, nu: f64) -> (f64, f64) {
     let lambda = e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu));
@@ -87,36 +149,53 @@ impl Material {
         }
     }
 
+    /// Where the stress comes from: the one place that says which models are
+    /// hyperelastic ([`Material::needs_def_grad`], [`Material::stress_is_state`] and
+    /// the stress from `F` all follow from it).
+    #[inline(always)]
+    pub fn stress_source(&self) -> StressSource<'_> {
+        match self {
+            Material::NeoHookean(m) => StressSource::DefGrad(Hyper::NeoHookean(m)),
+            Material::LinearElastic(_) | Material::J2Plastic(_) | Material::Brittle(_) => {
+                StressSource::State
+            }
+        }
+    }
+
     /// Whether particles of this material must carry their deformation gradient.
     pub fn needs_def_grad(&self) -> bool {
-        matches!(self, Material::NeoHookean(_))
+        matches!(self.stress_source(), StressSource::DefGrad(_))
     }
 
     /// Whether the Cauchy stress is state of its own (rate or history forms), which
     /// particles must then store; else it follows from the deformation gradient
     /// ([`Material::stress_of_def_grad`]) and is formed where it is used.
     pub fn stress_is_state(&self) -> bool {
-        !matches!(self, Material::NeoHookean(_))
+        matches!(self.stress_source(), StressSource::State)
+    }
+
+    /// The hyperelastic model, for a material whose stress is not state. Callers ask
+    /// only for materials whose particles carry `F` (no stored stress).
+    #[inline(always)]
+    fn hyper(&self) -> Hyper<'_> {
+        match self.stress_source() {
+            StressSource::DefGrad(h) => h,
+            StressSource::State => panic!("the particles of stateful-stress materials store σ"),
+        }
     }
 
     /// The Cauchy stress of a material whose stress is not state, from `f`: the same
     /// function, hence the same numbers, as the one [`Material::update_stress`] applies.
     #[inline]
     pub fn stress_of_def_grad<const D: usize>(&self, f: &Mat<D>) -> Mat<D> {
-        match self {
-            Material::NeoHookean(m) => m.stress(f),
-            _ => unreachable!("the particles of stateful-stress materials store σ"),
-        }
+        self.hyper().stress(f)
     }
 
     /// The Kirchhoff stress `J σ` and `J` of a material whose stress is not state, from
     /// `f` (see [`Material::stress_of_def_grad`]).
     #[inline]
     pub fn kirchhoff_of_def_grad<const D: usize>(&self, f: &Mat<D>) -> (Mat<D>, f64) {
-        match self {
-            Material::NeoHookean(m) => m.kirchhoff(f),
-            _ => unreachable!("the particles of stateful-stress materials store σ"),
-        }
+        self.hyper().kirchhoff(f)
     }
 
     /// New Cauchy stress after a step with velocity gradient `l`, given the updated
@@ -133,7 +212,7 @@ impl Material {
     ) {
         match self {
             Material::LinearElastic(m) => m.update_stress(stress, l, dt),
-            Material::NeoHookean(m) => *stress = m.stress(f),
+            Material::NeoHookean(m) => *stress = Hyperelastic::stress(m, f),
             Material::J2Plastic(m) => {
                 let (be, eps_p) = internal.plastic.expect("j2_plastic particles carry be");
                 *stress = m.update(be, eps_p, l, dt);
@@ -185,7 +264,7 @@ impl Material {
                 Some(((m.lambda + 2.0 * m.mu) / m.density).sqrt())
             }
             Material::J2Plastic(m) => Some(((m.lambda + 2.0 * m.mu) / m.density).sqrt()),
-            _ => None,
+            Material::NeoHookean(_) | Material::LinearElastic(_) | Material::Brittle(_) => None,
         }
     }
 
@@ -218,7 +297,10 @@ impl Material {
             Material::J2Plastic(m) if m.lambda + 2.0 * m.mu > 0.0 => {
                 ((m.lambda + 2.0 * m.mu) * (1.0 + bound), m.density)
             }
-            _ => return false,
+            Material::NeoHookean(_)
+            | Material::J2Plastic(_)
+            | Material::LinearElastic(_)
+            | Material::Brittle(_) => return false,
         };
         let room = limit - v - 1e-12 * limit;
         room > 0.0 && m * (1.0 + 1e-12) <= density * room * room
@@ -282,7 +364,7 @@ impl Material {
     pub fn plastic_work(&self, eps_p: f64, vol0: f64) -> f64 {
         match self {
             Material::J2Plastic(m) => vol0 * m.plastic_work_density(eps_p),
-            _ => 0.0,
+            Material::LinearElastic(_) | Material::NeoHookean(_) | Material::Brittle(_) => 0.0,
         }
     }
 }
@@ -290,6 +372,167 @@ impl Material {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::physics::tensor::det;
+    use decomposition::splitmix::Rng;
+
+    /// A deformation gradient near the identity with `det F > 0`.
+    fn some_f<const D: usize>(rng: &mut Rng, size: f64) -> Mat<D> {
+        Mat::<D>::from_fn(|i, k| f64::from(u8::from(i == k)) + size * (rng.f64() - 0.5))
+    }
+
+    /// The closed-form properties every [`Hyperelastic`] model has, in 1D, 2D and 3D:
+    /// no stress or energy at rest; `τ = J σ`; the Kirchhoff stress is the energy's
+    /// derivative, `τ = (∂W/∂F) Fᵀ` (central differences); objectivity,
+    /// `σ(R F) = R σ(F) Rᵀ`, and `W(R F) = W(F)` for a rotation `R`; in plane strain
+    /// σ_zz is the 3D model's at `F₃₃ = 1`.
+    pub(crate) fn check_hyperelastic<M: Hyperelastic>(m: &M, scale: f64) {
+        fn each<const D: usize, M: Hyperelastic>(m: &M, scale: f64, rng: &mut Rng) {
+            let id = Mat::<D>::identity();
+            assert!(
+                m.stress(&id).norm() <= 1e-14 * scale,
+                "σ(I) = {}",
+                m.stress(&id)
+            );
+            assert!(m.energy_density(&id).abs() <= 1e-14 * scale);
+            assert!(m.stress_zz(&id).abs() <= 1e-14 * scale);
+            for _ in 0..20 {
+                let f = some_f::<D>(rng, 0.4);
+                let (tau, j) = m.kirchhoff(&f);
+                let sigma = m.stress(&f);
+                assert!((j - det(&f)).abs() <= 1e-15);
+                assert!((tau - sigma * j).norm() <= 1e-13 * scale, "τ ≠ J σ");
+                let h = 1e-6;
+                let dw = Mat::<D>::from_fn(|a, b| {
+                    let (mut up, mut down) = (f, f);
+                    up[(a, b)] += h;
+                    down[(a, b)] -= h;
+                    (m.energy_density(&up) - m.energy_density(&down)) / (2.0 * h)
+                });
+                let tau_w = dw * f.transpose();
+                assert!(
+                    (tau_w - tau).norm() <= 1e-7 * scale,
+                    "τ = {tau}, (∂W/∂F) Fᵀ = {tau_w}"
+                );
+                if D >= 2 {
+                    let (c, s) = (0.6_f64, 0.8_f64);
+                    let mut r = Mat::<D>::identity();
+                    r[(0, 0)] = c;
+                    r[(0, 1)] = -s;
+                    r[(1, 0)] = s;
+                    r[(1, 1)] = c;
+                    let turned = m.stress(&(r * f));
+                    assert!((turned - r * sigma * r.transpose()).norm() <= 1e-13 * scale);
+                    let w = m.energy_density(&f);
+                    assert!((m.energy_density(&(r * f)) - w).abs() <= 1e-13 * scale);
+                }
+                if D == 2 {
+                    let f3 = Mat::<3>::from_fn(|a, b| match (a, b) {
+                        (2, 2) => 1.0,
+                        (2, _) | (_, 2) => 0.0,
+                        _ => f[(a, b)],
+                    });
+                    let zz = m.stress_zz(&f);
+                    assert!((zz - m.stress(&f3)[(2, 2)]).abs() <= 1e-13 * scale);
+                }
+            }
+        }
+        let mut rng = Rng::new(17);
+        each::<1, M>(m, scale, &mut rng);
+        each::<2, M>(m, scale, &mut rng);
+        each::<3, M>(m, scale, &mut rng);
+    }
+
+    /// A toy model added as docs/architecture.md's recipe says (step 1, the model and
+    /// its closed-form checks): the compressible Saint Venant–Kirchhoff solid,
+    /// `W = λ/2 (tr E)² + μ E:E` with `E = (FᵀF − I)/2`, `τ = F S Fᵀ`,
+    /// `S = λ tr E I + 2μ E`. Implementing [`Hyperelastic`] requires every method
+    /// the solver uses; forgetting one is a compile error.
+    struct SaintVenantKirchhoff {
+        lambda: f64,
+        mu: f64,
+    }
+
+    impl Hyperelastic for SaintVenantKirchhoff {
+        fn kirchhoff<const D: usize>(&self, f: &Mat<D>) -> (Mat<D>, f64) {
+            let e = (f.transpose() * f - Mat::<D>::identity()) * 0.5;
+            let s = Mat::<D>::identity() * (self.lambda * e.trace()) + e * (2.0 * self.mu);
+            (f * s * f.transpose(), det(f))
+        }
+        fn stress<const D: usize>(&self, f: &Mat<D>) -> Mat<D> {
+            let (tau, j) = self.kirchhoff(f);
+            tau / j
+        }
+        fn stress_zz<const D: usize>(&self, f: &Mat<D>) -> f64 {
+            let e = (f.transpose() * f - Mat::<D>::identity()) * 0.5;
+            self.lambda * e.trace() / det(f)
+        }
+        fn energy_density<const D: usize>(&self, f: &Mat<D>) -> f64 {
+            let e = (f.transpose() * f - Mat::<D>::identity()) * 0.5;
+            0.5 * self.lambda * e.trace().powi(2) + self.mu * e.component_mul(&e).sum()
+        }
+    }
+
+    #[test]
+    fn a_toy_hyperelastic_model_passes_the_recipes_checks() {
+        check_hyperelastic(
+            &SaintVenantKirchhoff {
+                lambda: 2.0,
+                mu: 1.5,
+            },
+            2.0,
+        );
+    }
+
+    #[test]
+    fn neo_hookean_passes_the_hyperelastic_checks() {
+        let (lambda, mu) = lame(1e3, 0.3);
+        check_hyperelastic(
+            &neo_hookean::NeoHookean {
+                lambda,
+                mu,
+                density: 1.0,
+            },
+            1e3,
+        );
+    }
+
+    /// `needs_def_grad` and `stress_is_state` follow from `stress_source` for every
+    /// law a scene can name, exactly one of the two holds, and a hyperelastic
+    /// material's stress from `F` is its model's.
+    #[test]
+    fn every_law_says_where_its_stress_comes_from() {
+        use crate::input::plan::Law;
+        let laws = [
+            Law::LinearElastic,
+            Law::NeoHookean,
+            Law::J2Plastic {
+                yield_stress: 1.0,
+                hardening: 0.0,
+            },
+            Law::Brittle {
+                tensile_strength: 1.0,
+            },
+        ];
+        let f = Mat::<2>::new(1.1, 0.2, -0.1, 0.9);
+        for law in laws {
+            let plan = MaterialPlan {
+                law,
+                youngs_modulus: 1e3,
+                poisson_ratio: 0.3,
+                density: 1.0,
+            };
+            let m = Material::from_plan(&plan);
+            assert_ne!(m.needs_def_grad(), m.stress_is_state(), "{law:?}");
+            match m.stress_source() {
+                StressSource::DefGrad(h) => {
+                    assert!(m.needs_def_grad());
+                    assert_eq!(m.stress_of_def_grad(&f), h.stress(&f));
+                    assert_eq!(m.kirchhoff_of_def_grad(&f), h.kirchhoff(&f));
+                }
+                StressSource::State => assert!(m.stress_is_state()),
+            }
+        }
+    }
 
     /// `signal_speed_at_most` never says yes wrongly: over J from 0.3 to 1.6 (both
     /// sides of ½ and of 1, and within 1e-7 of 1, as in the vortex), particle speeds

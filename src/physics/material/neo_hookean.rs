@@ -3,6 +3,7 @@
 //! D = 1 (uniaxial strain) this is the 3D model restricted, since the missing
 //! directions contribute `1 − 1 = 0` to `F:F − D`.
 
+use super::Hyperelastic;
 use crate::physics::tensor::{det, Mat};
 
 #[derive(Clone, Debug, PartialEq)]
@@ -12,24 +13,42 @@ pub struct NeoHookean {
     pub density: f64,
 }
 
-impl NeoHookean {
+impl Hyperelastic for NeoHookean {
     /// The Kirchhoff stress `τ = J σ = μ F Fᵀ + (λ ln J − μ) I` and `J`: a particle's
     /// volume times its Cauchy stress is `V₀ τ`, without the division by `J`.
     #[inline]
-    pub fn kirchhoff<const D: usize>(&self, f: &Mat<D>) -> (Mat<D>, f64) {
+    fn kirchhoff<const D: usize>(&self, f: &Mat<D>) -> (Mat<D>, f64) {
         let j = det(f);
         // Times 1: exact, so `μ F Fᵀ + c I` itself (and the compiler drops it).
         (self.scaled_tau(f, self.lambda * j.ln() - self.mu, 1.0), j)
     }
 
     #[inline]
-    pub fn stress<const D: usize>(&self, f: &Mat<D>) -> Mat<D> {
+    fn stress<const D: usize>(&self, f: &Mat<D>) -> Mat<D> {
         let j = det(f);
         // One division, not D² (a division takes several times a multiplication's
         // issue slots, and this runs per particle and step): round-off apart, the same.
         self.scaled_tau(f, self.lambda * j.ln() - self.mu, 1.0 / j)
     }
 
+    /// Plane strain (D = 2): the out-of-plane stress from `F` with `F₃₃ = 1`,
+    /// `σ_zz = [μ (1 − 1) + λ ln J] / J = λ ln J / J`. No state needed.
+    fn stress_zz<const D: usize>(&self, f: &Mat<D>) -> f64 {
+        let j = det(f);
+        self.lambda * j.ln() / j
+    }
+
+    /// Energy per reference volume.
+    #[inline]
+    fn energy_density<const D: usize>(&self, f: &Mat<D>) -> f64 {
+        let j = det(f);
+        let lj = j.ln();
+        0.5 * self.mu * (f.component_mul(f).sum() - D as f64) - self.mu * lj
+            + 0.5 * self.lambda * lj * lj
+    }
+}
+
+impl NeoHookean {
     /// `(μ F Fᵀ + c I) · scale`, entry by entry, the upper triangle mirrored:
     /// nalgebra's product went through an out-of-line `gemv` per column in 3D (1.5 % of
     /// the 3D block drop's step) and formed both triangles. The same operations in the
@@ -51,22 +70,6 @@ impl NeoHookean {
             }
         }
         s
-    }
-
-    /// Plane strain (D = 2): the out-of-plane stress from `F` with `F₃₃ = 1`,
-    /// `σ_zz = [μ (1 − 1) + λ ln J] / J = λ ln J / J`. No state needed.
-    pub fn stress_zz<const D: usize>(&self, f: &Mat<D>) -> f64 {
-        let j = det(f);
-        self.lambda * j.ln() / j
-    }
-
-    /// Energy per reference volume.
-    #[inline]
-    pub fn energy_density<const D: usize>(&self, f: &Mat<D>) -> f64 {
-        let j = det(f);
-        let lj = j.ln();
-        0.5 * self.mu * (f.component_mul(f).sum() - D as f64) - self.mu * lj
-            + 0.5 * self.lambda * lj * lj
     }
 
     /// Longitudinal wave speed from the current tangent modulus `λ + 2(μ − λ ln J)`

@@ -1,0 +1,259 @@
+//! Setting a run up: the output folder claimed and cleared, the solver built fresh or
+//! restored from a checkpoint, and the lineage and run state it starts with.
+
+use super::schedules::SnapshotSchedule;
+use super::summary::{rank_load, RestartSummary};
+use super::{RunError, RunOptions};
+use crate::input::plan::CheckpointEvery;
+use crate::input::scene::{Balance, Scene};
+use crate::mpm::solver::Solver;
+use crate::output::checkpoint::{self, RunState};
+use crate::output::io::agree;
+use decomposition::{Communicator, Layout};
+use std::path::Path;
+
+/// The solver and, after a restart, the run state, where it came from and the
+/// checkpoint's lineage.
+pub(super) type SetUp<'c, const D: usize> = (
+    Solver<'c, D>,
+    Option<RunState>,
+    Option<RestartSummary>,
+    Option<String>,
+);
+
+/// A fresh solver, or one continuing from `opts.restart` (every rank agrees on errors).
+pub(super) fn set_up<'c, const D: usize>(
+    scene: &Scene,
+    comm: &'c dyn Communicator,
+    layout: &Layout<D>,
+    opts: &RunOptions,
+) -> Result<SetUp<'c, D>, RunError> {
+    let balance = scene.parallel.balance;
+    let Some(path) = &opts.restart else {
+        let mut solver = Solver::new(scene, comm, layout.clone());
+        // Seeded in equal blocks, then cut for an equal share of the particles.
+        if balance != Balance::Off {
+            solver.rebalance(1.0);
+        }
+        return Ok((solver, None, None, None));
+    };
+    let geom = Solver::<D>::geometry(scene);
+    let carries = crate::mpm::particles::Carries::for_scene(scene);
+    // The writer's blocks when it ran on this process grid (so each rank reads its own
+    // rows and the run continues bit for bit), unless balancing is off.
+    let r = checkpoint::read_header(path).and_then(|h| {
+        let layout = match h.layout(layout) {
+            Some(l) if balance != Balance::Off => l,
+            _ => layout.clone(),
+        };
+        checkpoint::read::<D>(
+            &h,
+            comm.rank(),
+            &layout,
+            &geom,
+            carries,
+            &crate::mpm::particles::Kinds::of_scene(scene, &geom),
+        )
+        .map(|x| (h, x, layout))
+    });
+    if let Some(m) = agree(comm, r.as_ref().err().cloned()) {
+        return Err(RunError::Input(m));
+    }
+    let (header, restored, layout) = r.expect("agreed: no rank failed");
+    // Every rank read the same header, so every rank decides alike.
+    if header.time >= scene.time.end {
+        return Err(RunError::Input(format!(
+            "time.end = {:e} is not after the time of checkpoint {} (t = {:e}, step {}): nothing to run; restart with a scene whose time.end is later",
+            scene.time.end,
+            path.display(),
+            header.time,
+            header.step
+        )));
+    }
+    let mut count = [restored.parts.len() as u64];
+    comm.sum_u64(&mut count);
+    if count[0] != header.particles {
+        return Err(RunError::Input(format!(
+            "{}: damaged checkpoint: {} of its {} particles lie in this run's cells",
+            path.display(),
+            count[0],
+            header.particles
+        )));
+    }
+    let rebalanced = Some(&layout) != header.layout(&layout).as_ref();
+    let mut solver = Solver::with_particles(scene, comm, layout, restored.parts);
+    let s = restored.solver;
+    solver.restore(s.t, s.step, s.dt, s.external_work, s.max_speed);
+    solver.rebalances = header.rebalances;
+    // Another rank count or process grid: read in equal blocks, now cut to the load.
+    if rebalanced && balance != Balance::Off {
+        solver.rebalance(1.0);
+    }
+    let info = RestartSummary {
+        checkpoint: path.display().to_string(),
+        step: s.step,
+        time: s.t,
+        particle_rows_read: rank_load(comm, restored.rows_read as f64),
+    };
+    let mut run = restored.run;
+    // A restart with an edited scene (longer, other step size, other output or
+    // checkpoint intervals: see scene::restart_difference) reschedules its output from
+    // the checkpoint's time; an unchanged scene keeps the stored schedule bit for bit.
+    if opts.scene_text.as_deref() != Some(header.scene_text.as_str()) {
+        let next = |every: f64| ((s.t / every + 1e-9).floor() + 1.0) * every;
+        run.next_snapshot = scene
+            .snapshot_plan()
+            .filter(|o| o.every.is_finite())
+            .map_or(f64::INFINITY, |o| next(o.every));
+        run.next_checkpoint = match scene.plan.checkpoint {
+            Some(CheckpointEvery::Time(every)) => next(every),
+            _ => f64::INFINITY,
+        };
+    }
+    Ok((solver, Some(run), Some(info), header.lineage))
+}
+
+/// Collective: create the output folder and lock it (rank 0); every rank learns of a
+/// failure. Returns rank 0's lock (`None` elsewhere).
+pub(super) fn claim_output(
+    comm: &dyn Communicator,
+    out: &Path,
+) -> Result<Option<crate::output::lock::Lock>, RunError> {
+    let root = comm.rank() == 0;
+    let made = if root {
+        std::fs::create_dir_all(out)
+            .err()
+            .map(|e| format!("{}: {e}", out.display()))
+    } else {
+        None
+    };
+    if let Some(m) = agree(comm, made) {
+        return Err(RunError::Io(m));
+    }
+    let (lock, locked) = match root.then(|| crate::output::lock::acquire(out)) {
+        Some(Ok(l)) => (Some(l), None),
+        Some(Err(e)) => (None, Some(e)),
+        None => (None, None),
+    };
+    let held = matches!(locked, Some(crate::output::lock::LockError::Held(_)));
+    let message = locked.map(|e| match e {
+        crate::output::lock::LockError::Held(m) | crate::output::lock::LockError::Io(m) => m,
+    });
+    if let Some(m) = agree(comm, message) {
+        return Err(if comm.any(held) {
+            RunError::Input(m)
+        } else {
+            RunError::Io(m)
+        });
+    }
+    Ok(lock)
+}
+
+/// Collective: rank 0 of a fresh run removes an earlier run's snapshots from the
+/// locked output folder ([`crate::output::io::remove_old_snapshots`]) and says so (even under
+/// `--quiet`: files were deleted); every rank
+/// learns of a failure.
+pub(super) fn clear_old_snapshots(comm: &dyn Communicator, out: &Path) -> Result<(), RunError> {
+    let failed = if comm.rank() == 0 {
+        match crate::output::io::remove_old_snapshots(out) {
+            Ok(0) => None,
+            Ok(n) => {
+                // Even with --quiet: files were deleted.
+                say!(
+                    "note: removed {n} snapshot(s) of an earlier run from {}",
+                    out.display()
+                );
+                None
+            }
+            Err(m) => Some(format!("removing an earlier run's snapshots: {m}")),
+        }
+    } else {
+        None
+    };
+    match agree(comm, failed) {
+        Some(m) => Err(RunError::Io(m)),
+        None => Ok(()),
+    }
+}
+
+/// Collective: the checkpoint lineage of this run, `stored` (a restart's) or a fresh
+/// one, which rank 0 makes and every rank receives. Pruning deletes only checkpoints of
+/// this run and the runs it continues; rank 0 warns of the others in `out`.
+pub(super) fn lineage(
+    comm: &dyn Communicator,
+    out: &Path,
+    stored: Option<String>,
+    keep: usize,
+) -> checkpoint::Lineage {
+    let id = match stored {
+        Some(id) => id,
+        None => {
+            let fresh = checkpoint::Lineage::fresh(keep).id;
+            String::from_utf8_lossy(&comm.broadcast_bytes(fresh.as_bytes())).into_owned()
+        }
+    };
+    let mut lineage = checkpoint::Lineage::continued(id, keep);
+    if comm.rank() == 0 {
+        let others = lineage.scan(out);
+        if let (Some(first), Some(last)) = (others.first(), others.last()) {
+            say!(
+                "warning: {} holds {} checkpoint(s) of another run ({first} ... {last}); this run does not delete them",
+                out.display(),
+                others.len()
+            );
+        }
+    }
+    lineage
+}
+
+/// Collective: a restored run state, keeping the earlier snapshots that are in this
+/// output folder (rank 0 decides, every rank keeps the same list).
+pub(super) fn resumed(
+    comm: &dyn Communicator,
+    out: &Path,
+    mut st: RunState,
+    snaps: Option<&mut SnapshotSchedule>,
+) -> RunState {
+    if let Some(sn) = snaps {
+        let root = comm.rank() == 0;
+        let mask: Vec<u8> = st
+            .snapshots
+            .iter()
+            .map(|e| u8::from(root && out.join(e.file()).is_file()))
+            .collect();
+        let mask = comm.broadcast_bytes(&mask);
+        let mut k = 0;
+        st.snapshots.retain(|_| {
+            k += 1;
+            mask[k - 1] == 1
+        });
+        sn.writer.set_entries(st.snapshots.clone());
+    }
+    st
+}
+
+/// Collective: the run state of a fresh run, from the initial totals and errors, with
+/// the first snapshot, history sample and checkpoint at these times.
+pub(super) fn initial<const D: usize>(
+    solver: &Solver<D>,
+    next_snapshot: f64,
+    next_history: f64,
+    next_checkpoint: f64,
+) -> RunState {
+    let tot0 = solver.totals();
+    let err0 = solver.errors();
+    RunState {
+        energy_scale: tot0.total_energy().abs().max(tot0.kinetic + tot0.strain),
+        max_energy_dev: 0.0,
+        max_err: err0.unwrap_or((0.0, 0.0)),
+        last_err: err0,
+        next_history,
+        last_history_step: 0,
+        next_snapshot,
+        next_checkpoint,
+        snapshots: Vec::new(),
+        history: Vec::new(),
+        last: tot0.clone(),
+        initial: tot0,
+    }
+}

@@ -1,0 +1,444 @@
+//! The keys of a scene file: the serde structures and enums a scene deserialises into,
+//! with their defaults.
+
+use crate::input::plan::Plan;
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scene {
+    pub name: String,
+    pub dim: usize,
+    pub time: Time,
+    #[serde(default)]
+    pub method: Method,
+    pub grid: GridSpec,
+    pub materials: Vec<MaterialSpec>,
+    pub bodies: Vec<BodySpec>,
+    pub benchmark: Option<BenchmarkSpec>,
+    pub gravity: Option<Gravity>,
+    pub output: Option<Output>,
+    pub checkpoint: Option<CheckpointSpec>,
+    #[serde(default)]
+    pub parallel: Parallel,
+    /// What validation resolved (filled by [`parse`](super::parse), not a key of the file).
+    #[serde(skip)]
+    pub plan: Plan,
+}
+
+/// `[parallel]`: how the grid's blocks follow the material over ranks.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Parallel {
+    /// `off`: equal blocks; `static`: blocks cut once at the start for an equal share
+    /// of the particles; `auto`: that, and again whenever the imbalance passes
+    /// `imbalance`.
+    #[serde(default = "default_balance")]
+    pub balance: Balance,
+    /// The largest rank's particles over the mean above which `auto` rebalances.
+    #[serde(default = "default_imbalance")]
+    pub imbalance: f64,
+    /// Steps between two checks of the imbalance under `auto` (one reduction each).
+    #[serde(default = "default_check_every")]
+    pub check_every: u64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Balance {
+    Off,
+    Static,
+    Auto,
+}
+
+impl Balance {
+    pub fn name(self) -> &'static str {
+        match self {
+            Balance::Off => "off",
+            Balance::Static => "static",
+            Balance::Auto => "auto",
+        }
+    }
+}
+
+fn default_balance() -> Balance {
+    Balance::Auto
+}
+/// Rebalance at 5 % above the mean: the target is 10 % for most of a run, and
+/// the imbalance grows between checks.
+fn default_imbalance() -> f64 {
+    1.05
+}
+fn default_check_every() -> u64 {
+    20
+}
+
+impl Default for Parallel {
+    fn default() -> Self {
+        Self {
+            balance: default_balance(),
+            imbalance: default_imbalance(),
+            check_every: default_check_every(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Time {
+    pub end: f64,
+    pub cfl: Option<f64>,
+    pub dt: Option<f64>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Gradient {
+    Mpm,
+    Gimp,
+    Averaged,
+    Mpmcg,
+}
+
+impl Gradient {
+    pub const ALL: [Gradient; 4] = [
+        Gradient::Mpm,
+        Gradient::Gimp,
+        Gradient::Averaged,
+        Gradient::Mpmcg,
+    ];
+    pub fn name(self) -> &'static str {
+        match self {
+            Gradient::Mpm => "mpm",
+            Gradient::Gimp => "gimp",
+            Gradient::Averaged => "averaged",
+            Gradient::Mpmcg => "mpmcg",
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Update {
+    Usl,
+    Usf,
+    Musl,
+}
+
+impl Update {
+    pub fn name(self) -> &'static str {
+        match self {
+            Update::Usl => "usl",
+            Update::Usf => "usf",
+            Update::Musl => "musl",
+        }
+    }
+}
+
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Method {
+    #[serde(default = "default_gradient")]
+    pub gradient: Gradient,
+    #[serde(default = "default_update")]
+    pub update: Update,
+    /// 1 = FLIP, 0 = PIC, in between a blend.
+    #[serde(default = "default_flip")]
+    pub flip: f64,
+    /// The order m of XPIC(m) (Hammerquist & Nairn 2017) in place of the FLIP update
+    /// of particle velocities: FLIP with its grid-invisible noise filtered out, at the
+    /// cost of m − 1 more particle → grid passes per step. Off when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub xpic: Option<u32>,
+}
+
+fn default_gradient() -> Gradient {
+    Gradient::Mpmcg
+}
+/// MUSL: its velocity gradient comes from remapped particle momentum, which stays
+/// bounded at nodes that carry little mass (free surfaces). With USL those nodes' force
+/// updates can blow up the grid-averaged gradient of `averaged` and `mpmcg`.
+fn default_update() -> Update {
+    Update::Musl
+}
+fn default_flip() -> f64 {
+    1.0
+}
+
+impl Default for Method {
+    fn default() -> Self {
+        Self {
+            gradient: default_gradient(),
+            update: default_update(),
+            flip: default_flip(),
+            xpic: None,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Face {
+    /// Every velocity component is zero on the face.
+    #[default]
+    Fixed,
+    /// The normal velocity component is zero on the face.
+    Slip,
+    /// No constraint; material must not leave the grid.
+    Free,
+    /// The face is glued to the opposite one.
+    Periodic,
+}
+
+#[derive(Debug, Clone, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Boundary {
+    pub x_lower: Option<Face>,
+    pub x_upper: Option<Face>,
+    pub y_lower: Option<Face>,
+    pub y_upper: Option<Face>,
+    pub z_lower: Option<Face>,
+    pub z_upper: Option<Face>,
+}
+
+impl Face {
+    pub fn name(self) -> &'static str {
+        match self {
+            Face::Fixed => "fixed",
+            Face::Slip => "slip",
+            Face::Free => "free",
+            Face::Periodic => "periodic",
+        }
+    }
+}
+
+impl Boundary {
+    pub(super) const KEYS: [&'static str; 6] = [
+        "x_lower", "x_upper", "y_lower", "y_upper", "z_lower", "z_upper",
+    ];
+    pub(super) fn get(&self, k: usize) -> Option<Face> {
+        [
+            self.x_lower,
+            self.x_upper,
+            self.y_lower,
+            self.y_upper,
+            self.z_lower,
+            self.z_upper,
+        ][k]
+    }
+    /// Face type of axis `a`, side `upper`; unlisted faces are `fixed`.
+    pub fn face(&self, a: usize, upper: bool) -> Face {
+        self.get(2 * a + usize::from(upper)).unwrap_or_default()
+    }
+}
+
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct GridSpec {
+    pub lower: Vec<f64>,
+    pub upper: Vec<f64>,
+    pub cells: Vec<usize>,
+    #[serde(default)]
+    pub boundary: Boundary,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Model {
+    LinearElastic,
+    NeoHookean,
+    /// J2 plasticity at finite strain with linear isotropic hardening.
+    J2Plastic,
+    /// Linear elastic with tensile failure.
+    Brittle,
+}
+
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialSpec {
+    pub name: String,
+    pub model: Model,
+    pub density: f64,
+    pub youngs_modulus: f64,
+    pub poisson_ratio: f64,
+    /// Initial yield stress (`j2_plastic`).
+    pub yield_stress: Option<f64>,
+    /// Linear isotropic hardening modulus (`j2_plastic`, default 0).
+    pub hardening: Option<f64>,
+    /// Largest principal stress before failure (`brittle`).
+    pub tensile_strength: Option<f64>,
+}
+
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+pub enum Shape {
+    Box {
+        lower: Vec<f64>,
+        upper: Vec<f64>,
+    },
+    /// A disk in 2D, an interval in 1D.
+    Sphere {
+        center: Vec<f64>,
+        radius: f64,
+    },
+    /// The ring `inner <= |x - center| <= outer` (2D).
+    Annulus {
+        center: Vec<f64>,
+        inner: f64,
+        outer: f64,
+    },
+    /// A cylinder along z (3D): axis through `center` = [x, y], from `z[0]` to `z[1]`.
+    Cylinder {
+        center: Vec<f64>,
+        radius: f64,
+        z: Vec<f64>,
+    },
+}
+
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct BodySpec {
+    pub material: String,
+    pub shape: Shape,
+    /// Particles per cell along each direction.
+    #[serde(default = "default_ppc")]
+    pub particles_per_cell: usize,
+    pub velocity: Option<Vec<f64>>,
+    /// A linear initial velocity field added to `velocity`: `v += value · (x − about)`.
+    pub velocity_gradient: Option<VelocityGradient>,
+}
+
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct VelocityGradient {
+    /// Rows of the gradient: `value[i][j] = ∂v_i/∂x_j`.
+    pub value: Vec<Vec<f64>>,
+    /// The point where this part of the velocity vanishes (default: the origin).
+    pub about: Option<Vec<f64>>,
+}
+
+fn default_ppc() -> usize {
+    2
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BenchmarkKind {
+    VibratingBar,
+    AxisAlignedMms,
+    GeneralizedVortex,
+}
+
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct BenchmarkSpec {
+    pub kind: BenchmarkKind,
+    pub amplitude: Option<f64>,
+    pub mode: Option<u32>,
+    pub c: Option<f64>,
+}
+
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Gravity {
+    pub value: Vec<f64>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Field {
+    Velocity,
+    Stress,
+    Displacement,
+    /// Equivalent plastic strain (scenes with a `j2_plastic` material).
+    PlasticStrain,
+    /// Damage (scenes with a `brittle` material).
+    Damage,
+}
+
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Output {
+    /// Simulated time between snapshots; `None`: only the initial and final states.
+    pub every: Option<f64>,
+    /// `None`: velocity and stress.
+    pub fields: Option<Vec<Field>>,
+    /// `Some(false)`: no snapshots at all (`every` and `fields` must then be absent).
+    pub snapshots: Option<bool>,
+}
+
+/// The snapshots a run writes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SnapshotPlan {
+    /// Simulated time between snapshots (infinite: the initial and final states only).
+    pub every: f64,
+    pub fields: Vec<Field>,
+}
+
+impl Scene {
+    /// What the scene asks to write: `None` for `[output] snapshots = false`. Without
+    /// `[output]` a run still writes its initial and final states, so that every run
+    /// leaves something to look at.
+    pub fn snapshot_plan(&self) -> Option<SnapshotPlan> {
+        let o = self.output.as_ref();
+        if o.and_then(|o| o.snapshots) == Some(false) {
+            return None;
+        }
+        Some(SnapshotPlan {
+            every: o.and_then(|o| o.every).unwrap_or(f64::INFINITY),
+            fields: o
+                .and_then(|o| o.fields.clone())
+                .unwrap_or_else(|| vec![Field::Velocity, Field::Stress]),
+        })
+    }
+}
+
+/// When to write restart checkpoints: exactly one of `every` (simulated time),
+/// `every_steps` or `every_seconds` (wall clock), keeping the last `keep` files.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CheckpointSpec {
+    /// Simulated time between checkpoints.
+    pub every: Option<f64>,
+    /// Steps between checkpoints.
+    pub every_steps: Option<u64>,
+    /// Wall-clock seconds between checkpoints (rank 0's clock decides).
+    pub every_seconds: Option<f64>,
+    /// How many of the newest checkpoints to keep (older ones are deleted).
+    #[serde(default = "default_keep")]
+    pub keep: usize,
+}
+
+fn default_keep() -> usize {
+    2
+}
+
+/// The variant names of a unit-variant enum, as serde spells them.
+pub(super) fn variants<T: serde::de::DeserializeOwned>() -> &'static [&'static str] {
+    use serde::de::{Error, Visitor};
+    use std::cell::Cell;
+    struct Probe<'a>(&'a Cell<&'static [&'static str]>);
+    impl<'de> serde::Deserializer<'de> for Probe<'_> {
+        type Error = serde::de::value::Error;
+        fn deserialize_any<V: Visitor<'de>>(self, _: V) -> Result<V::Value, Self::Error> {
+            Err(Self::Error::custom("not an enum"))
+        }
+        fn deserialize_enum<V: Visitor<'de>>(
+            self,
+            _: &'static str,
+            variants: &'static [&'static str],
+            _: V,
+        ) -> Result<V::Value, Self::Error> {
+            self.0.set(variants);
+            Err(Self::Error::custom("probe"))
+        }
+        serde::forward_to_deserialize_any! {
+            bool i8 i16 i32 i64 i128 u8 u16 u32 u64 u128 f32 f64 char str string bytes
+            byte_buf option unit unit_struct newtype_struct seq tuple tuple_struct map
+            struct identifier ignored_any
+        }
+    }
+    let cell = Cell::new(&[][..]);
+    let _ = T::deserialize(Probe(&cell));
+    cell.get()
+}

@@ -1,0 +1,553 @@
+//! The coloured slab order that lets rayon tasks write the grid at once: slabs of cells along the last axis in two colours, same-coloured slabs never sharing a node; and the raw pointers those writes go through.
+
+/// Slab thickness in cells for the coloured scatter of a stencil of `NA` nodes per
+/// axis (see [`scatter`] for why same-coloured slabs never share a node). A particle
+/// in cell `c` writes the nodes of at most `c − below ..= c + above` along an axis,
+/// `below = (NA − 1) / 2`, `above = NA − 1` (hats: `c ..= c + 1`; GIMP and quadratic
+/// B-splines, three nodes chosen by the half of the cell: `c − 1 ..= c + 2`); slabs
+/// `s` and `s + 2` then write disjoint node rows when `T ≥ below + above`. Thin slabs
+/// are many, so that two threads get equal shares of a colour.
+pub const fn slab_thickness<const NA: usize>() -> usize {
+    let (below, above) = ((NA - 1) / 2, NA - 1);
+    below + above
+}
+
+/// [`slab_thickness`] for the stencil a run uses: hats (`NA = 2`) or GIMP (`NA = 3`).
+/// The passes that write through the order check it against their own `NA`
+/// ([`SlabOrder::check_reach`]), so a mismatch stops the run instead of racing.
+pub fn slab_thickness_for(gimp: bool) -> usize {
+    if gimp {
+        slab_thickness::<3>()
+    } else {
+        slab_thickness::<2>()
+    }
+}
+
+/// A particle's slab from its cell along the last axis ([`SlabOrder::begin`]).
+#[derive(Clone, Copy, Debug)]
+pub struct SlabIndex {
+    pub(super) lo: usize,
+    pub(super) hi: usize,
+    pub(super) thick: usize,
+}
+
+impl SlabIndex {
+    /// The slab of a particle in cell `c` along the last axis (as `Geom::locate`
+    /// gives it, so that the kern's nodes agree with the slab).
+    #[inline]
+    pub fn slab(self, c: i64) -> u32 {
+        // The scatter's threads rely on this (see `scatter`): a particle outside its
+        // block would write outside its slab's rows.
+        assert!(
+            (self.lo as i64..self.hi as i64).contains(&c),
+            "a particle in cell {c} along the last axis is outside its block [{}, {})",
+            self.lo,
+            self.hi
+        );
+        ((c as usize - self.lo) / self.thick) as u32
+    }
+
+    /// [`SlabIndex::slab`] of `L` cells at once: one range test for all of them, and
+    /// no division for slabs one cell thick (hat functions), so that the lanes of the
+    /// tile pass ([`slab_thickness`]) stay vector operations.
+    #[inline(always)]
+    pub fn slabs<const L: usize>(self, c: &[i64; L]) -> [u32; L] {
+        let (lo, hi) = (self.lo as i64, self.hi as i64);
+        let mut ok = true;
+        for &c in c {
+            ok &= (c >= lo) & (c < hi);
+        }
+        if !ok {
+            // The same message as one at a time, for the first cell out of range.
+            return c.map(|c| self.slab(c));
+        }
+        if self.thick == 1 {
+            c.map(|c| (c - lo) as u32)
+        } else {
+            c.map(|c| ((c - lo) as usize / self.thick) as u32)
+        }
+    }
+}
+
+/// A rank's particles in runs of one slab, chunk by chunk of [`SlabOrder::CHUNK`]:
+/// what [`SlabOrder::finish`] sorts. The tile pass's runs of one cell are such runs,
+/// so the order needs no slab stored per particle (4 bytes each).
+///
+/// `each(c, …)`'s runs must cover chunk `c`'s particles (`c · CHUNK ..`, up to
+/// `count`) exactly, in order: [`SlabOrder::finish`] checks that the order it builds
+/// lists every particle exactly once, which the parallel writes of the scatter and
+/// the remap rely on, and stops the run otherwise.
+///
+/// # Safety
+///
+/// [`SlabOrder::finish`] writes the order from several threads where a first call of
+/// `each` counted runs: `each` must give the same runs every time it is called, so
+/// that each chunk writes only the places it counted.
+pub unsafe trait SlabRuns: Sync {
+    /// The particle count.
+    fn count(&self) -> usize;
+
+    /// `f(s, particles)` for the runs of chunk `c` in order: together they cover its
+    /// particles `c · CHUNK ..` exactly, each run in slab `s`.
+    fn each(&self, c: usize, f: impl FnMut(u32, std::ops::Range<usize>));
+}
+
+/// The particle order of the coloured scatter: particle indices grouped by slab.
+/// Its fields are private and only [`SlabOrder::finish`] fills them, after which the
+/// order lists every particle of the runs exactly once: the property that lets the
+/// scatter's and the remap's tasks write what their particles own without a lock.
+#[derive(Debug)]
+pub struct SlabOrder {
+    /// `start[s]..start[s + 1]` indexes `order` for slab `s`.
+    start: Vec<usize>,
+    order: Vec<u32>,
+    /// Per chunk of [`SlabOrder::CHUNK`] particles, its particles per slab (chunk-major),
+    /// then where its first particle of each slab goes in `order`.
+    counts: Vec<usize>,
+    /// `below[s]`: the particles of the slabs `s − 2, s − 4, …` (same colour, below).
+    below: Vec<usize>,
+    /// Owned cells along the last axis, `[lo, hi)`, in slabs of `thick` cells.
+    lo: usize,
+    hi: usize,
+    thick: usize,
+    /// Whether each particle has been seen, for [`SlabOrder::finish`]'s check.
+    seen: Vec<u64>,
+}
+
+/// Where the chunks of a parallel counting sort write `order`.
+#[derive(Clone, Copy)]
+struct OrderPtr(*mut u32, usize);
+
+// SAFETY: made in `SlabOrder::finish` from `&mut self.order`, held for its whole use;
+// every write is bounds-checked (`OrderPtr::write`).
+// Chunk `c` writes `order[counts[c][s] ..]` for each of its particles in slab `s`, as
+// many as it counted there (its runs are the same both times, `SlabRuns`'s contract); the offsets are an exclusive prefix sum over (slab, chunk)
+// of those counts, so the ranges of different (chunk, slab) pairs are disjoint and lie
+// within `order` (whose length is their total). No two threads
+// write one element and no element is read while they run.
+unsafe impl Send for OrderPtr {}
+
+unsafe impl Sync for OrderPtr {}
+
+impl OrderPtr {
+    /// Write `order[k] = p`. Safety: `k` lies in `order` and no other thread reads or
+    /// writes `order[k]` (see the type's safety note).
+    #[inline(always)]
+    unsafe fn write(self, k: usize, p: u32) {
+        assert!(k < self.1, "slab order written past its end");
+        // SAFETY: in bounds (checked above); no other thread touches `order[k]`, the
+        // caller's contract.
+        unsafe { *self.0.add(k) = p };
+    }
+}
+
+impl SlabOrder {
+    /// Particles per chunk of the parallel passes that fill the order (fixed, so the
+    /// order does not depend on the thread count).
+    pub const CHUNK: usize = 4096;
+
+    /// An order of no slab, to be filled by [`SlabOrder::begin`] and
+    /// [`SlabOrder::finish`]. (No `Default`: an order is made here or built, never
+    /// filled in field by field.)
+    #[allow(clippy::new_without_default)]
+    pub fn new() -> Self {
+        SlabOrder {
+            start: vec![0],
+            order: Vec::new(),
+            counts: Vec::new(),
+            below: vec![0, 0],
+            lo: 0,
+            hi: 0,
+            thick: 1,
+            seen: Vec::new(),
+        }
+    }
+
+    /// The particles of slab `s`, in order.
+    #[inline]
+    pub fn slab(&self, s: usize) -> &[u32] {
+        &self.order[self.start[s]..self.start[s + 1]]
+    }
+
+    /// The whole order, slab after slab.
+    #[cfg(test)]
+    pub fn order(&self) -> &[u32] {
+        &self.order
+    }
+
+    /// Stops a pass whose stencil of `NA` nodes per axis reaches further than the
+    /// slabs are thick: its same-coloured slabs would write the same nodes.
+    #[inline]
+    pub fn check_reach<const NA: usize>(&self) {
+        assert!(
+            self.thick >= slab_thickness::<NA>(),
+            "slabs {} cells thick for a stencil of {NA} nodes per axis",
+            self.thick
+        );
+    }
+
+    /// The order's storage lent as scratch (the sort's permutation): the order is
+    /// emptied to no slab first, so nothing can read it stale; the next
+    /// [`SlabOrder::begin`] and [`SlabOrder::finish`] build it anew.
+    pub fn lend_scratch(&mut self) -> &mut Vec<u32> {
+        self.start.clear();
+        self.start.push(0);
+        self.below.clear();
+        self.below.extend([0, 0]);
+        &mut self.order
+    }
+
+    /// Start grouping particles by slab (of `thick` cells, [`slab_thickness`]) along the
+    /// last axis of the owned cells `[cell_lo, cell_hi)`; the returned index finds a
+    /// cell's slab. Then [`SlabOrder::finish`] with the particles' runs.
+    pub fn begin(&mut self, cell_lo: usize, cell_hi: usize, thick: usize) -> SlabIndex {
+        let nslab = (cell_hi - cell_lo).div_ceil(thick).max(1);
+        self.lo = cell_lo;
+        self.hi = cell_hi;
+        self.thick = thick;
+        self.start.clear();
+        self.start.resize(nslab + 1, 0);
+        self.index()
+    }
+
+    /// How to find a cell's slab (the last [`SlabOrder::begin`]'s).
+    pub fn index(&self) -> SlabIndex {
+        SlabIndex {
+            lo: self.lo,
+            hi: self.hi,
+            thick: self.thick,
+        }
+    }
+
+    /// Order the particles of `runs` by slab, stably (within a slab, particles keep
+    /// their array order): a counting sort over runs, its counting and placing in
+    /// parallel over chunks where the per-chunk counts are few (a slab count per
+    /// chunk, no more numbers than particles), else serially (many slabs, as in a huge
+    /// box, with few particles). The order is the same either way.
+    pub fn finish(&mut self, runs: &impl SlabRuns) {
+        let nslab = self.start.len() - 1;
+        let n = runs.count();
+        let nchunk = n.div_ceil(Self::CHUNK);
+        if nchunk * nslab <= n {
+            self.count_in_chunks(nchunk, runs);
+        } else {
+            self.start.fill(0);
+            for c in 0..nchunk {
+                runs.each(c, |s, run| self.start[s as usize + 1] += run.len());
+            }
+            for s in 0..nslab {
+                self.start[s + 1] += self.start[s];
+            }
+            self.order.resize(n, 0);
+            let mut at = self.start.clone();
+            for c in 0..nchunk {
+                runs.each(c, |s, run| {
+                    let k = at[s as usize];
+                    for (o, p) in self.order[k..k + run.len()].iter_mut().zip(run.clone()) {
+                        *o = p as u32;
+                    }
+                    at[s as usize] += run.len();
+                });
+            }
+        }
+        assert_eq!(self.start[nslab], n, "the runs cover every particle once");
+        self.check_each_once();
+        // Per colour, the particles of the slabs below each slab ([`SlabOrder::split`]).
+        self.below.clear();
+        self.below.resize(nslab + 2, 0);
+        for s in 0..nslab {
+            self.below[s + 2] = self.below[s] + self.start[s + 1] - self.start[s];
+        }
+    }
+
+    /// Stops the run unless `order` lists each of its `n` particles `0..n` exactly
+    /// once (it has `n` entries: a repeat would leave another particle out).
+    fn check_each_once(&mut self) {
+        let n = self.order.len();
+        self.seen.clear();
+        self.seen.resize(n.div_ceil(64), 0);
+        let mut twice = false;
+        for &p in &self.order {
+            let p = p as usize;
+            assert!(p < n, "slab order names particle {p} of {n}");
+            let (word, bit) = (p / 64, 1u64 << (p % 64));
+            twice |= self.seen[word] & bit != 0;
+            self.seen[word] |= bit;
+        }
+        assert!(!twice, "slab order lists a particle twice");
+    }
+
+    /// [`SlabOrder::finish`]'s parallel counting sort.
+    pub(super) fn count_in_chunks(&mut self, nchunk: usize, runs: &impl SlabRuns) {
+        use rayon::prelude::*;
+        let nslab = self.start.len() - 1;
+        self.counts.clear();
+        self.counts.resize(nchunk * nslab, 0);
+        self.counts
+            .par_chunks_mut(nslab)
+            .enumerate()
+            .for_each(|(c, count)| {
+                runs.each(c, |s, run| count[s as usize] += run.len());
+            });
+        // Offsets: slab by slab, chunk by chunk within a slab (so within a slab the
+        // particles keep their array order). Walked chunk by chunk (the counts' own
+        // order, not a stride of a slab count per step): first each slab's total, whose
+        // prefix sums start the slabs, then each chunk's place after the chunks before.
+        self.start.fill(0);
+        for count in self.counts.chunks_exact(nslab) {
+            for (t, &c) in self.start[1..].iter_mut().zip(count) {
+                *t += c;
+            }
+        }
+        for s in 0..nslab {
+            self.start[s + 1] += self.start[s];
+        }
+        for c in 0..nchunk {
+            let (next, row) = (
+                &mut self.start[..nslab],
+                &mut self.counts[c * nslab..][..nslab],
+            );
+            for (k, at) in row.iter_mut().zip(next.iter_mut()) {
+                let count = *k;
+                *k = *at;
+                *at += count;
+            }
+        }
+        let total = self.start[nslab];
+        // `start` was advanced past each slab: back to the slabs' starts.
+        for s in (1..=nslab).rev() {
+            self.start[s] = self.start[s - 1];
+        }
+        self.start[0] = 0;
+        // Every entry is written below.
+        // As long as the runs counted (which the writes below stay within).
+        self.order.resize(total, 0);
+        let out = OrderPtr(self.order.as_mut_ptr(), self.order.len());
+        self.counts
+            .par_chunks_mut(nslab)
+            .enumerate()
+            .for_each(|(c, cursor)| {
+                runs.each(c, |s, run| {
+                    // In a local, not through `cursor`, which the writes might alias
+                    // as far as the compiler knows.
+                    let mut k = cursor[s as usize];
+                    for p in run {
+                        // SAFETY: see `OrderPtr`: `k` stays within this chunk's range
+                        // for slab `s`, which lies in `order` and no other thread
+                        // writes.
+                        unsafe { out.write(k, p as u32) };
+                        k += 1;
+                    }
+                    cursor[s as usize] = k;
+                });
+            });
+    }
+
+    pub fn slabs(&self) -> usize {
+        self.start.len() - 1
+    }
+
+    /// How the same-coloured slabs `first, first + 2, …` (`count` of them, at least 2)
+    /// split between two tasks: `None` if they hold no particle, else how many go to
+    /// the first task, at least one each, so that its particles come nearest to half
+    /// of theirs; of two such splits, the one nearer the middle slab. Depends on the
+    /// particles, not the threads. The recursion of the coloured loops thus halves
+    /// the particles, or the slabs where a slab holds no particle, or ends at a slab
+    /// that holds more than the rest: it is O(log) deep (a huge box has many empty
+    /// slabs: always splitting off one slab recursed once per slab, and overflowed
+    /// the stack).
+    pub fn split(&self, first: usize, count: usize) -> Option<usize> {
+        // The particles of the first h slabs.
+        let share = |h: usize| self.below[first + 2 * h] - self.below[first];
+        let total = share(count);
+        if total == 0 {
+            return None;
+        }
+        // The first h in 1..count whose share reaches half, by bisection (the shares
+        // grow with h); the best split is it or the one before.
+        let (mut lo, mut hi) = (1, count - 1);
+        while lo < hi {
+            let mid = (lo + hi) / 2;
+            if 2 * share(mid) >= total {
+                hi = mid;
+            } else {
+                lo = mid + 1;
+            }
+        }
+        let key = |h: usize| ((2 * share(h)).abs_diff(total), (2 * h).abs_diff(count));
+        Some(if lo > 1 && key(lo - 1) < key(lo) {
+            lo - 1
+        } else {
+            lo
+        })
+    }
+}
+
+/// The scatter's view of the node records, shared by its threads.
+#[derive(Clone, Copy)]
+pub(crate) struct GridPtr {
+    pub(super) ptr: *mut f64,
+    pub(super) len: usize,
+}
+
+impl GridPtr {
+    pub(crate) fn new(field: &mut [f64]) -> Self {
+        GridPtr {
+            ptr: field.as_mut_ptr(),
+            len: field.len(),
+        }
+    }
+
+    /// The `width` numbers at `at` (bounds checked).
+    ///
+    /// # Safety
+    /// The field the pointer was made from is still borrowed exclusively by the caller's
+    /// caller, and no other thread reads or writes these numbers while the slice lives.
+    #[inline(always)]
+    pub(crate) unsafe fn record<'a>(self, at: usize, width: usize) -> &'a mut [f64] {
+        assert!(
+            at + width <= self.len,
+            "node record outside the grid storage"
+        );
+        // SAFETY: in bounds (checked above); exclusive by the caller's contract.
+        unsafe { std::slice::from_raw_parts_mut(self.ptr.add(at), width) }
+    }
+
+    /// Ask for the cache lines of the `width` numbers at `at` ahead of their use: a
+    /// hint, no access (an address outside the storage is never touched).
+    #[inline(always)]
+    pub(crate) fn prefetch(self, at: usize, width: usize) {
+        prefetch_lines(self.ptr.wrapping_add(at).cast(), width * size_of::<f64>());
+    }
+}
+
+/// Ask for the cache lines of `field[at..at + width]` ahead of their use: a hint, no
+/// access (a range outside the field is never touched).
+#[inline(always)]
+pub(crate) fn prefetch<T>(field: &[T], at: usize, width: usize) {
+    prefetch_lines(
+        field.as_ptr().wrapping_add(at).cast(),
+        width * size_of::<T>(),
+    );
+}
+
+/// Prefetch the cache lines of the `bytes` bytes from `first`: only an address, never
+/// dereferenced.
+#[inline(always)]
+pub(super) fn prefetch_lines(first: *const u8, bytes: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if bytes > 0 {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        let last = first.wrapping_add(bytes - 1) as usize;
+        let mut line = first as usize & !63;
+        while line <= last {
+            // SAFETY: a prefetch is a hint: it never faults, whatever the address, and
+            // changes no memory; its SSE is in every x86-64 CPU.
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(line as *const i8) };
+            line += 64;
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (first, bytes);
+}
+
+// SAFETY: a `GridPtr` is only made in `scatter` from a `&mut [f64]` that it holds for
+// its whole run, and the threads given copies write node records of disjoint node sets
+// (see `scatter`), so sharing it between threads is sharing disjoint parts of a buffer
+// borrowed exclusively.
+unsafe impl Send for GridPtr {}
+
+unsafe impl Sync for GridPtr {}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Node rows along the last axis that slab `s` of thickness `t` writes with a
+    /// stencil of `na` nodes per axis: cells `s·t .. (s+1)·t`, each writing
+    /// `c − below ..= c + above`.
+    fn rows(s: i64, t: i64, na: i64) -> (i64, i64) {
+        let (below, above) = ((na - 1) / 2, na - 1);
+        (s * t - below, (s + 1) * t - 1 + above)
+    }
+
+    fn thickness<const NA: usize>() -> i64 {
+        slab_thickness::<NA>() as i64
+    }
+
+    /// For every stencil width, same-coloured slabs (`s`, `s + 2`) write disjoint node
+    /// rows at the derived thickness, and one cell thinner they would not.
+    #[test]
+    fn same_coloured_slabs_write_disjoint_rows_for_every_reach() {
+        for (na, t) in [
+            (2, thickness::<2>()),
+            (3, thickness::<3>()),
+            (4, thickness::<4>()),
+            (5, thickness::<5>()),
+        ] {
+            for s in 0..6 {
+                assert!(rows(s, t, na).1 < rows(s + 2, t, na).0, "NA {na}, slab {s}");
+                if t > 1 {
+                    assert!(rows(s, t - 1, na).1 >= rows(s + 2, t - 1, na).0, "NA {na}");
+                }
+            }
+        }
+        assert_eq!((thickness::<2>(), thickness::<3>()), (1, 3));
+        assert_eq!(slab_thickness_for(false), 1);
+        assert_eq!(slab_thickness_for(true), 3);
+    }
+
+    /// Runs that list one particle twice (and so another never).
+    struct Twice;
+
+    // SAFETY: `each` gives the same runs every call.
+    unsafe impl SlabRuns for Twice {
+        fn count(&self) -> usize {
+            3
+        }
+
+        fn each(&self, c: usize, mut f: impl FnMut(u32, std::ops::Range<usize>)) {
+            assert_eq!(c, 0);
+            f(0, 0..2);
+            f(1, 1..2);
+        }
+    }
+
+    #[test]
+    #[should_panic(expected = "lists a particle twice")]
+    fn an_order_that_lists_a_particle_twice_is_refused() {
+        let mut o = SlabOrder::new();
+        o.begin(0, 4, 1);
+        o.finish(&Twice);
+    }
+
+    #[test]
+    #[should_panic(expected = "slabs 1 cells thick for a stencil of 3 nodes per axis")]
+    fn slabs_too_thin_for_the_stencil_are_refused() {
+        let mut o = SlabOrder::new();
+        o.begin(0, 4, slab_thickness_for(false));
+        o.check_reach::<3>();
+    }
+
+    /// The order lent as scratch leaves no slab behind to be read stale.
+    #[test]
+    fn scratch_empties_the_order() {
+        struct One;
+        // SAFETY: `each` gives the same runs every call.
+        unsafe impl SlabRuns for One {
+            fn count(&self) -> usize {
+                5
+            }
+            fn each(&self, _: usize, mut f: impl FnMut(u32, std::ops::Range<usize>)) {
+                f(0, 0..5);
+            }
+        }
+        let mut o = SlabOrder::new();
+        o.begin(0, 2, 1);
+        o.finish(&One);
+        assert_eq!(o.slab(0), &[0, 1, 2, 3, 4]);
+        o.lend_scratch().push(7);
+        assert_eq!(o.slabs(), 0);
+        assert_eq!(o.split(0, 0), None);
+    }
+}

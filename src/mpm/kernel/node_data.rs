@@ -1,0 +1,586 @@
+//! What one run of particles (particles of one cell, sharing their nodes) reads of the grid: the nodes' records copied into node-innermost rows, the cell's shape functions, and the interpolations and velocity gradients formed from them.
+
+use super::*;
+
+/// The grid data a particle loop reads at the nodes of one run of particles (particles
+/// sorted by cell share their nodes): copied once per run into fixed places, so that
+/// the per-particle loops index a small buffer at constant offsets instead of the grid.
+pub(crate) struct NodeData<const D: usize, const N: usize> {
+    /// Velocity slots [`FROM_MOMENTUM`] and [`UPDATED`]: `v[slot][a][n]`, component `a`
+    /// at node `n` (nodes innermost, as in every array here).
+    pub v: [[[f64; N]; D]; 2],
+    /// Two-step schemes: `L̄` (`lb[a][b][n]`, row `a`, column `b`) and `v̄` per node
+    /// ([`AvgRecord`]).
+    pub lb: [[[f64; N]; D]; D],
+    pub vb: [[f64; N]; D],
+    /// XPIC's field per node (`D` numbers a node), if any.
+    pub x: [[f64; N]; D],
+    /// Hat functions ([`hats`]): the velocity differences across the cell of the slot
+    /// [`NodeData::load_differences_from`] was given, `dv[a][b][m] = v_a(upper) − v_a(lower)`
+    /// over the `m`-th pair of nodes along axis `b` ([`pair`]); `m < N / 2`.
+    pub dv: [[[f64; N]; D]; D],
+}
+
+/// Whether `N` nodes are the `2^D` corners of a cell (hat functions), not GIMP's `3^D`.
+#[inline(always)]
+pub const fn hats<const D: usize, const N: usize>() -> bool {
+    N == 1 << D
+}
+
+/// The `m`-th pair of cell corners along axis `b` (`m < 2^(D−1)`, `b < 3`): the lower
+/// corner (bit `b` clear; `m` with a zero bit put in at `b`) and the upper one. From a
+/// table ([`PAIRS`]): the loops that ask are not unrolled, and formed with shifts by
+/// `b` per call, with the index checks after, it was 2 % of the 3D step's
+/// instructions.
+#[inline(always)]
+pub const fn pair(b: usize, m: usize) -> (usize, usize) {
+    PAIRS[b & 3][m & 3]
+}
+
+/// [`pair`] per axis (the fourth row for the masks' sake) and pair.
+pub(super) const PAIRS: [[(usize, usize); 4]; 4] = {
+    let mut t = [[(0, 0); 4]; 4];
+    let mut b = 0;
+    while b < 4 {
+        let mut m = 0;
+        while m < 4 {
+            let lower = ((m >> b) << (b + 1)) | (m & ((1 << b) - 1));
+            t[b][m] = (lower, lower | 1 << b);
+            m += 1;
+        }
+        b += 1;
+    }
+    t
+};
+
+/// Which pair along axis `b` corner `n` is in ([`pair`]'s `m`): `n` with bit `b` taken out.
+#[inline(always)]
+pub const fn pair_of(b: usize, n: usize) -> usize {
+    ((n >> (b + 1)) << b) | (n & ((1 << b) - 1))
+}
+
+impl<const D: usize, const N: usize> NodeData<D, N> {
+    pub fn new() -> Self {
+        NodeData {
+            v: [[[0.0; N]; D]; 2],
+            lb: [[[0.0; N]; D]; D],
+            vb: [[0.0; N]; D],
+            x: [[0.0; N]; D],
+            dv: [[[0.0; N]; D]; D],
+        }
+    }
+
+    /// [`NodeData::load_differences_from`] taken from [`NodeData::v`] (for tests, which
+    /// set `v` themselves).
+    #[cfg(test)]
+    pub fn load_differences(&mut self, slot: usize) {
+        let v = self.v[slot];
+        self.differences(|n, a| v[a][n]);
+    }
+
+    /// With hat functions, [`NodeData::dv`] of velocity slot `slot`: once per run,
+    /// where each particle's velocity gradient then needs half the products
+    /// ([`velocity_gradient_at`]). Read from the velocity records `vel` of nodes `idx`
+    /// (as [`NodeData::load`] reads them), not from [`NodeData::v`]. Read back from `v`,
+    /// the node values that `load` had just stored one by one came out as whole vectors,
+    /// which cannot take their bytes from those stores in flight and wait for them to
+    /// complete (a fifth of the 3D stress pass's node loading waited there).
+    #[inline(always)]
+    pub fn load_differences_from(&mut self, idx: &[usize; N], vel: &[f64], slot: usize) {
+        self.differences(|n, a| vel[VelRecord::<D>::at(idx[n], slot) + a]);
+    }
+
+    /// `dv[a][b][m] = v(hi, a) − v(lo, a)` over the pairs ([`pair`]), with hat functions.
+    #[inline(always)]
+    pub(super) fn differences(&mut self, v: impl Fn(usize, usize) -> f64) {
+        if !hats::<D, N>() {
+            return;
+        }
+        for a in 0..D {
+            for b in 0..D {
+                for m in 0..N / 2 {
+                    let (lo, hi) = pair(b, m);
+                    self.dv[a][b][m] = v(hi, a) - v(lo, a);
+                }
+            }
+        }
+    }
+
+    /// Copy the data of nodes `idx`: the velocity record from `vel`, the nodal averages
+    /// from `avg` unless it is empty, XPIC's field from `xpic` if given.
+    #[inline(always)]
+    pub fn load(&mut self, idx: &[usize; N], vel: &[f64], avg: &[f64], xpic: Option<&[f64]>) {
+        let aw = AvgRecord::<D>::WIDTH;
+        if D > 1 && N.is_multiple_of(4) {
+            // Four nodes at a time, four numbers of their records at a time
+            // ([`rows4`]: vector shuffles, not a store per number).
+            let vw = VelRecord::<D>::WIDTH;
+            for n0 in (0..N).step_by(4) {
+                let at: [usize; 4] = std::array::from_fn(|l| idx[n0 + l] * vw);
+                for c0 in blocks_of_four(vw) {
+                    let r = rows4(vel, at.map(|i| i + c0));
+                    for (k, r) in r.iter().enumerate() {
+                        let c = c0 + k;
+                        self.v[c / D][c % D][n0..n0 + 4].copy_from_slice(r);
+                    }
+                }
+                if !avg.is_empty() {
+                    let at: [usize; 4] = std::array::from_fn(|l| idx[n0 + l] * aw);
+                    for c0 in blocks_of_four(aw) {
+                        let r = rows4(avg, at.map(|i| i + c0));
+                        for (k, r) in r.iter().enumerate() {
+                            let c = c0 + k;
+                            let row = if c < AvgRecord::<D>::VBAR {
+                                &mut self.lb[c / D][c % D]
+                            } else {
+                                &mut self.vb[c - AvgRecord::<D>::VBAR]
+                            };
+                            row[n0..n0 + 4].copy_from_slice(r);
+                        }
+                    }
+                }
+            }
+        } else {
+            self.load_by_nodes(idx, vel, avg);
+        }
+        if let Some(x) = xpic {
+            for n in 0..N {
+                let r = &x[idx[n] * D..(idx[n] + 1) * D];
+                for a in 0..D {
+                    self.x[a][n] = r[a];
+                }
+            }
+        }
+    }
+
+    /// [`NodeData::load`]'s velocities and averages a node at a time (1D, GIMP).
+    #[inline(always)]
+    pub(super) fn load_by_nodes(&mut self, idx: &[usize; N], vel: &[f64], avg: &[f64]) {
+        let aw = AvgRecord::<D>::WIDTH;
+        for n in 0..N {
+            let at = VelRecord::<D>::at(idx[n], FROM_MOMENTUM);
+            let r = &vel[at..at + VelRecord::<D>::WIDTH];
+            for a in 0..D {
+                self.v[FROM_MOMENTUM][a][n] = r[a];
+                self.v[UPDATED][a][n] = r[D + a];
+            }
+            if !avg.is_empty() {
+                let r = &avg[idx[n] * aw..(idx[n] + 1) * aw];
+                for a in 0..D {
+                    for b in 0..D {
+                        self.lb[a][b][n] = r[a * D + b];
+                    }
+                    self.vb[a][n] = r[AvgRecord::<D>::VBAR + a];
+                }
+            }
+        }
+    }
+}
+
+/// Where the blocks of four numbers start that cover a record of `width >= 4`
+/// numbers: every fourth, the last moved back to end at the record's end (so it may
+/// overlap the one before, which then writes a few numbers twice, the same values).
+#[inline(always)]
+pub(super) fn blocks_of_four(width: usize) -> impl Iterator<Item = usize> {
+    (0..width.div_ceil(4)).map(move |j| (4 * j).min(width - 4))
+}
+
+/// Four numbers from each of four records, as rows over the records:
+/// `out[k][l] = src[at[l] + k]`: with AVX eight 16-byte loads, four in-lane shuffles
+/// and four whole-row stores at the caller, where copying a number at a time was a
+/// load and a store each (the 3D stress pass's node loading: 6.6 % of the block
+/// drop's step that way, 5.0 % this way; the same numbers, moved).
+#[inline(always)]
+pub(super) fn rows4(src: &[f64], at: [usize; 4]) -> [[f64; 4]; 4] {
+    let r: [&[f64; 4]; 4] =
+        std::array::from_fn(|l| src[at[l]..at[l] + 4].try_into().expect("four numbers"));
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx"))]
+    {
+        use std::arch::x86_64::*;
+        // Halves of the records, two into each register ([r0 lo | r2 lo], ...), then
+        // within each 128-bit lane pick the first or the second number of each pair:
+        // no shuffle crosses lanes. (Left to the compiler, the whole-array form below
+        // came out as scalar loads and inserts, slower than the scalar copy.)
+        // SAFETY: AVX is enabled for the whole build (the cfg above), and the binary
+        // refuses to start on a CPU without the features it was built for
+        // (`driver::cpu`). Each `r[l]` references four f64, so the 16-byte loads at
+        // offsets 0 and 2 read inside it (unaligned loads need no alignment); and
+        // `__m256d` is four f64 in order, every bit pattern valid both ways.
+        unsafe {
+            let half = |l: usize, k: usize| _mm_loadu_pd(r[l].as_ptr().add(k));
+            let pair = |a: usize, b: usize, k: usize| {
+                _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(half(a, k)), half(b, k))
+            };
+            let (e0, e1) = (pair(0, 2, 0), pair(1, 3, 0));
+            let (f0, f1) = (pair(0, 2, 2), pair(1, 3, 2));
+            [
+                _mm256_unpacklo_pd(e0, e1),
+                _mm256_unpackhi_pd(e0, e1),
+                _mm256_unpacklo_pd(f0, f1),
+                _mm256_unpackhi_pd(f0, f1),
+            ]
+            .map(|v| std::mem::transmute::<__m256d, [f64; 4]>(v))
+        }
+    }
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx")))]
+    std::array::from_fn(|k| [r[0][k], r[1][k], r[2][k], r[3][k]])
+}
+
+/// The grid coordinates of a particle's cell ([`Ctx::cell_of`]) from the storage
+/// index of its lower corner node (the tile pass's `tile`), kept for the last index
+/// asked: consecutive particles mostly share their cell. The hat functions' local
+/// coordinate is formed from it and the position ([`Ctx::local`]). A new cell in the
+/// same tile is the tile's origin plus the node's offset bits, a few integer
+/// operations; only a new tile asks the tiles (out of line, [`Ctx::tile_base`]: as a
+/// call per cell it was 1.4 % of the 2D block drop's step).
+pub(crate) struct CellAt<const D: usize> {
+    pub(super) node: u32,
+    pub(super) cell: [f64; D],
+    /// The tile (slot) of the last node, and the global index of its origin node.
+    pub(super) slot: usize,
+    pub(super) base: [i64; D],
+}
+
+impl<const D: usize> CellAt<D> {
+    pub fn new() -> Self {
+        // Storage index 0 is in the zero tile, slot 0, where no particle's cell lies
+        // (`Solver::run_nodes` asserts it): the first particle looks its cell up.
+        CellAt {
+            node: 0,
+            cell: [f64::NAN; D],
+            slot: 0,
+            base: [0; D],
+        }
+    }
+
+    /// The cell whose lower corner is stored at `cell_node`.
+    #[inline(always)]
+    pub fn of(&mut self, ctx: &Ctx<'_, D>, cell_node: u32) -> &[f64; D] {
+        if cell_node != self.node {
+            let cn = cell_node as usize;
+            let slot = cn / Tiles::<D>::TILE_NODES;
+            if slot != self.slot {
+                self.base = ctx.tile_base(slot);
+                self.slot = slot;
+            }
+            for a in 0..D {
+                let bits = (cn >> (TILE_LOG * a as u32)) & (TILE - 1);
+                self.cell[a] = (self.base[a] + bits as i64) as f64;
+            }
+            self.node = cell_node;
+            debug_assert_eq!(self.cell, ctx.cell_of(cell_node));
+        }
+        &self.cell
+    }
+}
+
+/// The nodes of the current run of particles: particles sorted by cell share their
+/// nodes, so a particle loop looks up their storage indices and faces (and reads or
+/// flushes their grid data) only when the run changes.
+pub(crate) struct Run<const D: usize, const NA: usize, const N: usize> {
+    /// The node set's key: the cell's lower corner in the storage and, per axis,
+    /// whether the first node lies below the cell (GIMP). Equal keys, equal nodes.
+    pub(super) key: u64,
+    pub idx: [usize; N],
+    /// [`Ctx::node_sides`] of the run (all 0 unless [`Ctx::walls`]).
+    pub sides: [[i32; NA]; D],
+    /// Whether any of the run's nodes lies on a grid face: if not, no particle of the
+    /// run has wall ends, and [`Run::ends`] skips the per-particle test.
+    pub(super) at_wall: bool,
+}
+
+impl<const D: usize, const NA: usize, const N: usize> Run<D, NA, N> {
+    pub fn new() -> Self {
+        Run {
+            key: u64::MAX,
+            idx: [0; N],
+            sides: [[0; NA]; D],
+            at_wall: false,
+        }
+    }
+
+    /// Whether any of the run's nodes lies on a grid face.
+    pub fn at_wall(&self) -> bool {
+        self.at_wall
+    }
+
+    /// Whether a run has been entered (its sums may need flushing).
+    pub fn started(&self) -> bool {
+        self.key != u64::MAX
+    }
+
+    #[inline(always)]
+    pub(super) fn key_of(cell_node: u32, below: [usize; D]) -> u64 {
+        let mut m = 0u64;
+        for (a, &b) in below.iter().enumerate() {
+            m |= (b as u64) << a;
+        }
+        cell_node as u64 | (m << 32)
+    }
+
+    /// Whether a particle of cell node `cell_node` with `below` starts a new run.
+    #[inline(always)]
+    pub fn is_new(&self, cell_node: u32, below: [usize; D]) -> bool {
+        Self::key_of(cell_node, below) != self.key
+    }
+
+    /// Enter the run of a particle of cell node `cell_node` with `below` unless it is
+    /// the current one; whether it entered (and its nodes' data must be read).
+    #[inline(always)]
+    pub fn enter_if_new(&mut self, ctx: &Ctx<'_, D>, cell_node: u32, below: [usize; D]) -> bool {
+        let new = self.is_new(cell_node, below);
+        if new {
+            self.enter(ctx, cell_node, below);
+        }
+        new
+    }
+
+    /// Enter the run of such a particle: its nodes' indices and faces.
+    #[inline(always)]
+    pub fn enter(&mut self, ctx: &Ctx<'_, D>, cell_node: u32, below: [usize; D]) {
+        self.key = Self::key_of(cell_node, below);
+        self.idx = ctx.node_indices::<NA, N>(cell_node, below);
+        self.sides = ctx.node_sides::<NA>(cell_node, below);
+        self.at_wall = self.sides.iter().flatten().any(|&s| s != 0);
+    }
+
+    /// [`Ctx::wall_ends`] of a particle of this run with 1D weights `w`: none where
+    /// the run's nodes are all inside the grid, as most are.
+    #[inline(always)]
+    pub fn ends(&self, ctx: &Ctx<'_, D>, w: &[[f64; 3]; D]) -> [[bool; 2]; D] {
+        if self.at_wall {
+            ctx.wall_ends::<NA>(&self.sides, w)
+        } else {
+            [[false; 2]; D]
+        }
+    }
+}
+
+/// The nodal `L̄` of a two-step scheme interpolated at a particle, shared by its
+/// velocity gradient and the velocity it moves with: `all = Σ_n S_n L̄_n`, and per
+/// column `b` the part of that sum from the nodes on the upper side of the cell along
+/// axis `b`, `upper[a][b] = Σ_{n: o_b(n) = 1} S_n L̄_n[a][b]`. Zero for one-step schemes.
+pub(crate) struct LbarAt<const D: usize> {
+    pub all: [[f64; D]; D],
+    pub upper: [[f64; D]; D],
+}
+
+/// [`LbarAt`] of a particle with weights `k` over its nodes' data `nd`.
+#[inline(always)]
+pub(crate) fn lbar_at<const D: usize, const N: usize>(
+    k: &Kern<D, N>,
+    nd: &NodeData<D, N>,
+    two: bool,
+) -> LbarAt<D> {
+    let mut lb = LbarAt {
+        all: [[0.0; D]; D],
+        upper: [[0.0; D]; D],
+    };
+    if two {
+        for a in 0..D {
+            for b in 0..D {
+                // The lower and the upper side's sums, two independent chains.
+                let (mut lower, mut upper) = (0.0, 0.0);
+                for n in 0..N {
+                    let t = k.s[n] * nd.lb[a][b][n];
+                    if (n >> b) & 1 == 1 {
+                        upper += t;
+                    } else {
+                        lower += t;
+                    }
+                }
+                lb.all[a][b] = lower + upper;
+                lb.upper[a][b] = upper;
+            }
+        }
+    }
+    lb
+}
+
+/// The velocity two-step schemes move a particle with: the nodal linear
+/// reconstructions `v̄_j + L̄_j (x − x_j)` blended by the shape functions,
+/// `u(x) = Σ_j S_j(x) (v̄_j + L̄_j (x − x_j))`. Exact for linear velocity fields, like
+/// the grid interpolation `Σ_i S_i v_i`, but built from the same nodal averages as the
+/// particle's velocity gradient, so the particles separate only as fast as their
+/// deformation gradients register (README, "The schemes"). Next to a wall the
+/// reconstruction of an interior node, carried to the wall by `L̄_j`, need not vanish
+/// on it, while the grid velocity of slot `slot` does (the wall's nodes are held): the
+/// velocity blends from `u` to the grid interpolation `Σ_i S_i v_i` with the particle's
+/// shape weight on the wall's nodes, all components at a fixed wall, the normal one at
+/// a slip wall. Still continuous and exact for linear fields that satisfy the walls; on
+/// the wall it is the grid's. (Unblended, particles squeezed into a cantilever's clamp
+/// corner left the grid through the clamp, and the clamped beam slid off the clamp.)
+/// `nd` holds the particle's nodes' data ([`NodeData`]).
+#[inline(always)]
+pub(crate) fn moving_velocity<const D: usize, const N: usize>(
+    ctx: &Ctx<'_, D>,
+    k: &Kern<D, N>,
+    nd: &NodeData<D, N>,
+    lb: &LbarAt<D>,
+    slot: usize,
+) -> Vector<D> {
+    // Node n's offset from the particle is (ξ − o_n) h, so
+    // Σ_n S_n L̄_n (ξ − o_n) h = (Σ_n S_n L̄_n) ξ h − Σ_{n: o_b(n) = 1} S_n L̄_n h_b:
+    // the interpolated L̄ the velocity gradient needs anyway, and half its terms again.
+    let h = &ctx.geom.h;
+    let mut u = Vector::<D>::zeros();
+    for a in 0..D {
+        let mut x = 0.0;
+        for n in 0..N {
+            x += k.s[n] * nd.vb[a][n];
+        }
+        for b in 0..D {
+            x += (lb.all[a][b] * k.frac[b] - lb.upper[a][b]) * h[b];
+        }
+        u[a] = x;
+    }
+    if ctx.walls && k.ends.iter().flatten().any(|&e| e) {
+        // The share of the particle's shape weight on wall nodes: on fixed faces (all
+        // components) and on slip faces normal to each axis (that component).
+        let mut keep_fixed = 1.0;
+        let mut keep = [1.0; D];
+        for a in 0..D {
+            for side in 0..2 {
+                if !k.ends[a][side] {
+                    continue;
+                }
+                let on_face = if side == 0 {
+                    1.0 - k.frac[a]
+                } else {
+                    k.frac[a]
+                };
+                match ctx.faces[a][side] {
+                    Face::Fixed => keep_fixed *= 1.0 - on_face,
+                    Face::Slip => keep[a] *= 1.0 - on_face,
+                    Face::Free | Face::Periodic => {}
+                }
+            }
+        }
+        if keep_fixed < 1.0 || keep.iter().any(|&k| k < 1.0) {
+            for a in 0..D {
+                let c = keep_fixed * keep[a];
+                if c < 1.0 {
+                    let mut vn = 0.0;
+                    for n in 0..N {
+                        vn += k.s[n] * nd.v[slot][a][n];
+                    }
+                    u[a] = c * u[a] + (1.0 - c) * vn;
+                }
+            }
+        }
+    }
+    u
+}
+
+/// A particle that touches a slip wall's node may move into that wall no faster than
+/// the velocity it moves with, `vm` (which vanishes at the wall): the normal component
+/// of its velocity `v` is clipped to `vm`'s. Returns the kinetic energy the clip takes
+/// out (≤ 0), the wall's work.
+#[inline(always)]
+pub(crate) fn clip_at_slip_walls<const D: usize, const N: usize>(
+    ctx: &Ctx<'_, D>,
+    k: &Kern<D, N>,
+    v: &mut Vector<D>,
+    vm: &Vector<D>,
+    mass: f64,
+) -> f64 {
+    let free = *v;
+    for a in 0..D {
+        for side in 0..2 {
+            if k.ends[a][side] && ctx.faces[a][side] == Face::Slip {
+                v[a] = if side == 0 {
+                    v[a].max(vm[a])
+                } else {
+                    v[a].min(vm[a])
+                };
+            }
+        }
+    }
+    // The wall is an external force: its impulse m (new − free) does the work
+    // m (new − free)·(new + free)/2 by the midpoint rule gravity's work uses, i.e. the
+    // kinetic energy the clip takes out. A wall at rest does no work on the continuum;
+    // this is what the discrete impact dissipates there, counted so that the balance
+    // keeps measuring the integrator.
+    0.5 * mass * (v.norm_squared() - free.norm_squared())
+}
+
+/// Velocity gradient at a particle from velocity slot `slot` and, for two-step
+/// schemes, the nodal `L̄`, read from the grid (the particle loops read their nodes'
+/// data once per run and call [`velocity_gradient_at`]).
+#[cfg(test)]
+pub(crate) fn velocity_gradient<const D: usize, const N: usize>(
+    k: &Kern<D, N>,
+    idx: &[usize; N],
+    vel: &[f64],
+    avg: &[f64],
+    slot: usize,
+    two: bool,
+) -> Mat<D> {
+    let mut nd = NodeData::<D, N>::new();
+    nd.load(idx, vel, if two { avg } else { &[] }, None);
+    nd.load_differences(slot);
+    velocity_gradient_at(k, &nd, &lbar_at(k, &nd, two), slot, two)
+}
+
+/// Velocity gradient at a particle from velocity slot `slot` and, for two-step
+/// schemes, the nodal `L̄`, of its nodes' data `nd`.
+#[inline(always)]
+pub(crate) fn velocity_gradient_at<const D: usize, const N: usize>(
+    k: &Kern<D, N>,
+    nd: &NodeData<D, N>,
+    lb: &LbarAt<D>,
+    slot: usize,
+    two: bool,
+) -> Mat<D> {
+    let mut l = Mat::<D>::zeros();
+    if k.alpha != 0.0 {
+        for a in 0..D {
+            for b in 0..D {
+                let mut x = 0.0;
+                if hats::<D, N>() {
+                    // A hat's derivative along b at the lower node of a pair is minus
+                    // the upper one's (exactly: the same product with −1/h for 1/h),
+                    // so the pair enters as its velocity difference (`nd.dv`, of
+                    // `slot`).
+                    for m in 0..N / 2 {
+                        x += nd.dv[a][b][m] * k.g[b][pair(b, m).1];
+                    }
+                } else {
+                    for n in 0..N {
+                        x += nd.v[slot][a][n] * k.g[b][n];
+                    }
+                }
+                l[(a, b)] = k.alpha * x;
+            }
+        }
+    }
+    if two && k.alpha != 1.0 {
+        let c = 1.0 - k.alpha;
+        for a in 0..D {
+            for b in 0..D {
+                l[(a, b)] += c * lb.all[a][b];
+            }
+        }
+    }
+    l
+}
+
+/// At a particle with weights `k` over its nodes' data `nd`: `Σ_n S_n v_n` of the
+/// updated slot and `Σ_n S_n (v_n − v_n^old)` (the gather's and the remap's grid and
+/// FLIP velocities).
+#[inline(always)]
+pub(crate) fn interpolate<const D: usize, const N: usize>(
+    k: &Kern<D, N>,
+    nd: &NodeData<D, N>,
+) -> (Vector<D>, Vector<D>) {
+    let mut vn = Vector::<D>::zeros();
+    let mut dv = Vector::<D>::zeros();
+    for n in 0..N {
+        for a in 0..D {
+            let (v0, v1) = (nd.v[FROM_MOMENTUM][a][n], nd.v[UPDATED][a][n]);
+            vn[a] += k.s[n] * v1;
+            dv[a] += k.s[n] * (v1 - v0);
+        }
+    }
+    (vn, dv)
+}

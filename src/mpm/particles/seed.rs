@@ -1,0 +1,290 @@
+//! Seeding: the particles a scene's bodies put on the lattice of each cell, and the
+//! shapes' bounds and insides.
+
+use super::{Carries, Kinds, Particles};
+use crate::input::scene::{BodySpec, Scene, Shape};
+use crate::physics::benchmark::Benchmark;
+use crate::physics::material::Material;
+use crate::physics::shape::Geom;
+use crate::physics::tensor::{det, vector, Mat, Vector};
+
+impl<const D: usize> Particles<D> {
+    /// Seed the particles of every body whose current position falls in the owned
+    /// cells `[cell_lo, cell_hi)`, in global id order.
+    /// `materials`: per kind of `kinds`.
+    pub fn seed(
+        scene: &Scene,
+        geom: &Geom<D>,
+        (kinds, materials): (&Kinds, &[Material]),
+        benchmark: Option<&Benchmark<D>>,
+        cell_lo: [usize; D],
+        cell_hi: [usize; D],
+    ) -> Self {
+        let carries = Carries::for_scene(scene);
+        let mut p = Particles::<D>::default();
+        // Benchmarks may start displaced: look that many cells beyond the block.
+        let disp = match benchmark {
+            Some(Benchmark::AxisAlignedMms { a, .. }) => a.abs(),
+            _ => 0.0,
+        };
+        let mut id_base = 0u64;
+        for (body, &k) in scene.bodies.iter().zip(&scene.plan.body_kind) {
+            let n = body.particles_per_cell;
+            let sub = n.pow(D as u32);
+            let seed = BodySeed {
+                mat: &materials[k],
+                kind: k as u16,
+                vol0: kinds.vol0[k],
+                half: std::array::from_fn(|a| 0.5 * geom.h[a] / n as f64),
+                carries,
+            };
+            let (c0, c1) = body_cells::<D>(body, geom);
+            // Restrict to the block, padded by the initial displacement.
+            let pad: [usize; D] =
+                std::array::from_fn(|a| 1 + (disp * geom.inv_h[a]).ceil() as usize);
+            let r0: [usize; D] =
+                std::array::from_fn(|a| c0[a].max(cell_lo[a].saturating_sub(pad[a])));
+            let r1: [usize; D] = std::array::from_fn(|a| c1[a].min(cell_hi[a] + pad[a]));
+            let dims: [usize; D] = std::array::from_fn(|a| c1[a] - c0[a]);
+            let body_cells: usize = dims.iter().product();
+            if (0..D).all(|a| r0[a] < r1[a]) {
+                lattice_points::<D>(body, geom, (c0, c1), (r0, r1), |lin, s, xref| {
+                    let xr = vector::<D>(&xref);
+                    let (x, v, f) = initial_motion(body, benchmark, &xr);
+                    let (c, _) = geom.locate(&std::array::from_fn(|a| x[a]));
+                    if (0..D).any(|a| c[a] < cell_lo[a] as i64 || c[a] >= cell_hi[a] as i64) {
+                        return true;
+                    }
+                    p.push_seeded(&seed, id_base + (lin * sub + s) as u64, xr, (x, v, f));
+                    true
+                });
+            }
+            id_base += (body_cells * sub) as u64;
+        }
+        p
+    }
+
+    /// Append a new particle of `seed`'s body: reference position `xr`, position,
+    /// velocity and deformation gradient `(x, v, f)`, the stress of `f`, and every
+    /// material state the scene carries at its declared initial value.
+    fn push_seeded(
+        &mut self,
+        seed: &BodySeed<D>,
+        id: u64,
+        xr: Vector<D>,
+        (x, v, f): (Vector<D>, Vector<D>, Mat<D>),
+    ) {
+        let (mat, vol0, carries) = (seed.mat, seed.vol0, seed.carries);
+        let j = det(&f);
+        self.x.push(x);
+        self.v.push(v);
+        debug_assert!(
+            !carries.mass && !carries.vol0,
+            "a seeded particle's are its kind's"
+        );
+        if carries.vol {
+            self.vol.push(vol0 * j);
+        }
+        if carries.stress {
+            let mut st = Mat::<D>::zeros();
+            if mat.needs_def_grad() {
+                let none = crate::physics::material::Internal {
+                    plastic: None,
+                    damage: None,
+                    stress_zz: None,
+                };
+                mat.update_stress(&mut st, &Mat::<D>::zeros(), &f, 0.0, none);
+            }
+            self.stress.push(st);
+        }
+        if carries.def_grad {
+            self.def_grad.push(f);
+        }
+        self.kind.push(seed.kind);
+        self.id.push(id);
+        if carries.x0 {
+            self.x0.push(xr);
+        }
+        if carries.half {
+            self.half.push(seed.half);
+        }
+        self.push_initial_state(carries);
+        debug_assert!(self.consistent(carries));
+    }
+}
+
+/// What the particles of one body share when they are seeded.
+struct BodySeed<'m, const D: usize> {
+    mat: &'m Material,
+    /// The body's kind of particle.
+    kind: u16,
+    /// Its reference volume.
+    vol0: f64,
+    /// GIMP half-widths.
+    half: [f64; D],
+    carries: Carries,
+}
+
+/// The initial position, velocity and deformation gradient of the particle at
+/// reference position `xr`: a benchmark's exact state at t = 0 (or rest), plus the
+/// body's velocity and velocity gradient.
+fn initial_motion<const D: usize>(
+    body: &BodySpec,
+    benchmark: Option<&Benchmark<D>>,
+    xr: &Vector<D>,
+) -> (Vector<D>, Vector<D>, Mat<D>) {
+    let (mut x, mut v, mut f) = (*xr, Vector::<D>::zeros(), Mat::<D>::identity());
+    if let Some(b) = benchmark {
+        let (u, vel) = b.exact(xr, 0.0);
+        x += u;
+        v = vel;
+        f = b.deformation_gradient(xr, 0.0);
+    }
+    if let Some(bv) = &body.velocity {
+        v += vector::<D>(bv);
+    }
+    if let Some(g) = &body.velocity_gradient {
+        for (i, row) in g.value.iter().enumerate() {
+            for (j, gij) in row.iter().enumerate() {
+                let c = g.about.as_ref().map_or(0.0, |c| c[j]);
+                v[i] += gij * (xr[j] - c);
+            }
+        }
+    }
+    (x, v, f)
+}
+
+/// The grid cells `c0..c1` overlapping a body's bounding box (at least one per axis; it
+/// may lie beyond the grid when the body does).
+fn body_cells<const D: usize>(body: &BodySpec, geom: &Geom<D>) -> ([usize; D], [usize; D]) {
+    let (blo, bhi) = shape_bounds::<D>(&body.shape);
+    let mut c0 = [0usize; D];
+    let mut c1 = [0usize; D];
+    for a in 0..D {
+        let lo = ((blo[a] - geom.lower[a]) * geom.inv_h[a]).floor().max(0.0) as usize;
+        let hi = (((bhi[a] - geom.lower[a]) * geom.inv_h[a]).ceil() as usize).min(geom.cells[a]);
+        c0[a] = lo;
+        c1[a] = hi.max(lo + 1);
+    }
+    (c0, c1)
+}
+
+/// Calls `f(lin, s, x)` for each seeding lattice point `x` of `body` inside its shape, in
+/// the cells `r0..r1` of the body's cells `c0..c1`: point `s` of the `n^D` in a cell
+/// (`n` particles per cell and axis, at `(q + ½)/n` of the cell), `lin` the cell's
+/// index in `c0..c1` (which, with `s`, numbers the particle ids). Stops when `f`
+/// returns false.
+fn lattice_points<const D: usize>(
+    body: &BodySpec,
+    geom: &Geom<D>,
+    (c0, c1): ([usize; D], [usize; D]),
+    (r0, r1): ([usize; D], [usize; D]),
+    mut f: impl FnMut(usize, usize, [f64; D]) -> bool,
+) {
+    let n = body.particles_per_cell;
+    let sub = n.pow(D as u32);
+    let dims: [usize; D] = std::array::from_fn(|a| c1[a] - c0[a]);
+    let counts: [usize; D] = std::array::from_fn(|a| r1[a].saturating_sub(r0[a]));
+    let total: usize = counts.iter().product();
+    for k in 0..total {
+        let mut rem = k;
+        let mut cell = [0usize; D];
+        for a in 0..D {
+            cell[a] = r0[a] + rem % counts[a];
+            rem /= counts[a];
+        }
+        let mut lin = 0usize;
+        for a in (0..D).rev() {
+            lin = lin * dims[a] + (cell[a] - c0[a]);
+        }
+        for s in 0..sub {
+            let mut r = s;
+            let mut x = [0.0; D];
+            for a in 0..D {
+                let q = r % n;
+                r /= n;
+                x[a] = geom.lower[a] + (cell[a] as f64 + (q as f64 + 0.5) / n as f64) * geom.h[a];
+            }
+            if inside(&body.shape, &x) && !f(lin, s, x) {
+                return;
+            }
+        }
+    }
+}
+
+/// Whether `body` seeds at least one particle in the grid of `geom`: false when it lies
+/// outside the grid or between the lattice points (smaller than a particle spacing).
+/// Stops at the first particle, so it costs little for any real body.
+pub fn seeds_any<const D: usize>(body: &BodySpec, geom: &Geom<D>) -> bool {
+    let (c0, c1) = body_cells::<D>(body, geom);
+    let r1: [usize; D] = std::array::from_fn(|a| c1[a].min(geom.cells[a]));
+    let mut any = false;
+    lattice_points::<D>(body, geom, (c0, c1), (c0, r1), |_, _, _| {
+        any = true;
+        false
+    });
+    any
+}
+
+/// A lattice point of `b` (as seeded) that lies inside the shape of `a`, if any: the two
+/// bodies would both seed particles there. Walks only the cells where their bounding
+/// boxes meet.
+pub fn overlap<const D: usize>(a: &BodySpec, b: &BodySpec, geom: &Geom<D>) -> Option<[f64; D]> {
+    let (a0, a1) = body_cells::<D>(a, geom);
+    let (b0, b1) = body_cells::<D>(b, geom);
+    let r0: [usize; D] = std::array::from_fn(|k| a0[k].max(b0[k]));
+    let r1: [usize; D] = std::array::from_fn(|k| a1[k].min(b1[k]).min(geom.cells[k]));
+    let mut hit = None;
+    lattice_points::<D>(b, geom, (b0, b1), (r0, r1), |_, _, x| {
+        if inside(&a.shape, &x) {
+            hit = Some(x);
+        }
+        hit.is_none()
+    });
+    hit
+}
+
+/// Bounding box of a shape.
+pub fn shape_bounds<const D: usize>(s: &Shape) -> ([f64; D], [f64; D]) {
+    match s {
+        Shape::Box { lower, upper } => (
+            std::array::from_fn(|a| lower[a]),
+            std::array::from_fn(|a| upper[a]),
+        ),
+        Shape::Sphere { center, radius } => (
+            std::array::from_fn(|a| center[a] - radius),
+            std::array::from_fn(|a| center[a] + radius),
+        ),
+        Shape::Annulus { center, outer, .. } => (
+            std::array::from_fn(|a| center[a] - outer),
+            std::array::from_fn(|a| center[a] + outer),
+        ),
+        Shape::Cylinder { center, radius, z } => (
+            std::array::from_fn(|a| if a < 2 { center[a] - radius } else { z[0] }),
+            std::array::from_fn(|a| if a < 2 { center[a] + radius } else { z[1] }),
+        ),
+    }
+}
+
+/// Is a point inside a shape (closed sets)?
+pub fn inside<const D: usize>(s: &Shape, x: &[f64; D]) -> bool {
+    match s {
+        Shape::Box { lower, upper } => (0..D).all(|a| x[a] >= lower[a] && x[a] <= upper[a]),
+        Shape::Sphere { center, radius } => {
+            (0..D).map(|a| (x[a] - center[a]).powi(2)).sum::<f64>() <= radius * radius
+        }
+        Shape::Annulus {
+            center,
+            inner,
+            outer,
+        } => {
+            let r2: f64 = (0..D).map(|a| (x[a] - center[a]).powi(2)).sum();
+            r2 >= inner * inner && r2 <= outer * outer
+        }
+        Shape::Cylinder { center, radius, z } => {
+            (x[0] - center[0]).powi(2) + (x[1] - center[1]).powi(2) <= radius * radius
+                && x[2] >= z[0]
+                && x[2] <= z[1]
+        }
+    }
+}

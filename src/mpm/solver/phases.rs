@@ -1,0 +1,163 @@
+//! The phases of one step, as data: each update order's list, and the list a run resolves for its scheme and transfer.
+
+use super::*;
+
+/// One phase of a time step. A step is one of the lists in [`Update::phases`], without
+/// the MPMCG node-to-node steps (`AveragedForce`, `AveragedGradient`) for one-step
+/// schemes (MPM, GIMP): [`Solver::two_step`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Phase {
+    /// Particle → grid: mass, momentum, the domain fill and, if `forces`, the forces
+    /// and the averaged stress sums; `moved`: the particles moved since the last scatter
+    /// (rebuild the slab order). Ends with the ghost sum and the domain weights.
+    Scatter { forces: bool, moved: bool },
+    /// MPMCG node → node step of the internal force, `f_i −= Σ_j σ̄_j ∫ w S_j ∇S_i`.
+    AveragedForce,
+    /// Grid velocities from momentum (slot 0) and, if `forces`, after the force update
+    /// (slot 1); walls; copy to the ghosts.
+    GridUpdate { forces: bool },
+    /// MPMCG node → node step of the velocity gradient, `L̄_j`, from velocity `slot`.
+    AveragedGradient { slot: usize },
+    /// Grid → particle: velocity (FLIP/PIC), position (now, or the increment kept for
+    /// the `Stress` pass that moves), and if `stress` the deformation and stress;
+    /// `speed`: the step's last particle pass.
+    Gather {
+        stress: bool,
+        move_now: bool,
+        speed: bool,
+    },
+    /// Deformation and stress from velocity `slot` at the current positions.
+    /// `moves` (MUSL): then move each particle, a two-step scheme's with the remapped
+    /// velocity's reconstruction ([`kernel::moving_velocity`]), a one-step scheme's by
+    /// the increment its `Remap` or `Gather` kept.
+    Stress {
+        slot: usize,
+        speed: bool,
+        moves: bool,
+    },
+    /// MUSL: the particles' new velocities from the grid and the grid momentum of them,
+    /// at the positions of the step's scatter, in one pass (`mpm::remap`); mass, cover
+    /// and domain weights stay the scatter's. The same numbers as a `Gather` (no
+    /// stress, no move) followed by a `Scatter` without forces.
+    Remap,
+    /// XPIC(m) only, just before the `Gather`: the grid field of its velocity update
+    /// from the velocity before the force update, by m − 1 grid → particle → grid
+    /// passes ([`Solver::xpic_field`]).
+    XpicField,
+}
+
+impl Update {
+    /// The phases of one step of this update order for a two-step scheme.
+    pub fn phases(self) -> &'static [Phase] {
+        use Phase::*;
+        match self {
+            // Update stress last: forces from the old stress, then the new velocity
+            // deforms the particles in the same pass that moves them.
+            Update::Usl => &[
+                Scatter {
+                    forces: true,
+                    moved: true,
+                },
+                AveragedForce,
+                GridUpdate { forces: true },
+                AveragedGradient { slot: UPDATED },
+                Gather {
+                    stress: true,
+                    move_now: true,
+                    speed: true,
+                },
+            ],
+            // Update stress first, from the grid velocity of the old momentum.
+            Update::Usf => &[
+                Scatter {
+                    forces: false,
+                    moved: true,
+                },
+                GridUpdate { forces: false },
+                AveragedGradient {
+                    slot: FROM_MOMENTUM,
+                },
+                Stress {
+                    slot: FROM_MOMENTUM,
+                    speed: false,
+                    moves: false,
+                },
+                Scatter {
+                    forces: true,
+                    moved: false,
+                },
+                AveragedForce,
+                GridUpdate { forces: true },
+                // The reconstruction the particles move with (two-step schemes).
+                AveragedGradient { slot: UPDATED },
+                Gather {
+                    stress: false,
+                    move_now: true,
+                    speed: true,
+                },
+            ],
+            // Modified USL: the new particle momentum is remapped to the grid, still at
+            // the old positions, and that velocity deforms the particles; then they move.
+            Update::Musl => &[
+                Scatter {
+                    forces: true,
+                    moved: true,
+                },
+                AveragedForce,
+                GridUpdate { forces: true },
+                Remap,
+                GridUpdate { forces: false },
+                AveragedGradient {
+                    slot: FROM_MOMENTUM,
+                },
+                Stress {
+                    slot: FROM_MOMENTUM,
+                    speed: true,
+                    moves: true,
+                },
+            ],
+        }
+    }
+}
+
+impl<'c, const D: usize> Solver<'c, D> {
+    /// The step's phases for this scheme: one-step schemes skip the grid averages.
+    pub(super) fn resolve_phases(&mut self) {
+        let two = self.scheme.two_step();
+        self.phases = self
+            .update
+            .phases()
+            .iter()
+            .copied()
+            .filter(|p| two || !matches!(p, Phase::AveragedForce | Phase::AveragedGradient { .. }))
+            .flat_map(|p| match p {
+                // XPIC's field is computed right before the gather that updates the
+                // particle velocities; its passes overwrite the scatter records, so
+                // MUSL's remap is then a gather and a full second scatter.
+                Phase::Remap if self.xpic.is_some() => vec![
+                    Phase::XpicField,
+                    Phase::Gather {
+                        stress: false,
+                        move_now: false,
+                        speed: false,
+                    },
+                    Phase::Scatter {
+                        forces: false,
+                        moved: false,
+                    },
+                ],
+                Phase::Gather { .. } if self.xpic.is_some() => vec![Phase::XpicField, p],
+                _ => vec![p],
+            })
+            .collect();
+        // XPIC's scatters overwrite the scatter records, where L̄ and v̄ are kept
+        // (`avg`): its field first, then theirs (neither reads what the other writes).
+        for i in 1..self.phases.len() {
+            if self.phases[i] == Phase::XpicField
+                && matches!(self.phases[i - 1], Phase::AveragedGradient { .. })
+            {
+                self.phases.swap(i - 1, i);
+            }
+        }
+    }
+}
