@@ -180,7 +180,6 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
                         add_momentum(grid, m.record, &run.idx, &mut sum);
                     }
                     run.enter(ctx, tile, [0; D]);
-                    prefetch_momentum::<D, N>(grid, m.record, &run.idx);
                     nd.load(&run.idx, vel, &[], None);
                 }
                 if !run.at_wall() {
@@ -213,7 +212,6 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
                 add_momentum(grid, m.record, &run.idx, &mut sum);
             }
             run.enter(ctx, parts.tile[p], below);
-            prefetch_momentum::<D, N>(grid, m.record, &run.idx);
             nd.load(&run.idx, vel, &[], None);
         }
         k.ends = run.ends(ctx, &w);
@@ -327,9 +325,7 @@ fn remap_lanes<const D: usize, const N: usize, const B: usize>(
             new[a] = (old[a] + dv[a][l]) * m.flip + vn[a][l] * (1.0 - m.flip);
             vnl[a] = vn[a][l];
         }
-        // What `clip_at_slip_walls` returns where it clips nothing, then the
-        // external force's work, as the scalar loop adds them.
-        t.work += 0.5 * mass * (new.norm_squared() - new.norm_squared());
+        // The external force's work (the lanes take no run at a wall, so no clip).
         let a = ctx.accel_kept(parts.accel, parts.x0, p);
         t.work += m.dt * mass * a.dot(&(old + new)) * 0.5;
         *vp = new;
@@ -344,22 +340,6 @@ fn remap_lanes<const D: usize, const N: usize, const B: usize>(
                 sum[a][n] += mv[a] * if by_rows { rows[l][n] } else { sh[n][l] };
             }
         }
-    }
-}
-
-/// Ask for the momentum of nodes `idx` (records as in [`add_momentum`]) at a run's
-/// start: it is added into at the run's end, and waiting for it there was a sixth of
-/// the 3D remap's samples (the lines were last touched when `Solver::remap` cleared
-/// every record's momentum, and the 3D grid's records outgrow the core's caches). As
-/// `kernel::scatter` does for its records.
-#[inline(always)]
-fn prefetch_momentum<const D: usize, const N: usize>(
-    grid: GridPtr,
-    (width, at): (usize, usize),
-    idx: &[usize; N],
-) {
-    for &n in idx {
-        grid.prefetch(n * width + at, D);
     }
 }
 

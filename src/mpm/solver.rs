@@ -17,7 +17,6 @@ use crate::physics::tensor::{vector, Mat, Vector};
 use decomposition::tiles::TILE_LOG;
 use decomposition::{Block, Communicator, Layout, Migrator, Tiles, Traffic, TILE};
 use rayon::prelude::*;
-use std::mem::MaybeUninit;
 
 /// The read-only context of the particle loops, borrowed field by field from a solver.
 macro_rules! ctx {

@@ -111,52 +111,6 @@ impl<const D: usize, const N: usize> NodeData<D, N> {
     #[inline(always)]
     pub fn load(&mut self, idx: &[usize; N], vel: &[f64], avg: &[f64], xpic: Option<&[f64]>) {
         let aw = AvgRecord::<D>::WIDTH;
-        if D > 1 && N.is_multiple_of(4) {
-            // Four nodes at a time, four numbers of their records at a time
-            // ([`rows4`]: vector shuffles, not a store per number).
-            let vw = VelRecord::<D>::WIDTH;
-            for n0 in (0..N).step_by(4) {
-                let at: [usize; 4] = std::array::from_fn(|l| idx[n0 + l] * vw);
-                for c0 in blocks_of_four(vw) {
-                    let r = rows4(vel, at.map(|i| i + c0));
-                    for (k, r) in r.iter().enumerate() {
-                        let c = c0 + k;
-                        self.v[c / D][c % D][n0..n0 + 4].copy_from_slice(r);
-                    }
-                }
-                if !avg.is_empty() {
-                    let at: [usize; 4] = std::array::from_fn(|l| idx[n0 + l] * aw);
-                    for c0 in blocks_of_four(aw) {
-                        let r = rows4(avg, at.map(|i| i + c0));
-                        for (k, r) in r.iter().enumerate() {
-                            let c = c0 + k;
-                            let row = if c < AvgRecord::<D>::VBAR {
-                                &mut self.lb[c / D][c % D]
-                            } else {
-                                &mut self.vb[c - AvgRecord::<D>::VBAR]
-                            };
-                            row[n0..n0 + 4].copy_from_slice(r);
-                        }
-                    }
-                }
-            }
-        } else {
-            self.load_by_nodes(idx, vel, avg);
-        }
-        if let Some(x) = xpic {
-            for n in 0..N {
-                let r = &x[idx[n] * D..(idx[n] + 1) * D];
-                for a in 0..D {
-                    self.x[a][n] = r[a];
-                }
-            }
-        }
-    }
-
-    /// [`NodeData::load`]'s velocities and averages a node at a time (1D, GIMP).
-    #[inline(always)]
-    pub(super) fn load_by_nodes(&mut self, idx: &[usize; N], vel: &[f64], avg: &[f64]) {
-        let aw = AvgRecord::<D>::WIDTH;
         for n in 0..N {
             let at = VelRecord::<D>::at(idx[n], FROM_MOMENTUM);
             let r = &vel[at..at + VelRecord::<D>::WIDTH];
@@ -174,56 +128,15 @@ impl<const D: usize, const N: usize> NodeData<D, N> {
                 }
             }
         }
-    }
-}
-
-/// Where the blocks of four numbers start that cover a record of `width >= 4`
-/// numbers: every fourth, the last moved back to end at the record's end (so it may
-/// overlap the one before, which then writes a few numbers twice, the same values).
-#[inline(always)]
-pub(super) fn blocks_of_four(width: usize) -> impl Iterator<Item = usize> {
-    (0..width.div_ceil(4)).map(move |j| (4 * j).min(width - 4))
-}
-
-/// Four numbers from each of four records, as rows over the records:
-/// `out[k][l] = src[at[l] + k]`: with AVX eight 16-byte loads, four in-lane shuffles
-/// and four whole-row stores at the caller, where copying a number at a time was a
-/// load and a store each (the 3D stress pass's node loading: 6.6 % of the block
-/// drop's step that way, 5.0 % this way; the same numbers, moved).
-#[inline(always)]
-pub(super) fn rows4(src: &[f64], at: [usize; 4]) -> [[f64; 4]; 4] {
-    let r: [&[f64; 4]; 4] =
-        std::array::from_fn(|l| src[at[l]..at[l] + 4].try_into().expect("four numbers"));
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx"))]
-    {
-        use std::arch::x86_64::*;
-        // Halves of the records, two into each register ([r0 lo | r2 lo], ...), then
-        // within each 128-bit lane pick the first or the second number of each pair:
-        // no shuffle crosses lanes. (Left to the compiler, the whole-array form below
-        // came out as scalar loads and inserts, slower than the scalar copy.)
-        // SAFETY: AVX is enabled for the whole build (the cfg above), and the binary
-        // refuses to start on a CPU without the features it was built for
-        // (`driver::cpu`). Each `r[l]` references four f64, so the 16-byte loads at
-        // offsets 0 and 2 read inside it (unaligned loads need no alignment); and
-        // `__m256d` is four f64 in order, every bit pattern valid both ways.
-        unsafe {
-            let half = |l: usize, k: usize| _mm_loadu_pd(r[l].as_ptr().add(k));
-            let pair = |a: usize, b: usize, k: usize| {
-                _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(half(a, k)), half(b, k))
-            };
-            let (e0, e1) = (pair(0, 2, 0), pair(1, 3, 0));
-            let (f0, f1) = (pair(0, 2, 2), pair(1, 3, 2));
-            [
-                _mm256_unpacklo_pd(e0, e1),
-                _mm256_unpackhi_pd(e0, e1),
-                _mm256_unpacklo_pd(f0, f1),
-                _mm256_unpackhi_pd(f0, f1),
-            ]
-            .map(|v| std::mem::transmute::<__m256d, [f64; 4]>(v))
+        if let Some(x) = xpic {
+            for n in 0..N {
+                let r = &x[idx[n] * D..(idx[n] + 1) * D];
+                for a in 0..D {
+                    self.x[a][n] = r[a];
+                }
+            }
         }
     }
-    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx")))]
-    std::array::from_fn(|k| [r[0][k], r[1][k], r[2][k], r[3][k]])
 }
 
 /// The grid coordinates of a particle's cell ([`Ctx::cell_of`]) from the storage

@@ -15,12 +15,10 @@ pub(super) fn pad_off<const D: usize>(r: usize) -> usize {
 
 /// A node stencil's per-tile table of pairs along each axis: entry `[b][a][k]` is
 /// `op(src(a, b)[k], src(a, b)[k + PAD^b])` for `k < NP − PAD^b`, and 0 for the last
-/// `PAD^b` (which no cell reads), written into `t` and returned as `f64`s. Built in
-/// place from `MaybeUninit`: an initialised array is zeroed first (a `memset` of
-/// 15.5 kB per tile and stencil in 3D, about 0.5 % of the 3D step).
+/// `PAD^b` (which no cell reads), written into `t`.
 #[inline(always)]
 pub(super) fn pair_table<'t, const D: usize, const NP: usize>(
-    t: &'t mut [[[MaybeUninit<f64>; NP]; D]; D],
+    t: &'t mut [[[f64; NP]; D]; D],
     src: impl Fn(usize, usize) -> &'t [f64; NP],
     op: impl Fn(f64, f64) -> f64,
 ) -> &'t [[[f64; NP]; D]; D] {
@@ -29,44 +27,30 @@ pub(super) fn pair_table<'t, const D: usize, const NP: usize>(
         for (a, row) in tb.iter_mut().enumerate() {
             let s = src(a, b);
             for k in 0..NP - st {
-                row[k].write(op(s[k], s[k + st]));
+                row[k] = op(s[k], s[k + st]);
             }
-            for x in &mut row[NP - st..] {
-                x.write(0.0);
-            }
+            row[NP - st..].fill(0.0);
         }
     }
-    // SAFETY: `MaybeUninit<f64>` has the size, alignment and bit validity of `f64`
-    // where initialised, so nested arrays of it have the layout of the same arrays of
-    // `f64`; the loops above wrote every entry of every `[b][a]` (`0 .. NP − PAD^b`,
-    // then the rest), so all are initialised. The result borrows `t` for as long as
-    // the mutable borrow it came from, so `t` is not written again meanwhile.
-    unsafe { &*(t as *const [[[MaybeUninit<f64>; NP]; D]; D]).cast::<[[[f64; NP]; D]; D]>() }
+    t
 }
 
 /// A node stencil's per-tile table of `rows` numbers per padded node: entry `[i][k]`
 /// is `value(k, i)` for `i < rows` (a padded node's numbers read together, `k`
-/// outer), written into `t` and its first `rows` rows returned as `f64`s. Built in
-/// place from `MaybeUninit`, as [`pair_table`]: an initialised array is zeroed first
-/// (`memset`s of 17 kB per tile in the two 3D stencils).
+/// outer), written into `t`, whose first `rows` rows are returned.
 #[inline(always)]
 pub(super) fn pad_table<const R: usize, const NP: usize>(
-    t: &mut [[MaybeUninit<f64>; NP]; R],
+    t: &mut [[f64; NP]; R],
     rows: usize,
     value: impl Fn(usize, usize) -> f64,
 ) -> &[[f64; NP]] {
     let t = &mut t[..rows];
     for k in 0..NP {
         for (i, row) in t.iter_mut().enumerate() {
-            row[k].write(value(k, i));
+            row[k] = value(k, i);
         }
     }
-    // SAFETY: `MaybeUninit<f64>` has the size, alignment and bit validity of `f64`
-    // where initialised, so `[MaybeUninit<f64>; NP]` has the layout of `[f64; NP]`;
-    // `t` is the first `rows` rows (the slicing checked `rows <= R`), and the loops
-    // wrote every entry `k < NP` of each of them, so all are initialised. The result
-    // borrows `t` for as long as the mutable borrow it came from.
-    unsafe { std::slice::from_raw_parts(t.as_ptr().cast::<[f64; NP]>(), t.len()) }
+    t
 }
 
 /// Per lane of a row, all ones where the cell weight `w` is positive, else zero: the
@@ -414,17 +398,16 @@ impl<const D: usize> NodeView<'_, D> {
             // σ̄ is symmetric to the bit (both entries are the same sum over the same
             // volume, `averaged_force`): its upper triangle only, a third fewer numbers
             // to transpose in 3D, and the stencil reads `σ̄_ba` where it needs `σ̄_ab`.
-            let mut sp = [[MaybeUninit::uninit(); NP]; 6];
+            let mut sp = [[0.0; NP]; 6];
             let sp = pad_table(&mut sp, sym, |k, i| sigma[pad[k] * sym + i]);
-            let mut cw = [[MaybeUninit::uninit(); NP]; 1];
+            let mut cw = [[0.0; NP]; 1];
             let cw = &pad_table(&mut cw, 1, |k, _| self.cell_w[pad[k]])[0];
             // The sums of σ̄_ab over padded neighbours along b,
             // `ssp[b][a][k] = σ̄_ab(k) + σ̄_ab(k + e_b)`, once per tile: each cell's pair
             // of corners along b enters the force of each of its corners' nodes, which
             // added them each time. The same addition, so the same bits. (The last
-            // PAD^b entries, which no cell reads, are 0; the array is not zeroed
-            // first: [`pair_table`].)
-            let mut ssp = [[[MaybeUninit::uninit(); NP]; D]; D];
+            // PAD^b entries, which no cell reads, are 0: [`pair_table`].)
+            let mut ssp = [[[0.0; NP]; D]; D];
             let ssp = pair_table(
                 &mut ssp,
                 |a, b| &sp[kernel::sym_index::<D>(a, b)],
@@ -432,10 +415,6 @@ impl<const D: usize> NodeView<'_, D> {
             );
             self.pad_rows(slot, |o0, p0, own, _, low| {
                 let mut f = [[0.0; TILE]; D];
-                // Kept whole in memory (as the scatter's run sums): in registers the
-                // compiler split the sums into pieces and put them together again for
-                // every corner.
-                let f = std::hint::black_box(&mut f);
                 for q in 0..(1 << D) {
                     let (cell, w) = Self::row_cells(cw, low, p0, q);
                     // `∫_c S_r ∂_b S_q` does not depend on `r_b` (a hat's derivative
@@ -502,19 +481,19 @@ impl<const D: usize> NodeView<'_, D> {
         };
         self.par_tiles::<NP>(avg, aw, ahead, |tile, pad, recs| {
             // Filled in place, component by component (see `force_tiles`).
-            let mut vp = [[MaybeUninit::uninit(); NP]; D];
+            let mut vp = [[0.0; NP]; D];
             let vp = pad_table(&mut vp, D, |k, a| {
                 grid_vel[VelRecord::<D>::at(pad[k], slot) + a]
             });
-            let mut cw = [[MaybeUninit::uninit(); NP]; 1];
+            let mut cw = [[0.0; NP]; 1];
             let cw = &pad_table(&mut cw, 1, |k, _| self.cell_w[pad[k]])[0];
             // The velocity's differences along each axis b between padded neighbours,
             // `dvp[b][a][k] = v_a(k + e_b) − v_a(k)`, once per tile: every cell's
             // edge along b enters the gradient of each of its corners' nodes (eight
             // times in 3D), which formed the difference each time. The same
             // subtraction, so the same bits. (The last PAD^b entries, which no cell
-            // reads, are 0; the array is not zeroed first: [`pair_table`].)
-            let mut dvp = [[[MaybeUninit::uninit(); NP]; D]; D];
+            // reads, are 0: [`pair_table`].)
+            let mut dvp = [[[0.0; NP]; D]; D];
             let dvp = pair_table(&mut dvp, |a, _| &vp[a], |lo, hi| hi - lo);
             // A row of TILE nodes at a time, one per lane, as in `force_tiles`: each
             // lane does its node's operations in its order, and a skipped cell adds an
