@@ -398,9 +398,11 @@ pub(crate) fn clip_at_slip_walls<const D: usize, const N: usize>(
     mass: f64,
 ) -> f64 {
     let free = *v;
+    let mut at_wall = false;
     for a in 0..D {
         for side in 0..2 {
             if k.ends[a][side] && ctx.faces[a][side] == Face::Slip {
+                at_wall = true;
                 v[a] = if side == 0 {
                     v[a].max(vm[a])
                 } else {
@@ -408,6 +410,11 @@ pub(crate) fn clip_at_slip_walls<const D: usize, const N: usize>(
                 };
             }
         }
+    }
+    // Away from walls no work, exactly (also for a velocity that is not finite, as
+    // the lanes, which take no particle at a wall, add none).
+    if !at_wall {
+        return 0.0;
     }
     // The wall is an external force: its impulse m (new − free) does the work
     // m (new − free)·(new + free)/2 by the midpoint rule gravity's work uses, i.e. the
