@@ -51,6 +51,7 @@
 //! chunks and keeps those in its cells: O(N) reading per rank, fine for the sizes of a
 //! few nodes but not for thousands of ranks.
 
+mod access;
 mod lineage;
 mod read;
 mod rows;

@@ -1,6 +1,7 @@
 //! Reading a checkpoint: opening and checking it, its header, and the particles and
 //! run state a restart continues with.
 
+use super::access::{attr_f64, attr_u64, attr_vec, dataset, dataset_any, finite, F64_INTEGERS};
 use super::rows::{RowCheck, Rows, Writers};
 use super::seal::check_seal;
 use super::{totals_from, Header, RunState, SolverState, FORMAT, OLDEST, VERSION};
@@ -71,76 +72,6 @@ pub(super) fn open(path: &Path) -> Result<hdf5::File, String> {
         ));
     }
     Ok(file)
-}
-
-pub(super) fn attr_u64(f: &hdf5::File, p: &Path, name: &str) -> Result<u64, String> {
-    f.attr(name)
-        .and_then(|a| a.read_scalar::<u64>())
-        .map_err(|e| {
-            format!(
-                "{}: damaged checkpoint: attribute `{name}`: {e}",
-                p.display()
-            )
-        })
-}
-
-fn attr_f64(f: &hdf5::File, p: &Path, name: &str) -> Result<f64, String> {
-    f.attr(name)
-        .and_then(|a| a.read_scalar::<f64>())
-        .map_err(|e| {
-            format!(
-                "{}: damaged checkpoint: attribute `{name}`: {e}",
-                p.display()
-            )
-        })
-}
-
-pub(super) fn attr_vec<T: hdf5::H5Type>(
-    f: &hdf5::File,
-    p: &Path,
-    name: &str,
-    len: usize,
-) -> Result<Vec<T>, String> {
-    let v: Vec<T> = f.attr(name).and_then(|a| a.read_raw::<T>()).map_err(|e| {
-        format!(
-            "{}: damaged checkpoint: attribute `{name}`: {e}",
-            p.display()
-        )
-    })?;
-    if v.len() != len {
-        return Err(format!(
-            "{}: damaged checkpoint: attribute `{name}` has {} values, expected {len}",
-            p.display(),
-            v.len()
-        ));
-    }
-    Ok(v)
-}
-
-pub(super) fn dataset<T: hdf5::H5Type>(
-    f: &hdf5::File,
-    p: &Path,
-    name: &str,
-    len: usize,
-) -> Result<Vec<T>, String> {
-    let v: Vec<T> = f
-        .dataset(name)
-        .and_then(|d| d.read_raw::<T>())
-        .map_err(|e| format!("{}: damaged checkpoint: dataset `{name}`: {e}", p.display()))?;
-    if v.len() != len {
-        return Err(format!(
-            "{}: damaged checkpoint: dataset `{name}` has {} values, expected {len}",
-            p.display(),
-            v.len()
-        ));
-    }
-    Ok(v)
-}
-
-fn dataset_any<T: hdf5::H5Type>(f: &hdf5::File, p: &Path, name: &str) -> Result<Vec<T>, String> {
-    f.dataset(name)
-        .and_then(|d| d.read_raw::<T>())
-        .map_err(|e| format!("{}: damaged checkpoint: dataset `{name}`: {e}", p.display()))
 }
 
 /// Open a checkpoint and read what every rank needs before anything else: the scene,
@@ -214,10 +145,6 @@ pub fn read_header(path: &Path) -> Result<Header, String> {
 
 /// More writer ranks than any machine runs: refused before sizes are computed from them.
 const MAX_RANKS: u64 = 1 << 32;
-/// From here on not every integer is exact in f64 (the particle record, the history):
-/// no step count or particle id reaches it.
-pub(super) const F64_INTEGERS: u64 = 1 << 53;
-
 /// The stored block boundaries, per axis `blocks[a] + 1` increasing cell indices from
 /// 0 to the axis' cells (whether the blocks are wide enough for the scene's ghost
 /// layers is [`read`]'s check, which knows the boundaries).
@@ -455,23 +382,4 @@ fn read_run_state<const D: usize>(
             Vec::new()
         },
     })
-}
-
-/// `values` of `what` (an attribute or dataset) are finite and, if `nonneg`, >= 0.
-pub(super) fn finite(path: &Path, what: &str, values: &[f64], nonneg: bool) -> Result<(), String> {
-    match values
-        .iter()
-        .find(|x| !x.is_finite() || (nonneg && **x < 0.0))
-    {
-        Some(x) => Err(format!(
-            "{}: damaged checkpoint: {what} holds {x}{}",
-            path.display(),
-            if nonneg && x.is_finite() {
-                " (must be >= 0)"
-            } else {
-                ""
-            }
-        )),
-        None => Ok(()),
-    }
 }

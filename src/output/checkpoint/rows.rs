@@ -2,7 +2,7 @@
 //! rows in its cells, scanned in chunks, on another; each checked against its writer's
 //! hash.
 
-use super::read::{attr_u64, attr_vec, dataset, finite, F64_INTEGERS};
+use super::access::{attr_u64, attr_vec, dataset, finite, F64_INTEGERS};
 use super::{row_hash, Header, CHUNK_ROWS};
 use crate::mpm::particles::{Carries, Kinds, Particles};
 use crate::physics::shape::Geom;
