@@ -21,7 +21,7 @@
 use crate::input::scene::Face;
 use crate::mpm::particles::{self, split_mut, ParticleSlices};
 use crate::physics::benchmark;
-use crate::physics::material::{Internal, Material};
+use crate::physics::material::Material;
 use crate::physics::shape::{self, Alpha, Geom};
 use crate::physics::tensor::{det, Mat, Vector};
 use decomposition::tiles::{Tiles, NEIGHBOURS, TILE, TILE_LOG};

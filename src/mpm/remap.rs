@@ -13,10 +13,8 @@
 //! share their nodes, as in `kernel::scatter`, so they equal the two passes' to
 //! round-off.
 
-use crate::mpm::kernel::lanes::{self, HALF, LANES, QUARTER};
-use crate::mpm::kernel::{
-    self, clip_at_slip_walls, CellAt, Ctx, GridPtr, Kern, NodeData, Run, SlabOrder,
-};
+use crate::mpm::kernel::lanes::{self, Room, Weights, HALF, LANES, QUARTER};
+use crate::mpm::kernel::{CellAt, Ctx, GridPtr, NodeData, Run, SlabOrder};
 use crate::physics::tensor::Vector;
 
 /// Read-only particle arrays of the remap.
@@ -162,60 +160,69 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
     let mut sum = [[0.0; N]; D];
     let mut run = Run::<D, NA, N>::new();
     let mut cell = CellAt::<D>::new();
+    let mut room = Room::<D, N>::new();
     let order = slabs.slab(first);
-    // Hat functions: eight (or four, or two) particles of a run at a time, their weights
-    // and interpolated velocities over lanes (`kernel::lanes`), the rest of each
-    // particle's update one by one in order, so the same bits. (In 3D too: unlike
-    // the stress pass, the remap's lanes are few numbers, the nodes' weights and two
-    // interpolated velocities, and fit the registers.)
-    let batches = !ctx.gimp;
+    // Hat functions: up to eight particles of a run at a time (`kernel::lanes`; in 3D
+    // too: unlike the stress pass, the remap's lanes are few numbers, the nodes'
+    // weights and two interpolated velocities, and fit the registers). GIMP's: one at
+    // a time, their nodes depend on the particle, not only its cell.
     let mut i = 0;
     while i < order.len() {
-        if batches && i + QUARTER <= order.len() {
-            let tile = parts.tile[order[i] as usize];
-            let b = run_width(parts.tile, &order[i..]);
-            if b > 1 {
-                if run.is_new(tile, [0; D]) {
-                    if run.started() {
-                        add_momentum(grid, m.record, &run.idx, &mut sum);
-                    }
-                    run.enter(ctx, tile, [0; D]);
-                    nd.load(&run.idx, vel, &[], None);
-                }
-                if !run.at_wall() {
-                    let ps = &order[i..i + b];
-                    let c = cell.of(ctx, tile);
-                    match b {
-                        LANES => remap_lanes::<D, N, LANES>(
-                            ctx, parts, pp, ps, c, &nd, m, &mut sum, &mut t,
-                        ),
-                        HALF => remap_lanes::<D, N, HALF>(
-                            ctx, parts, pp, ps, c, &nd, m, &mut sum, &mut t,
-                        ),
-                        _ => remap_lanes::<D, N, QUARTER>(
-                            ctx, parts, pp, ps, c, &nd, m, &mut sum, &mut t,
-                        ),
-                    }
-                    i += b;
-                    continue;
-                }
-            }
-        }
         let p = order[i] as usize;
-        i += 1;
         assert!(p < pp.len, "slab order names particle {p} of {}", pp.len);
-        let half = if ctx.gimp { Some(&parts.half[p]) } else { None };
-        let xi = ctx.local(&parts.x[p], cell.of(ctx, parts.tile[p]));
-        let (mut k, below, w) = ctx.weights::<NA, N>(&parts.x[p], half, &xi);
-        if run.is_new(parts.tile[p], below) {
-            if run.started() {
-                add_momentum(grid, m.record, &run.idx, &mut sum);
+        let c = *cell.of(ctx, parts.tile[p]);
+        let mut enter = |run: &mut Run<D, NA, N>, below: [usize; D]| {
+            if run.is_new(parts.tile[p], below) {
+                if run.started() {
+                    add_momentum(grid, m.record, &run.idx, &mut sum);
+                }
+                run.enter(ctx, parts.tile[p], below);
+                nd.load(&run.idx, vel, &[], None);
             }
-            run.enter(ctx, parts.tile[p], below);
-            nd.load(&run.idx, vel, &[], None);
+        };
+        if NA == 2 {
+            enter(&mut run, [0; D]);
+            let b = run_width(parts.tile, &order[i..]);
+            let ps = &order[i..i + b];
+            let (nd, sum, t) = (&nd, &mut sum, &mut t);
+            match b {
+                LANES => remap_hats(ctx, parts, pp, ps, &c, &run, nd, &mut room.lanes, m, sum, t),
+                HALF => remap_hats(ctx, parts, pp, ps, &c, &run, nd, &mut room.half, m, sum, t),
+                QUARTER => remap_hats(
+                    ctx,
+                    parts,
+                    pp,
+                    ps,
+                    &c,
+                    &run,
+                    nd,
+                    &mut room.quarter,
+                    m,
+                    sum,
+                    t,
+                ),
+                _ => remap_hats(ctx, parts, pp, ps, &c, &run, nd, &mut room.one, m, sum, t),
+            }
+            i += b;
+        } else {
+            let xi = ctx.local(&parts.x[p], &c);
+            let (mut k, below, w) = ctx.weights::<NA, N>(&parts.x[p], Some(&parts.half[p]), &xi);
+            enter(&mut run, below);
+            k.ends = run.ends(ctx, &w);
+            room.one.one(&k, run.at_wall());
+            remap_batch(
+                ctx,
+                parts,
+                pp,
+                &[p as u32],
+                &room.one,
+                &nd,
+                m,
+                &mut sum,
+                &mut t,
+            );
+            i += 1;
         }
-        k.ends = run.ends(ctx, &w);
-        remap_one(ctx, parts, pp, p, &k, &nd, m, &mut sum, &mut t);
     }
     if run.started() {
         add_momentum(grid, m.record, &run.idx, &mut sum);
@@ -223,58 +230,19 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
     t
 }
 
-/// The remap of particle `p` with weights `k` over its nodes' velocities `nd`: its
-/// new velocity (clipped at slip walls), the work on it, the kept increment, and its
-/// momentum into the run's sums `sum`.
+/// The remap of particles `ps` (all in `cell` of `run`, hat functions) with their
+/// nodes' velocities `nd` and weights `w`.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn remap_one<const D: usize, const N: usize>(
-    ctx: &Ctx<'_, D>,
-    parts: &RemapParts<'_, D>,
-    pp: ParticlePtr<D>,
-    p: usize,
-    k: &Kern<D, N>,
-    nd: &NodeData<D, N>,
-    m: RemapMode,
-    sum: &mut [[f64; N]; D],
-    t: &mut RemapTally,
-) {
-    let (vn, dv) = kernel::interpolate(k, nd);
-    // SAFETY: the caller asserted p in bounds, and only this thread visits it (see
-    // `ParticlePtr`); no other reference to v[p] or dx[p] lives meanwhile.
-    let vp = unsafe { &mut *pp.v.add(p) };
-    let old = *vp;
-    let mass = parts.mass.get(p);
-    let mut new = (old + dv) * m.flip + vn * (1.0 - m.flip);
-    t.work += clip_at_slip_walls(ctx, k, &mut new, &vn, mass);
-    let a = ctx.accel_kept(parts.accel, parts.x0, p);
-    t.work += m.dt * mass * a.dot(&(old + new)) * 0.5;
-    *vp = new;
-    t.ok &= new.iter().all(|x| x.is_finite());
-    if m.keep_dx {
-        // SAFETY: as for v[p]; dx has the particles' length when kept (asserted).
-        unsafe { *pp.dx.add(p) = vn * m.dt };
-    }
-    let mv = new * mass;
-    for a in 0..D {
-        for n in 0..N {
-            sum[a][n] += mv[a] * k.s[n];
-        }
-    }
-}
-
-/// The remap of particles `ps` (one run's, away from walls; hat functions) with
-/// their nodes' velocities `nd`: the weights and interpolated velocities over lanes,
-/// then per particle in order what the scalar loop does with them.
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-fn remap_lanes<const D: usize, const N: usize, const B: usize>(
+fn remap_hats<const D: usize, const NA: usize, const N: usize, const B: usize>(
     ctx: &Ctx<'_, D>,
     parts: &RemapParts<'_, D>,
     pp: ParticlePtr<D>,
     ps: &[u32],
     cell: &[f64; D],
+    run: &Run<D, NA, N>,
     nd: &NodeData<D, N>,
+    w: &mut Weights<D, N, B>,
     m: RemapMode,
     sum: &mut [[f64; N]; D],
     t: &mut RemapTally,
@@ -282,27 +250,49 @@ fn remap_lanes<const D: usize, const N: usize, const B: usize>(
     let ps: &[u32; B] = ps.try_into().expect("a full batch");
     // `Ctx::local` lane by lane: from a contiguous batch of positions, as the slab
     // order of sorted particles mostly gives (whole vectors), else one by one.
-    let mut xi = [[0.0; B]; D];
     let p0 = ps[0] as usize;
-    let contiguous = (1..B).all(|l| ps[l] as usize == p0 + l);
-    match parts.x.get(p0..p0 + B).filter(|_| contiguous) {
-        Some(xs) => lanes::local_lanes(ctx, xs.try_into().expect("B positions"), cell, &mut xi),
-        None => {
-            for a in 0..D {
-                let (lower, inv_h, c) = (ctx.geom.lower[a], ctx.geom.inv_h[a], cell[a]);
-                for (l, &p) in ps.iter().enumerate() {
-                    xi[a][l] = (parts.x[p as usize][a] - lower) * inv_h - c;
-                }
+    let contiguous = (1..B).all(|l| ps[l] as usize == p0 + l) && p0 + B <= parts.x.len();
+    let xi = if contiguous {
+        lanes::local::<D, B>(ctx, parts.x, p0..p0 + B, cell)
+    } else {
+        let mut xi = [[0.0; B]; D];
+        for a in 0..D {
+            let (lower, inv_h, c) = (ctx.geom.lower[a], ctx.geom.inv_h[a], cell[a]);
+            for (l, &p) in ps.iter().enumerate() {
+                xi[a][l] = (parts.x[p as usize][a] - lower) * inv_h - c;
             }
         }
-    }
-    let (vn, dv, sh) = lanes::velocities::<D, N, B>(ctx, &xi, nd);
+        xi
+    };
+    w.hats(ctx, &xi, run, false);
+    remap_batch(ctx, parts, pp, ps, w, nd, m, sum, t);
+}
+
+/// The remap of particles `ps` (sharing their nodes) with weights `w` over their
+/// nodes' velocities `nd`: the new velocities (FLIP/PIC blend, clipped at slip walls),
+/// the work on them, the kept increments, and their momentum into the run's sums `sum`,
+/// particle by particle in order.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn remap_batch<const D: usize, const N: usize, const B: usize>(
+    ctx: &Ctx<'_, D>,
+    parts: &RemapParts<'_, D>,
+    pp: ParticlePtr<D>,
+    ps: &[u32; B],
+    w: &Weights<D, N, B>,
+    nd: &NodeData<D, N>,
+    m: RemapMode,
+    sum: &mut [[f64; N]; D],
+    t: &mut RemapTally,
+) {
+    let (vn, dv) = w.interpolate(nd);
+    let sh = w.shape();
     // In 2D each particle's weights over the nodes as one row, so that its momentum
     // is added into the sums a vector over the nodes at a time: read down the lanes'
     // columns, they were a scalar product and add per node (31 instructions a
     // particle). (In 3D the 8 × 8 transposition cost more than it saved: the remap's
     // time 1.16×.)
-    let by_rows = N <= 4;
+    let by_rows = N <= 4 && B > 1;
     let mut rows = [[0.0; N]; B];
     if by_rows {
         for (n, col) in sh.iter().enumerate() {
@@ -314,8 +304,8 @@ fn remap_lanes<const D: usize, const N: usize, const B: usize>(
     for (l, &p) in ps.iter().enumerate() {
         let p = p as usize;
         assert!(p < pp.len, "slab order names particle {p} of {}", pp.len);
-        // SAFETY: as in `remap_slabs`: p is in bounds (asserted) and visited by this
-        // thread only; no other reference to v[p] or dx[p] lives meanwhile.
+        // SAFETY: p is in bounds (asserted) and visited by this thread only (see
+        // `ParticlePtr`); no other reference to v[p] or dx[p] lives meanwhile.
         let vp = unsafe { &mut *pp.v.add(p) };
         let old = *vp;
         let mass = parts.mass.get(p);
@@ -325,7 +315,9 @@ fn remap_lanes<const D: usize, const N: usize, const B: usize>(
             new[a] = (old[a] + dv[a][l]) * m.flip + vn[a][l] * (1.0 - m.flip);
             vnl[a] = vn[a][l];
         }
-        // The external force's work (the lanes take no run at a wall, so no clip).
+        if w.at_wall() {
+            t.work += w.clip(ctx, l, &mut new, &vn, mass);
+        }
         let a = ctx.accel_kept(parts.accel, parts.x0, p);
         t.work += m.dt * mass * a.dot(&(old + new)) * 0.5;
         *vp = new;
@@ -367,17 +359,17 @@ fn add_momentum<const D: usize, const N: usize>(
 mod tests {
     use super::*;
     use crate::input::scene::Face;
-    use crate::mpm::kernel::UPDATED;
+    use crate::mpm::kernel::{Run, UPDATED};
     use crate::physics::material::{lame, neo_hookean::NeoHookean, Material};
     use crate::physics::shape::{Alpha, Geom};
     use decomposition::splitmix::Rng;
     use decomposition::Tiles;
 
-    /// The remap's lanes give its scalar body's bits (in `D` dimensions, `N`
-    /// nodes): new velocities (FLIP, PIC and a blend), kept increments, the
-    /// external work (gravity, and a kept body force), the momentum sums and the
-    /// finite-state flag, for both batch widths, and with a non-finite nodal
-    /// velocity.
+    /// The remap gives the same bits whatever the batch width (in `D` dimensions,
+    /// `N` nodes): new velocities (FLIP, PIC and a blend; clipped at a slip wall),
+    /// kept increments, the external work (gravity, a kept body force, the walls'),
+    /// the momentum sums and the finite-state flag, for every width, with and without
+    /// walls, and with a non-finite nodal velocity.
     fn lanes_match<const D: usize, const N: usize>(seed: u64) {
         let geom = Geom::<D>::new([0.0; D], [1.0; D], [10; D], [false; D]);
         let tiles = Tiles::<D>::new([12; D], [1; D]);
@@ -387,143 +379,205 @@ mod tests {
             mu,
             density: 1.0,
         })];
-        let ctx = Ctx {
-            geom: &geom,
-            node_lo: [-1; D],
-            tiles: &tiles,
-            gimp: false,
-            alpha: Alpha::ProductOfShapes,
-            materials: &materials,
-            kind_mass: &[1.0],
-            kind_vol0: &[1.0],
-            gravity: Vector::<D>::from_fn(|a, _| if a == 1 { -9.81 } else { 0.0 }),
-            body_force: None,
-            faces: [[Face::Slip; 2]; D],
-            walls: false,
-        };
+        let mut rooms = (Room::<D, N>::new(), Room::<D, N>::new());
         let mut rng = Rng::new(seed);
         let mut cases = 0;
-        for flip in [1.0, 0.0, 0.95] {
-            for keep_dx in [true, false] {
-                for (width, body, nan) in [
-                    (LANES, false, false),
-                    (LANES, true, false),
-                    (HALF, true, false),
-                    (QUARTER, true, false),
-                    (LANES, false, true),
-                ] {
-                    let n = LANES;
-                    // In cell 3 along every axis (h = 0.1), one at its lower face.
-                    let cell = [3.0; D];
-                    let x: Vec<Vector<D>> = (0..n)
-                        .map(|l| {
-                            Vector::<D>::from_fn(|a, _| {
-                                0.3 + 0.1 * if l == 0 && a == 0 { 0.0 } else { rng.f64() }
+        for walls in [false, true] {
+            let ctx = Ctx {
+                geom: &geom,
+                node_lo: [-1; D],
+                tiles: &tiles,
+                gimp: false,
+                alpha: Alpha::ProductOfShapes,
+                materials: &materials,
+                kind_mass: &[1.0],
+                kind_vol0: &[1.0],
+                gravity: Vector::<D>::from_fn(|a, _| if a == 1 { -9.81 } else { 0.0 }),
+                body_force: None,
+                faces: std::array::from_fn(|a| [if a == 1 { Face::Fixed } else { Face::Slip }; 2]),
+                walls,
+            };
+            for flip in [1.0, 0.0, 0.95] {
+                for keep_dx in [true, false] {
+                    for (width, body, nan) in [
+                        (LANES, false, false),
+                        (LANES, true, false),
+                        (HALF, true, false),
+                        (QUARTER, true, false),
+                        (LANES, false, true),
+                    ] {
+                        let n = LANES;
+                        // In cell 3 along every axis (h = 0.1), one at its lower face.
+                        let cell = [3.0; D];
+                        let x: Vec<Vector<D>> = (0..n)
+                            .map(|l| {
+                                Vector::<D>::from_fn(|a, _| {
+                                    0.3 + 0.1 * if l == 0 && a == 0 { 0.0 } else { rng.f64() }
+                                })
                             })
-                        })
-                        .collect();
-                    // A kind per particle, so that the masses differ.
-                    let kind_mass: Vec<f64> = (0..n).map(|_| 1e-4 * (0.5 + rng.f64())).collect();
-                    let kind: Vec<u16> = (0..n as u16).collect();
-                    let accel: Vec<Vector<D>> = if body {
-                        (0..n)
-                            .map(|_| Vector::<D>::from_fn(|_, _| rng.f64() - 5.0))
-                            .collect()
-                    } else {
-                        Vec::new()
-                    };
-                    let tile = vec![0u32; n];
-                    let parts = RemapParts {
-                        x: &x,
-                        mass: crate::mpm::particles::Masses {
-                            kind_mass: &kind_mass,
-                            kind: &kind,
-                        },
-                        x0: &x,
-                        half: &[],
-                        tile: &tile,
-                        accel: &accel,
-                    };
-                    let mut nd = NodeData::<D, N>::new();
-                    for a in 0..D {
-                        for k in 0..N {
-                            for slot in 0..2 {
-                                nd.v[slot][a][k] = rng.f64() - 0.5;
+                            .collect();
+                        // A kind per particle, so that the masses differ.
+                        let kind_mass: Vec<f64> =
+                            (0..n).map(|_| 1e-4 * (0.5 + rng.f64())).collect();
+                        let kind: Vec<u16> = (0..n as u16).collect();
+                        let accel: Vec<Vector<D>> = if body {
+                            (0..n)
+                                .map(|_| Vector::<D>::from_fn(|_, _| rng.f64() - 5.0))
+                                .collect()
+                        } else {
+                            Vec::new()
+                        };
+                        let tile = vec![0u32; n];
+                        let parts = RemapParts {
+                            x: &x,
+                            mass: crate::mpm::particles::Masses {
+                                kind_mass: &kind_mass,
+                                kind: &kind,
+                            },
+                            x0: &x,
+                            half: &[],
+                            tile: &tile,
+                            accel: &accel,
+                        };
+                        let mut nd = NodeData::<D, N>::new();
+                        for a in 0..D {
+                            for k in 0..N {
+                                for slot in 0..2 {
+                                    nd.v[slot][a][k] = rng.f64() - 0.5;
+                                }
                             }
                         }
-                    }
-                    if nan {
-                        nd.v[UPDATED][1][2] = f64::INFINITY;
-                    }
-                    let m = RemapMode {
-                        dt: 1e-3,
-                        flip,
-                        keep_dx,
-                        record: (D, 0),
-                    };
-                    let v0: Vec<Vector<D>> = (0..n)
-                        .map(|_| Vector::<D>::from_fn(|_, _| rng.f64() - 0.5))
-                        .collect();
-                    let (mut va, mut vb) = (v0.clone(), v0);
-                    let (mut dxa, mut dxb) =
-                        (vec![Vector::<D>::zeros(); n], vec![Vector::<D>::zeros(); n]);
-                    let ptr = |v: &mut Vec<Vector<D>>, dx: &mut Vec<Vector<D>>| ParticlePtr {
-                        v: v.as_mut_ptr(),
-                        dx: dx.as_mut_ptr(),
-                        len: n,
-                    };
-                    let mut ta = RemapTally {
-                        ok: true,
-                        work: 0.5,
-                    };
-                    let mut tb = ta;
-                    let mut suma = [[0.25; N]; D];
-                    let mut sumb = suma;
-                    let pa = ptr(&mut va, &mut dxa);
-                    for p in 0..width {
-                        let (k, _, _): (Kern<D, N>, _, _) =
-                            ctx.weights::<2, N>(&x[p], None, &ctx.local(&x[p], &cell));
-                        remap_one(&ctx, &parts, pa, p, &k, &nd, m, &mut suma, &mut ta);
-                    }
-                    let pb = ptr(&mut vb, &mut dxb);
-                    let ps: Vec<u32> = (0..width as u32).collect();
-                    match width {
-                        LANES => remap_lanes::<D, N, LANES>(
-                            &ctx, &parts, pb, &ps, &cell, &nd, m, &mut sumb, &mut tb,
-                        ),
-                        HALF => remap_lanes::<D, N, HALF>(
-                            &ctx, &parts, pb, &ps, &cell, &nd, m, &mut sumb, &mut tb,
-                        ),
-                        _ => remap_lanes::<D, N, QUARTER>(
-                            &ctx, &parts, pb, &ps, &cell, &nd, m, &mut sumb, &mut tb,
-                        ),
-                    }
-                    let what = format!(
-                        "{D}D, {width} lanes, flip {flip}, keep dx {keep_dx}, body force {body}, infinite node {nan}"
+                        if nan {
+                            nd.v[UPDATED][1][2] = f64::INFINITY;
+                        }
+                        let m = RemapMode {
+                            dt: 1e-3,
+                            flip,
+                            keep_dx,
+                            record: (D, 0),
+                        };
+                        let v0: Vec<Vector<D>> = (0..n)
+                            .map(|_| Vector::<D>::from_fn(|_, _| rng.f64() - 0.5))
+                            .collect();
+                        let (mut va, mut vb) = (v0.clone(), v0);
+                        let (mut dxa, mut dxb) =
+                            (vec![Vector::<D>::zeros(); n], vec![Vector::<D>::zeros(); n]);
+                        let ptr = |v: &mut Vec<Vector<D>>, dx: &mut Vec<Vector<D>>| ParticlePtr {
+                            v: v.as_mut_ptr(),
+                            dx: dx.as_mut_ptr(),
+                            len: n,
+                        };
+                        let mut ta = RemapTally {
+                            ok: true,
+                            work: 0.5,
+                        };
+                        let mut tb = ta;
+                        let mut suma = [[0.25; N]; D];
+                        let mut sumb = suma;
+                        // With walls, a slip wall at the cell's lower nodes along the
+                        // first axis and a fixed wall at its upper nodes along the second.
+                        let run = Run::<D, 2, N>::with_sides(std::array::from_fn(|a| match a {
+                            0 if walls => [-1, 0],
+                            1 if walls => [0, 1],
+                            _ => [0, 0],
+                        }));
+                        let pa = ptr(&mut va, &mut dxa);
+                        let ra = &mut rooms.0;
+                        for p in 0..width as u32 {
+                            let one = &mut ra.one;
+                            remap_hats(
+                                &ctx,
+                                &parts,
+                                pa,
+                                &[p],
+                                &cell,
+                                &run,
+                                &nd,
+                                one,
+                                m,
+                                &mut suma,
+                                &mut ta,
+                            );
+                        }
+                        let pb = ptr(&mut vb, &mut dxb);
+                        let ps: Vec<u32> = (0..width as u32).collect();
+                        let (rb, nd, sumb, tb) = (&mut rooms.1, &nd, &mut sumb, &mut tb);
+                        match width {
+                            LANES => remap_hats(
+                                &ctx,
+                                &parts,
+                                pb,
+                                &ps,
+                                &cell,
+                                &run,
+                                nd,
+                                &mut rb.lanes,
+                                m,
+                                sumb,
+                                tb,
+                            ),
+                            HALF => remap_hats(
+                                &ctx,
+                                &parts,
+                                pb,
+                                &ps,
+                                &cell,
+                                &run,
+                                nd,
+                                &mut rb.half,
+                                m,
+                                sumb,
+                                tb,
+                            ),
+                            _ => remap_hats(
+                                &ctx,
+                                &parts,
+                                pb,
+                                &ps,
+                                &cell,
+                                &run,
+                                nd,
+                                &mut rb.quarter,
+                                m,
+                                sumb,
+                                tb,
+                            ),
+                        }
+                        let what = format!(
+                        "{D}D, {width} lanes, flip {flip}, keep dx {keep_dx}, body force {body}, infinite node {nan}, walls {walls}"
                     );
-                    assert_eq!(ta.ok, tb.ok, "{what}");
-                    assert_eq!(ta.ok, !nan, "{what}");
-                    assert_eq!(ta.work.to_bits(), tb.work.to_bits(), "work: {what}");
-                    for p in 0..n {
+                        assert_eq!(ta.ok, tb.ok, "{what}");
+                        assert_eq!(ta.ok, !nan, "{what}");
+                        assert_eq!(ta.work.to_bits(), tb.work.to_bits(), "work: {what}");
+                        for p in 0..n {
+                            for a in 0..D {
+                                assert_eq!(va[p][a].to_bits(), vb[p][a].to_bits(), "v {p}: {what}");
+                                assert_eq!(
+                                    dxa[p][a].to_bits(),
+                                    dxb[p][a].to_bits(),
+                                    "dx {p}: {what}"
+                                );
+                            }
+                        }
                         for a in 0..D {
-                            assert_eq!(va[p][a].to_bits(), vb[p][a].to_bits(), "v {p}: {what}");
-                            assert_eq!(dxa[p][a].to_bits(), dxb[p][a].to_bits(), "dx {p}: {what}");
+                            for k in 0..N {
+                                assert_eq!(
+                                    suma[a][k].to_bits(),
+                                    sumb[a][k].to_bits(),
+                                    "sum: {what}"
+                                );
+                            }
                         }
+                        cases += 1;
                     }
-                    for a in 0..D {
-                        for k in 0..N {
-                            assert_eq!(suma[a][k].to_bits(), sumb[a][k].to_bits(), "sum: {what}");
-                        }
-                    }
-                    cases += 1;
                 }
             }
         }
-        assert_eq!(cases, 30);
+        assert_eq!(cases, 60);
     }
 
     #[test]
-    fn remap_lanes_match_the_scalar_remap() {
+    fn remap_is_the_same_at_every_width() {
         lanes_match::<2, 4>(13);
         lanes_match::<3, 8>(14);
     }

@@ -1,51 +1,8 @@
-//! Grid to particle, one particle at a time or in lanes: the gather (velocity, position, velocity gradient) and the stress update.
+//! Grid to particle: the gather (velocity, position, velocity gradient) and the stress
+//! update, each written once over `B` particles at a time ([`lanes`]).
 
 use super::*;
-
-/// Deform particle `p` of `s` by `l` over `dt`: volume, deformation gradient, stress.
-/// Returns whether the new state is physical.
-#[inline(always)]
-pub(super) fn deform<const D: usize>(
-    ctx: &Ctx<'_, D>,
-    s: &mut Slices<'_, D>,
-    p: usize,
-    l: &Mat<D>,
-    dt: f64,
-) -> bool {
-    let inc = Mat::<D>::identity() + l * dt;
-    let j = det(&inc);
-    // (Where the particles carry `F`, their volume is `det F · V₀`: not stored.)
-    if let Some(v) = s.parts.vol.get_mut(p) {
-        *v *= j;
-    }
-    let mat = &ctx.materials[s.parts.kind[p] as usize];
-    let f = if s.parts.def_grad.is_empty() {
-        Mat::<D>::identity()
-    } else {
-        let f = inc * s.parts.def_grad[p];
-        s.parts.def_grad[p] = f;
-        f
-    };
-    let internal = Internal {
-        plastic: s.parts.be.get_mut(p).zip(s.parts.eps_p.get_mut(p)),
-        damage: s.parts.damage.get_mut(p),
-        stress_zz: s.parts.stress_zz.get_mut(p),
-    };
-    if s.parts.stress.is_empty() {
-        // The stress follows from F where it is used; for the materials that do this
-        // (neo-Hookean) it is finite where F is and J > 0.
-        return j > 0.0 && volume_finite(s, p) && f.iter().all(|x| x.is_finite());
-    }
-    mat.update_stress(&mut s.parts.stress[p], l, &f, dt, internal);
-    j > 0.0 && volume_finite(s, p) && s.parts.stress[p].iter().all(|x| x.is_finite())
-}
-
-/// Particle `p`'s stored volume is finite, or it stores none (its `F`, tested beside
-/// this, makes it).
-#[inline(always)]
-pub(super) fn volume_finite<const D: usize>(s: &Slices<'_, D>, p: usize) -> bool {
-    s.parts.vol.get(p).is_none_or(|v| v.is_finite())
-}
+use lanes::{Room, Weights};
 
 /// The running maximum `max` of the signal speed the time step must resolve (wave
 /// speed plus particle speed), raised by particle `p`'s where that is larger
@@ -66,6 +23,60 @@ pub(super) fn raise_speed<const D: usize>(
     ctx.materials[kind].raise_signal_speed(j, s.parts.v[p].norm(), max)
 }
 
+/// A grid → particle pass, as [`by_runs`] runs it over batches of particles.
+#[derive(Clone, Copy)]
+pub(crate) enum Pass<'a> {
+    Stress(&'a StressMode),
+    /// The gather, with XPIC's field loaded if `.1`.
+    Gather(&'a GatherMode, bool),
+}
+
+impl Pass<'_> {
+    /// Whether the pass reports the fastest signal speed.
+    fn speed(self) -> bool {
+        match self {
+            Pass::Stress(m) => m.speed,
+            Pass::Gather(m, _) => m.speed,
+        }
+    }
+
+    /// Whether the pass reads `L̄` at the particles ([`Weights::lbar`]).
+    fn lbar(self) -> bool {
+        match self {
+            Pass::Stress(m) => m.two_step,
+            Pass::Gather(m, _) => m.two_step && (m.recon || m.stress),
+        }
+    }
+
+    /// Whether the pass forms a velocity gradient.
+    fn gradients(self) -> bool {
+        match self {
+            Pass::Stress(_) => true,
+            Pass::Gather(m, _) => m.stress,
+        }
+    }
+
+    /// The pass over particles `p0 .. p0 + B` of `s` with weights `w` over their
+    /// nodes' data `nd`, the external work into `work`: the lanes' marks of an
+    /// unphysical state.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    pub(crate) fn on<const D: usize, const N: usize, const B: usize>(
+        self,
+        ctx: &Ctx<'_, D>,
+        s: &mut Slices<'_, D>,
+        p0: usize,
+        w: &Weights<D, N, B>,
+        nd: &NodeData<D, N>,
+        work: &mut f64,
+    ) -> [f64; B] {
+        match self {
+            Pass::Stress(m) => stress_batch(ctx, s, p0, w, nd, m, work),
+            Pass::Gather(m, xpic) => gather_batch(ctx, s, p0, w, nd, xpic, m, work),
+        }
+    }
+}
+
 /// Grid → particle over all particles.
 pub fn gather<const D: usize, const NA: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
@@ -77,7 +88,6 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
 ) -> Tally {
     let avg = if m.two_step { avg } else { &[] };
     par(parts, &|mut s: Slices<'_, D>| {
-        let batches = xpic.is_none() && lanes::applies(ctx.gimp, &s);
         // The nodes' data of a run, read once per run.
         let load = |nd: &mut NodeData<D, N>, idx: &[usize; N]| {
             nd.load(idx, vel, avg, xpic);
@@ -85,72 +95,113 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
                 nd.load_differences_from(idx, vel, UPDATED);
             }
         };
-        by_runs::<D, NA, N>(
-            ctx,
-            &mut s,
-            batches,
-            lanes::Pass::Gather(&m),
-            load,
-            |s, p, k, nd, t| gather_one(ctx, s, p, k, nd, xpic, &m, t),
-        )
+        by_runs::<D, NA, N>(ctx, &mut s, Pass::Gather(&m, xpic.is_some()), load)
     })
 }
 
-/// One task's particles `s` of a grid → particle pass (the gather or the stress
-/// pass), in order: eight (or four) particles of one run away from walls at a time
-/// through the lanes as `pass` where `batches` ([`lanes`]), the rest one by one through
-/// `one` (with the particle's weights and wall ends), each run's node data read once
+/// Stress update from velocity slot `slot` at the current positions.
+pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
+    ctx: &Ctx<'_, D>,
+    parts: Slices<'_, D>,
+    vel: &[f64],
+    avg: &[f64],
+    m: StressMode,
+) -> Tally {
+    let avg = if m.two_step { avg } else { &[] };
+    par(parts, &|mut s: Slices<'_, D>| {
+        let load = |nd: &mut NodeData<D, N>, idx: &[usize; N]| {
+            nd.load(idx, vel, avg, None);
+            nd.load_differences_from(idx, vel, m.slot);
+        };
+        by_runs::<D, NA, N>(ctx, &mut s, Pass::Stress(&m), load)
+    })
+}
+
+/// One task's particles `s` of a grid → particle pass, in order: with hat functions
+/// [`LANES`], [`HALF`] or [`QUARTER`] particles of a run at a time where as many in a
+/// row share their cell ([`batch_width`]), else one; with GIMP's one at a time (their
+/// nodes depend on the particle, not only its cell). Each run's node data are read once
 /// by `load`; then, if the pass reports it, the task's fastest signal speed
 /// ([`signal_speeds`]). Returns the task's tally.
 #[inline(always)]
 pub(super) fn by_runs<const D: usize, const NA: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
     s: &mut Slices<'_, D>,
-    batches: bool,
-    pass: lanes::Pass<'_>,
+    pass: Pass<'_>,
     load: impl Fn(&mut NodeData<D, N>, &[usize; N]),
-    mut one: impl FnMut(&mut Slices<'_, D>, usize, &Kern<D, N>, &NodeData<D, N>, &mut Tally),
 ) -> Tally {
     let mut t = Tally::ZERO;
-    let speed = pass.speed();
+    let batches = lanes::batches::<D>(ctx.gimp);
     let mut nd = NodeData::<D, N>::new();
     let mut run = Run::<D, NA, N>::new();
     let mut cell = CellAt::<D>::new();
     let mut marks = [0.0; LANES];
-    let mut room = lanes::Room::<D, N>::new();
+    let mut room = Room::<D, N>::new();
     let mut p = 0;
     while p < s.len() {
-        let b = batch_width(batches, s.tile, p);
-        if b > 1 {
+        let c = *cell.of(ctx, s.tile[p]);
+        if NA == 2 {
             if run.enter_if_new(ctx, s.tile[p], [0; D]) {
                 load(&mut nd, &run.idx);
             }
-            if !run.at_wall {
-                let c = cell.of(ctx, s.tile[p]);
-                lanes::batch(ctx, s, p, b, c, &nd, pass, &mut room, &mut t, &mut marks);
-                p += b;
-                continue;
+            let b = batch_width(batches, s.tile, p);
+            let (w, m) = (&mut t.work, &mut marks);
+            match b {
+                LANES => hat_batch(ctx, s, p, &c, &run, &nd, pass, &mut room.lanes, w, m),
+                HALF => hat_batch(ctx, s, p, &c, &run, &nd, pass, &mut room.half, w, m),
+                QUARTER => hat_batch(ctx, s, p, &c, &run, &nd, pass, &mut room.quarter, w, m),
+                _ => hat_batch(ctx, s, p, &c, &run, &nd, pass, &mut room.one, w, m),
             }
-        }
-        let half = if ctx.gimp {
-            Some(&s.parts.half[p])
+            p += b;
         } else {
-            None
-        };
-        let xi = ctx.local(&s.parts.x[p], cell.of(ctx, s.tile[p]));
-        let (mut k, below, w) = ctx.weights::<NA, N>(&s.parts.x[p], half, &xi);
-        if run.enter_if_new(ctx, s.tile[p], below) {
-            load(&mut nd, &run.idx);
+            let xi = ctx.local(&s.parts.x[p], &c);
+            let (mut k, below, w) =
+                ctx.weights::<NA, N>(&s.parts.x[p], Some(&s.parts.half[p]), &xi);
+            if run.enter_if_new(ctx, s.tile[p], below) {
+                load(&mut nd, &run.idx);
+            }
+            k.ends = run.ends(ctx, &w);
+            room.one.one(&k, run.at_wall());
+            if pass.lbar() {
+                room.one.lbar(&nd);
+            }
+            marks[0] += pass.on(ctx, s, p, &room.one, &nd, &mut t.work)[0];
+            p += 1;
         }
-        k.ends = run.ends(ctx, &w);
-        one(s, p, &k, &nd, &mut t);
-        p += 1;
     }
     t.ok &= lanes::physical(&marks);
-    if speed {
+    if pass.speed() {
         t.max_speed = signal_speeds(ctx, s, t.max_speed);
     }
     t
+}
+
+/// `pass` over particles `p .. p + B` of `s`, hat functions in `cell` of `run` whose
+/// node data `nd` holds, with weights `w`, the work into `work` and the lanes' marks
+/// into `marks`.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub(super) fn hat_batch<const D: usize, const NA: usize, const N: usize, const B: usize>(
+    ctx: &Ctx<'_, D>,
+    s: &mut Slices<'_, D>,
+    p: usize,
+    cell: &[f64; D],
+    run: &Run<D, NA, N>,
+    nd: &NodeData<D, N>,
+    pass: Pass<'_>,
+    w: &mut Weights<D, N, B>,
+    work: &mut f64,
+    marks: &mut [f64; LANES],
+) {
+    let xi = lanes::local::<D, B>(ctx, s.parts.x, p..p + B, cell);
+    w.hats(ctx, &xi, run, pass.gradients());
+    if pass.lbar() {
+        w.lbar(nd);
+    }
+    let bad = pass.on(ctx, s, p, w, nd, work);
+    for l in 0..B {
+        marks[l] += bad[l];
+    }
 }
 
 /// The running maximum `max` of the signal speed raised by every particle of `s`,
@@ -172,77 +223,9 @@ pub(super) fn signal_speeds<const D: usize>(ctx: &Ctx<'_, D>, s: &Slices<'_, D>,
     (p..s.len()).fold(top, |m, p| raise_speed(ctx, s, p, m))
 }
 
-/// The gather for particle `p` of `s` with weights `k` over its nodes' data `nd`
-/// (loaded, with the differences of the updated slot if `m.stress`): its new
-/// velocity, the work on it, its deformation and move as `m` asks, accounted in `t`.
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-pub(super) fn gather_one<const D: usize, const N: usize>(
-    ctx: &Ctx<'_, D>,
-    s: &mut Slices<'_, D>,
-    p: usize,
-    k: &Kern<D, N>,
-    nd: &NodeData<D, N>,
-    xpic: Option<&[f64]>,
-    m: &GatherMode,
-    t: &mut Tally,
-) {
-    let (vn, dv) = interpolate(k, nd);
-    let old = s.parts.v[p];
-    let mut new = match xpic {
-        // XPIC(m): V = S v⁺ + S ((m − 1) v − m v*), the field precomputed.
-        Some(_) => {
-            let mut u = vn;
-            for n in 0..N {
-                for a in 0..D {
-                    u[a] += k.s[n] * nd.x[a][n];
-                }
-            }
-            u
-        }
-        None => (old + dv) * m.flip + vn * (1.0 - m.flip),
-    };
-    // The velocity the particle moves with: the grid's, or for a two-step
-    // scheme whose L̄ and v̄ of slot 1 are at hand, their reconstruction.
-    let lb = lbar_at(k, nd, m.two_step && (m.recon || m.stress));
-    let vm = if m.recon {
-        moving_velocity(ctx, k, nd, &lb, UPDATED)
-    } else {
-        vn
-    };
-    // At a slip wall the grid's normal velocity is zeroed before and after the
-    // force update alike, so FLIP's increment never tells a particle that the
-    // wall stopped it: particles kept their velocity into the wall (Taylor bar:
-    // -176 m/s at 0.1 mm from it at 80 µs). So its normal component is clipped
-    // to the one the particle moves with (which vanishes at the wall). Clipping,
-    // not PIC: PIC every step also damps legitimate subgrid motion (bent beam at
-    // its clamp: 6 % of the energy in two periods for the normal component, 12 %
-    // for all, 1.1 % clipping). Not at fixed walls: there the material is
-    // clamped, and clipping pressed the cantilever's compressed root onto the
-    // clamp until particles left the grid through it (5 and 6 m beams at 3 × 3
-    // per cell).
-    let mass = particles::mass_of(ctx.kind_mass, s.parts.kind, p);
-    t.work += clip_at_slip_walls(ctx, k, &mut new, &vm, mass);
-    let a = ctx.accel_kept(s.accel, s.parts.x0, p);
-    t.work += m.dt * mass * a.dot(&(old + new)) * 0.5;
-    s.parts.v[p] = new;
-    t.ok &= new.iter().all(|x| x.is_finite());
-    if m.stress {
-        let l = velocity_gradient_at(k, nd, &lb, UPDATED, m.two_step);
-        t.ok &= deform(ctx, s, p, &l, m.dt);
-    }
-    if m.move_now {
-        s.parts.x[p] += vm * m.dt;
-    } else if !m.two_step {
-        // (A two-step scheme's stress pass sets the increment: MUSL moves it
-        // with the reconstruction of the remapped velocity.)
-        s.dx[p] = vm * m.dt;
-    }
-}
-
 /// How many particles from `p` the particle loops take at once: [`LANES`], [`HALF`]
 /// or [`QUARTER`] where as many in a row share the cell corner `tile[p]` (and
-/// `batches`, the lanes apply to the pass), else 1.
+/// `batches`), else 1.
 #[inline(always)]
 pub(super) fn batch_width(batches: bool, tile: &[u32], p: usize) -> usize {
     let same = |b: usize| p + b <= tile.len() && tile[p + 1..p + b].iter().all(|&c| c == tile[p]);
@@ -259,63 +242,129 @@ pub(super) fn batch_width(batches: bool, tile: &[u32], p: usize) -> usize {
     }
 }
 
-/// The stress pass for particle `p` of `s` with weights `k` over its nodes' data
-/// `nd` (loaded, with the differences of slot `m.slot`): deform it, move it as `m`
-/// asks, and account for it in `t`.
+/// The gather of particles `p0 .. p0 + B` of `s` with weights `w` over their nodes'
+/// data `nd` (loaded, with the differences of the updated slot if `m.stress`, and
+/// XPIC's field if `xpic`): the new velocity (FLIP/PIC blend, or XPIC's), clipped at
+/// slip walls, the external work into `work` particle by particle in order, the
+/// velocity gradient and deformation (`m.stress`), the move or the kept increment.
+/// Returns the lanes' marks of an unphysical state, a non-finite velocity included.
+#[allow(clippy::too_many_arguments)]
 #[inline(always)]
-pub(super) fn stress_one<const D: usize, const N: usize>(
+fn gather_batch<const D: usize, const N: usize, const B: usize>(
     ctx: &Ctx<'_, D>,
     s: &mut Slices<'_, D>,
-    p: usize,
-    k: &Kern<D, N>,
+    p0: usize,
+    w: &Weights<D, N, B>,
     nd: &NodeData<D, N>,
-    m: &StressMode,
-    t: &mut Tally,
-) {
-    let lb = lbar_at(k, nd, m.two_step);
-    let l = velocity_gradient_at(k, nd, &lb, m.slot, m.two_step);
-    t.ok &= deform(ctx, s, p, &l, m.dt);
-    if m.moves {
-        // MUSL, two-step scheme: the particle moves with the reconstruction of
-        // the remapped velocity (and its velocity into a slip wall is clipped to
-        // that, as in the gather).
-        let vm = moving_velocity(ctx, k, nd, &lb, m.slot);
-        // Only particles touching a wall's nodes can be clipped: the others'
-        // velocities are neither read nor written here.
-        if k.ends.iter().flatten().any(|&e| e) {
-            let mut v = s.parts.v[p];
-            let mass = particles::mass_of(ctx.kind_mass, s.parts.kind, p);
-            t.work += clip_at_slip_walls(ctx, k, &mut v, &vm, mass);
-            s.parts.v[p] = v;
-        }
-        s.parts.x[p] += vm * m.dt;
-    } else if m.moves_kept {
-        s.parts.x[p] += s.dx[p];
+    xpic: bool,
+    m: &GatherMode,
+    work: &mut f64,
+) -> [f64; B] {
+    let r = p0..p0 + B;
+    let (vn, dv) = w.interpolate(nd);
+    // The velocity the particles move with: the grid's, or for a two-step scheme
+    // whose L̄ and v̄ of slot 1 are at hand, their reconstruction.
+    let u = if m.recon {
+        w.moving_velocity(ctx, nd, UPDATED)
+    } else {
+        vn
+    };
+    // XPIC(m): V = S v⁺ + S ((m − 1) v − m v*), the field precomputed.
+    let mut vx = vn;
+    if xpic {
+        w.add_field(nd, &mut vx);
     }
+    let vs: &mut [Vector<D>; B] = (&mut s.parts.v[r.clone()])
+        .try_into()
+        .expect("a full batch");
+    let mut bad = [0.0; B];
+    for l in 0..B {
+        let old = vs[l];
+        let mut new = Vector::<D>::zeros();
+        for a in 0..D {
+            new[a] = if xpic {
+                vx[a][l]
+            } else {
+                (old[a] + dv[a][l]) * m.flip + vn[a][l] * (1.0 - m.flip)
+            };
+        }
+        let p = p0 + l;
+        let mass = particles::mass_of(ctx.kind_mass, s.parts.kind, p);
+        // At a slip wall the grid's normal velocity is zeroed before and after the
+        // force update alike, so FLIP's increment never tells a particle that the
+        // wall stopped it: its normal component is clipped to the one it moves with
+        // (which vanishes at the wall). Clipping, not PIC, which would also damp
+        // legitimate subgrid motion; not at fixed walls, where the material is
+        // clamped and clipping pressed a compressed root through the clamp.
+        if w.at_wall() {
+            *work += w.clip(ctx, l, &mut new, &u, mass);
+        }
+        let acc = ctx.accel_kept(s.accel, s.parts.x0, p);
+        *work += m.dt * mass * acc.dot(&(old + new)) * 0.5;
+        vs[l] = new;
+        for a in 0..D {
+            bad[l] += new[a] * 0.0;
+        }
+    }
+    if m.stress {
+        let lg = w.velocity_gradient(nd, UPDATED, m.two_step);
+        let deformed = w.deform(ctx, s, r.clone(), &lg, m.dt);
+        for l in 0..B {
+            bad[l] += deformed[l];
+        }
+    }
+    if m.move_now {
+        lanes::advance(s, r, &u, m.dt);
+    } else if !m.two_step {
+        // (A two-step scheme's stress pass sets the increment: MUSL moves it with
+        // the reconstruction of the remapped velocity.)
+        for (l, p) in r.enumerate() {
+            for a in 0..D {
+                s.dx[p][a] = u[a][l] * m.dt;
+            }
+        }
+    }
+    bad
 }
 
-/// Stress update from velocity slot `slot` at the current positions.
-pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
+/// The stress pass of particles `p0 .. p0 + B` of `s` with weights `w` over their
+/// nodes' data `nd` (loaded, with the differences of slot `m.slot`): the velocity
+/// gradient and deformation, and the move with the reconstruction of slot `m.slot`
+/// (`m.moves`; the velocity into a slip wall clipped to it, the wall's work into
+/// `work`) or by the kept increment (`m.moves_kept`). Returns the lanes' marks of an
+/// unphysical state; the signal speed is left to the caller.
+#[inline(always)]
+fn stress_batch<const D: usize, const N: usize, const B: usize>(
     ctx: &Ctx<'_, D>,
-    parts: Slices<'_, D>,
-    vel: &[f64],
-    avg: &[f64],
-    m: StressMode,
-) -> Tally {
-    let avg = if m.two_step { avg } else { &[] };
-    par(parts, &|mut s: Slices<'_, D>| {
-        let batches = lanes::applies(ctx.gimp, &s);
-        let load = |nd: &mut NodeData<D, N>, idx: &[usize; N]| {
-            nd.load(idx, vel, avg, None);
-            nd.load_differences_from(idx, vel, m.slot);
-        };
-        by_runs::<D, NA, N>(
-            ctx,
-            &mut s,
-            batches,
-            lanes::Pass::Stress(&m),
-            load,
-            |s, p, k, nd, t| stress_one(ctx, s, p, k, nd, &m, t),
-        )
-    })
+    s: &mut Slices<'_, D>,
+    p0: usize,
+    w: &Weights<D, N, B>,
+    nd: &NodeData<D, N>,
+    m: &StressMode,
+    work: &mut f64,
+) -> [f64; B] {
+    let r = p0..p0 + B;
+    let lg = w.velocity_gradient(nd, m.slot, m.two_step);
+    let bad = w.deform(ctx, s, r.clone(), &lg, m.dt);
+    if m.moves {
+        let u = w.moving_velocity(ctx, nd, m.slot);
+        if w.at_wall() {
+            for (l, p) in r.clone().enumerate() {
+                // Only particles touching a wall's nodes can be clipped: the others'
+                // velocities are neither read nor written here.
+                if w.touches_wall(l) {
+                    let mut v = s.parts.v[p];
+                    let mass = particles::mass_of(ctx.kind_mass, s.parts.kind, p);
+                    *work += w.clip(ctx, l, &mut v, &u, mass);
+                    s.parts.v[p] = v;
+                }
+            }
+        }
+        lanes::advance(s, r, &u, m.dt);
+    } else if m.moves_kept {
+        for p in r {
+            s.parts.x[p] += s.dx[p];
+        }
+    }
+    bad
 }

@@ -1,25 +1,25 @@
-//! Particle loops eight particles of a run at a time ([`LANES`], or [`HALF`] or
-//! [`QUARTER`] where runs are shorter): the stress pass, the gather and MUSL's remap,
-//! in 2D and 3D.
+//! The arithmetic of the grid → particle passes (the stress pass, the gather and
+//! MUSL's remap), written once for `B` particles of a run at a time: [`LANES`],
+//! [`HALF`] or [`QUARTER`] where as many in a row share their nodes, 1 otherwise.
 //!
-//! Why: one particle's update is a chain of small matrix products (weights, velocity
-//! gradient, `F ← (I + L dt) F`, the move) that the compiler can only vectorise
-//! within the particle, with shuffles between 2- and 4-wide pieces. The particles of
-//! one run share their nodes, so their node data are common and every operation is
-//! the same on each of them: over eight particles of a run, each line below is one
-//! full-width vector operation on eight independent numbers.
+//! Why lanes: one particle's update is a chain of small matrix products (weights,
+//! velocity gradient, `F ← (I + L dt) F`, the move) that the compiler can only
+//! vectorise within the particle. The particles of one run share their nodes, so their
+//! node data are common and every operation is the same on each of them: over `B`
+//! particles, each line below is one operation on `B` independent numbers, a vector
+//! operation where `B` > 1 and plain scalar code where `B` = 1.
 //!
-//! Each lane does what the scalar body (`stress_one`, `gather_one`, the remap's
-//! `remap_one`) does for its particle, in the same order and the same roundings (no
-//! fused multiply-adds: Rust never contracts), and what is summed over particles (the
-//! external work, the momentum) is still added particle by particle in order, so the
-//! results are the same bits, not merely close; the tests below and the remap's hold
-//! each batch to its scalar body.
+//! Width does not change results: each lane does its particle's arithmetic in the same
+//! order with the same roundings (no fused multiply-adds: Rust never contracts), and
+//! what is summed over particles (the external work, the momentum) is added particle
+//! by particle in order. What only some particles need (a material that stores its
+//! stress, a wall's clip, GIMP's weights) is done lane by lane, so a batch is the same
+//! bits as its particles taken one at a time; the tests below hold every width to
+//! width 1.
 
-use super::{
-    pair, Alpha, Ctx, GatherMode, NodeData, Slices, StressMode, Tally, FROM_MOMENTUM, UPDATED,
-};
-use crate::mpm::particles;
+use super::{pair, Alpha, Ctx, Kern, NodeData, Run, Slices, FROM_MOMENTUM, UPDATED};
+use crate::input::scene::Face;
+use crate::physics::material::Internal;
 use crate::physics::tensor::{det, Mat, Vector};
 use std::ops::Range;
 
@@ -35,106 +35,16 @@ const AHEAD: usize = 16;
 /// stress pass.
 pub const QUARTER: usize = 2;
 
-/// Whether the batch path can take this pass at all: hat functions, and particles
-/// whose stress is formed from `F` where it is used (neo-Hookean), so that
-/// deforming is `F` and the volume only, with no material update per particle.
-/// In 3D a batch's numbers do not fit the registers (24 shape-gradient terms and
-/// nine-entry matrices per lane) and part of them live on the stack, but the stack is
-/// L1: the 3D block drop's stress pass took 0.56× the time of one particle at a time
-/// (perf samples). Not in 3D where the build has AVX-512: there LLVM vectorises the
-/// three-long loops over the axes with gathers and scatters, and the 3D lanes ran 1.3×
-/// slower than one particle at a time.
+/// Whether the stress pass and the gather take a run's particles several at a time:
+/// with hat functions (with GIMP's, particles of one cell need not share their nodes),
+/// and not in 3D where the build has AVX-512. In 3D a batch's numbers do not fit the
+/// registers (24 shape-gradient terms and nine-entry matrices per lane) and part of
+/// them live on the stack, L1: the 3D block drop's stress pass took 0.56× the time of
+/// one particle at a time; with AVX-512, LLVM vectorises the three-long loops over the
+/// axes with gathers and scatters, and the 3D lanes ran 1.3× slower.
 #[inline(always)]
-pub fn applies<const D: usize>(gimp: bool, s: &Slices<'_, D>) -> bool {
-    let wide_gathers = D == 3 && cfg!(target_feature = "avx512f");
-    !gimp && !wide_gathers && s.parts.stress.is_empty() && !s.parts.def_grad.is_empty()
-}
-
-/// A particle pass the lanes take in batches: the stress pass or the gather.
-#[derive(Clone, Copy)]
-pub enum Pass<'a> {
-    Stress(&'a StressMode),
-    Gather(&'a GatherMode),
-}
-
-impl Pass<'_> {
-    /// Whether the pass reports the fastest signal speed.
-    pub fn speed(self) -> bool {
-        match self {
-            Pass::Stress(m) => m.speed,
-            Pass::Gather(m) => m.speed,
-        }
-    }
-}
-
-/// Pass `m` over `width` ([`LANES`] or [`HALF`]) particles from `p0`
-/// ([`deform_and_move`] or [`gather`]), accounted in `t`, its lanes' marks of an
-/// unphysical state added into `marks` ([`unphysical`]; the caller tests them once,
-/// [`physical`], after its last batch), the signal speed raised after the pass
-/// (`kernel::signal_speeds`).
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-pub fn batch<const D: usize, const N: usize>(
-    ctx: &Ctx<'_, D>,
-    s: &mut Slices<'_, D>,
-    p0: usize,
-    width: usize,
-    cell: &[f64; D],
-    nd: &NodeData<D, N>,
-    m: Pass<'_>,
-    room: &mut Room<D, N>,
-    t: &mut Tally,
-    marks: &mut [f64; LANES],
-) {
-    #[allow(clippy::too_many_arguments)]
-    #[inline(always)]
-    fn of<const D: usize, const N: usize, const B: usize>(
-        ctx: &Ctx<'_, D>,
-        s: &mut Slices<'_, D>,
-        p0: usize,
-        cell: &[f64; D],
-        nd: &NodeData<D, N>,
-        m: Pass<'_>,
-        batch: &mut Batch<D, N, B>,
-        t: &mut Tally,
-        marks: &mut [f64; LANES],
-    ) {
-        let bad = match m {
-            Pass::Stress(m) => deform_and_move::<D, N, B>(ctx, s, p0, cell, nd, m, batch),
-            Pass::Gather(m) => gather::<D, N, B>(ctx, s, p0, cell, nd, m, batch, &mut t.work),
-        };
-        for l in 0..B {
-            marks[l] += bad[l];
-        }
-    }
-    match width {
-        LANES => of::<D, N, LANES>(ctx, s, p0, cell, nd, m, &mut room.lanes, t, marks),
-        HALF => of::<D, N, HALF>(ctx, s, p0, cell, nd, m, &mut room.half, t, marks),
-        _ => of::<D, N, QUARTER>(ctx, s, p0, cell, nd, m, &mut room.quarter, t, marks),
-    }
-}
-
-/// A batch of each width, zeroed once for a task's particles and filled again by
-/// each batch of a pass ([`Batch::fill`]): zeroed per batch, it was a `memset` of
-/// 3.4 kB for every eight particles, 3 % of the 3D step. Every fill writes the
-/// weights whole (of the gradients, every entry that is read), and `L̄` whole in a two-step pass and never otherwise, where it
-/// stays zero as a fresh batch's: so a pass reads what a zeroed batch would hold.
-/// One room serves one pass.
-pub struct Room<const D: usize, const N: usize> {
-    lanes: Batch<D, N, LANES>,
-    half: Batch<D, N, HALF>,
-    quarter: Batch<D, N, QUARTER>,
-}
-
-impl<const D: usize, const N: usize> Room<D, N> {
-    #[inline(always)]
-    pub fn new() -> Self {
-        Room {
-            lanes: Batch::zeroed(),
-            half: Batch::zeroed(),
-            quarter: Batch::zeroed(),
-        }
-    }
+pub fn batches<const D: usize>(gimp: bool) -> bool {
+    !(gimp || D == 3 && cfg!(target_feature = "avx512f"))
 }
 
 /// Whether the lanes' marks ([`unphysical`], summed over any number of batches) say
@@ -144,108 +54,271 @@ pub fn physical<const B: usize>(marks: &[f64; B]) -> bool {
     marks.iter().sum::<f64>() == 0.0
 }
 
-/// A batch's weights and, for a two-step scheme, its interpolated nodal `L̄`
-/// ([`super::lbar_at`]), lane by lane.
-struct Batch<const D: usize, const N: usize, const B: usize> {
-    xi: [[f64; B]; D],
+/// The weights of `B` particles that share their nodes, lane by lane, and for a
+/// two-step scheme their interpolated nodal `L̄` ([`Weights::lbar`]).
+pub(crate) struct Weights<const D: usize, const N: usize, const B: usize> {
+    /// Per axis the particle's place in its cell towards the upper node (hat
+    /// functions: ξ; GIMP: 0, as [`Kern::frac`]).
+    frac: [[f64; B]; D],
     sh: [[f64; B]; N],
-    /// `g[d][n]` is written and read only where node `n` is the upper one of its pair
-    /// along `d` ([`pair`]): a hat's derivative at the lower node is minus the upper
-    /// one's, and the pair enters the gradient as the velocity's difference
-    /// ([`NodeData::dv`]).
+    /// With hat functions `g[d][n]` is written and read only where node `n` is the
+    /// upper one of its pair along `d` ([`pair`]): a hat's derivative at the lower
+    /// node is minus the upper one's, and the pair enters the gradient as the
+    /// velocity's difference ([`NodeData::dv`]).
     g: [[[f64; B]; N]; D],
     alpha: [f64; B],
+    /// Per lane the walls whose nodes it gives weight to ([`Kern::ends`]).
+    ends: [[[bool; 2]; D]; B],
+    /// Whether the run's nodes touch a wall: else `ends` are all false.
+    at_wall: bool,
     all: [[[f64; B]; D]; D],
     upper: [[[f64; B]; D]; D],
 }
 
-impl<const D: usize, const N: usize, const B: usize> Batch<D, N, B> {
-    /// All zero, for [`Batch::fill`].
+/// A set of weights of each width, zeroed once for a task's particles and filled again
+/// by each batch of a pass: zeroed per batch, it was a `memset` of 3.4 kB for every
+/// eight particles, 3 % of the 3D step. Every fill writes what the pass reads (of the
+/// hat gradients, every entry that is read), and `L̄` in a two-step pass and never
+/// otherwise, where it stays zero as a fresh set's. One room serves one pass.
+pub(crate) struct Room<const D: usize, const N: usize> {
+    pub(crate) lanes: Weights<D, N, LANES>,
+    pub(crate) half: Weights<D, N, HALF>,
+    pub(crate) quarter: Weights<D, N, QUARTER>,
+    pub(crate) one: Weights<D, N, 1>,
+}
+
+impl<const D: usize, const N: usize> Room<D, N> {
+    #[inline(always)]
+    pub fn new() -> Self {
+        Room {
+            lanes: Weights::zeroed(),
+            half: Weights::zeroed(),
+            quarter: Weights::zeroed(),
+            one: Weights::zeroed(),
+        }
+    }
+}
+
+/// The local coordinates ([`Ctx::local`]) of particles `r` of `x`, all in `cell`.
+#[inline(always)]
+pub(crate) fn local<const D: usize, const B: usize>(
+    ctx: &Ctx<'_, D>,
+    x: &[Vector<D>],
+    r: Range<usize>,
+    cell: &[f64; D],
+) -> [[f64; B]; D] {
+    // A fixed-size view of the batch: indices below B need no bounds checks, so the
+    // loads are whole vectors.
+    let xs: &[Vector<D>; B] = x[r].try_into().expect("a full batch");
+    let mut xi = [[0.0; B]; D];
+    for a in 0..D {
+        let (lower, inv_h, c) = (ctx.geom.lower[a], ctx.geom.inv_h[a], cell[a]);
+        for l in 0..B {
+            xi[a][l] = (xs[l][a] - lower) * inv_h - c;
+        }
+    }
+    xi
+}
+
+/// α of the particles at local coordinates `xi` (hat functions).
+#[inline(always)]
+fn alpha<const D: usize, const B: usize>(ctx: &Ctx<'_, D>, xi: &[[f64; B]; D]) -> [f64; B] {
+    match ctx.alpha {
+        // `shape::bubble`: Π_a 4 ξ_a (1 − ξ_a).
+        Alpha::ProductOfShapes => {
+            let mut b = [1.0; B];
+            for xa in xi {
+                for l in 0..B {
+                    b[l] *= 4.0 * xa[l] * (1.0 - xa[l]);
+                }
+            }
+            b
+        }
+        Alpha::Constant(c) => [c; B],
+    }
+}
+
+impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
+    /// All zero, for the fills.
     #[inline(always)]
     fn zeroed() -> Self {
-        Batch {
-            xi: [[0.0; B]; D],
+        Weights {
+            frac: [[0.0; B]; D],
             sh: [[0.0; B]; N],
             g: [[[0.0; B]; N]; D],
             alpha: [0.0; B],
+            ends: [[[false; 2]; D]; B],
+            at_wall: false,
             all: [[[0.0; B]; D]; D],
             upper: [[[0.0; B]; D]; D],
         }
     }
 
-    /// The weights of particles `r` of `s`, in `cell` ([`Ctx::local`]), and, if
-    /// `two`, their `L̄` from `nd`, in place: a batch built and returned (3.4 kB in
-    /// 3D) was copied by `memcpy` into its caller's, 2 % of the 3D step.
+    /// Hat functions ([`Ctx::weights`]) of particles with local coordinates `xi` in
+    /// the cell of `run`: shape functions and the walls they touch, and if
+    /// `gradients` (for a velocity gradient) α and the shape functions' gradients at
+    /// the upper node of each pair ([`Weights::g`]; the other entries are left as
+    /// they were).
     #[inline(always)]
-    fn fill(
+    pub fn hats<const NA: usize>(
         &mut self,
         ctx: &Ctx<'_, D>,
-        s: &Slices<'_, D>,
-        r: Range<usize>,
-        cell: &[f64; D],
-        nd: &NodeData<D, N>,
-        two: bool,
+        xi: &[[f64; B]; D],
+        run: &Run<D, NA, N>,
+        gradients: bool,
     ) {
-        // A fixed-size view of the batch: indices below B need no bounds checks, so
-        // the loads are whole vectors. (Plain loops over fixed arrays throughout:
-        // `array::from_fn`'s closures were left as calls, with the lanes spilled
-        // around them.)
-        let xs: &[Vector<D>; B] = s.parts.x[r].try_into().expect("a full batch");
-        let b = self;
-        local_lanes(ctx, xs, cell, &mut b.xi);
-        b.alpha = weights_into::<D, N, B>(ctx, &b.xi, &mut b.sh, &mut b.g);
-        // `lbar_at`: the nodal L̄ at the particle, all nodes and the upper side per
-        // column.
-        if two {
+        // `shape::hat`: weights 1 − ξ and ξ, derivatives ∓ 1/h.
+        let mut w = [[[0.0; B]; 2]; D];
+        let mut dw = [[0.0; 2]; D];
+        for a in 0..D {
+            for l in 0..B {
+                w[a][0][l] = 1.0 - xi[a][l];
+            }
+            w[a][1] = xi[a];
+            dw[a] = [-ctx.geom.inv_h[a], ctx.geom.inv_h[a]];
+        }
+        self.frac = *xi;
+        if gradients {
+            self.alpha = alpha::<D, B>(ctx, xi);
+        }
+        for n in 0..N {
+            let mut o = [0; D];
+            for (a, o) in o.iter_mut().enumerate() {
+                *o = (n >> a) & 1;
+            }
+            let mut sn = [1.0; B];
             for a in 0..D {
-                for c in 0..D {
-                    let mut lo = [0.0; B];
-                    let mut hi = [0.0; B];
-                    for n in 0..N {
-                        let v = nd.lb[a][c][n];
-                        if (n >> c) & 1 == 1 {
-                            for l in 0..B {
-                                hi[l] += b.sh[n][l] * v;
-                            }
-                        } else {
-                            for l in 0..B {
-                                lo[l] += b.sh[n][l] * v;
-                            }
+                for l in 0..B {
+                    sn[l] *= w[a][o[a]][l];
+                }
+            }
+            self.sh[n] = sn;
+            if !gradients {
+                continue;
+            }
+            for d in 0..D {
+                // The gradient's entries at the lower node of a pair along `d` are never
+                // read (see `g`'s docs): half the products and stores of the 3D batch's
+                // gradients.
+                if o[d] == 0 {
+                    continue;
+                }
+                let mut p = [dw[d][o[d]]; B];
+                for e in 0..D {
+                    if e != d {
+                        for l in 0..B {
+                            p[l] *= w[e][o[e]][l];
                         }
                     }
-                    for l in 0..B {
-                        b.all[a][c][l] = lo[l] + hi[l];
+                }
+                self.g[d][n] = p;
+            }
+        }
+        self.at_wall = run.at_wall();
+        if self.at_wall {
+            for l in 0..B {
+                let mut wl = [[0.0; 3]; D];
+                for a in 0..D {
+                    wl[a] = [w[a][0][l], w[a][1][l], 0.0];
+                }
+                self.ends[l] = run.ends(ctx, &wl);
+            }
+        } else {
+            self.ends = [[[false; 2]; D]; B];
+        }
+    }
+
+    /// The interpolated nodal `L̄` of a two-step scheme ([`super::NodeData::lb`]) at
+    /// the particles, over all nodes and over the upper side per column, each summed
+    /// in node order.
+    #[inline(always)]
+    pub fn lbar(&mut self, nd: &NodeData<D, N>) {
+        for a in 0..D {
+            for c in 0..D {
+                let mut lo = [0.0; B];
+                let mut hi = [0.0; B];
+                for n in 0..N {
+                    let v = nd.lb[a][c][n];
+                    if (n >> c) & 1 == 1 {
+                        for l in 0..B {
+                            hi[l] += self.sh[n][l] * v;
+                        }
+                    } else {
+                        for l in 0..B {
+                            lo[l] += self.sh[n][l] * v;
+                        }
                     }
-                    b.upper[a][c] = hi;
+                }
+                for l in 0..B {
+                    self.all[a][c][l] = lo[l] + hi[l];
+                }
+                self.upper[a][c] = hi;
+            }
+        }
+    }
+
+    /// `Σ_n S_n v_n` of the updated slot and `Σ_n S_n (v_n − v_n^old)` over the
+    /// nodes `nd`, node by node in order.
+    #[allow(clippy::type_complexity)]
+    #[inline(always)]
+    pub fn interpolate(&self, nd: &NodeData<D, N>) -> ([[f64; B]; D], [[f64; B]; D]) {
+        let mut vn = [[0.0; B]; D];
+        let mut dv = [[0.0; B]; D];
+        for n in 0..N {
+            for a in 0..D {
+                let (v0, v1) = (nd.v[FROM_MOMENTUM][a][n], nd.v[UPDATED][a][n]);
+                let d = v1 - v0;
+                for l in 0..B {
+                    vn[a][l] += self.sh[n][l] * v1;
+                    dv[a][l] += self.sh[n][l] * d;
+                }
+            }
+        }
+        (vn, dv)
+    }
+
+    /// `Σ_n S_n x_n` added to `u`: XPIC's field `nd.x` at the particles.
+    #[inline(always)]
+    pub fn add_field(&self, nd: &NodeData<D, N>, u: &mut [[f64; B]; D]) {
+        for n in 0..N {
+            for a in 0..D {
+                let x = nd.x[a][n];
+                for l in 0..B {
+                    u[a][l] += self.sh[n][l] * x;
                 }
             }
         }
     }
 
-    /// `velocity_gradient_at` with hat functions from the differences `nd.dv`:
-    /// across the cell's pairs, times α, blended with (1 − α) L̄ for a two-step
-    /// scheme; then `deform`: the increment I + L dt, its determinant J, the volume
-    /// and F ← (I + L dt) F of particles `r` of `s`. Returns the lanes' marks of an
-    /// unphysical state ([`unphysical`]).
+    /// The velocity gradient from velocity slot `slot` (with hat functions from its
+    /// differences `nd.dv`, loaded for that slot), times α, blended with (1 − α) L̄
+    /// for a two-step scheme.
     #[inline(always)]
-    fn deform(
+    pub fn velocity_gradient(
         &self,
-        s: &mut Slices<'_, D>,
-        r: Range<usize>,
         nd: &NodeData<D, N>,
+        slot: usize,
         two: bool,
-        dt: f64,
-    ) -> [f64; B] {
+    ) -> [[[f64; B]; D]; D] {
         let alpha = &self.alpha;
         let mut lg = [[[0.0; B]; D]; D];
         for a in 0..D {
             for b in 0..D {
                 let mut x = [0.0; B];
-                for mm in 0..N / 2 {
-                    let c = nd.dv[a][b][mm];
-                    let gb = &self.g[b][pair(b, mm).1];
-                    for l in 0..B {
-                        x[l] += c * gb[l];
+                if super::hats::<D, N>() {
+                    for m in 0..N / 2 {
+                        let c = nd.dv[a][b][m];
+                        let gb = &self.g[b][pair(b, m).1];
+                        for l in 0..B {
+                            x[l] += c * gb[l];
+                        }
+                    }
+                } else {
+                    for n in 0..N {
+                        let c = nd.v[slot][a][n];
+                        for l in 0..B {
+                            x[l] += c * self.g[b][n][l];
+                        }
                     }
                 }
                 // Both sides formed, then chosen: a select per lane, not a branch.
@@ -262,73 +335,30 @@ impl<const D: usize, const N: usize, const B: usize> Batch<D, N, B> {
                 }
             }
         }
-        let mut inc = [[[0.0; B]; D]; D];
-        for i in 0..D {
-            for k in 0..D {
-                let id = if i == k { 1.0 } else { 0.0 };
-                for l in 0..B {
-                    inc[i][k][l] = id + lg[i][k][l] * dt;
-                }
-            }
-        }
-        let j = det_lanes(&inc);
-        // `F`, the widest array the pass streams (72 bytes a particle in 3D), asked for
-        // ahead: its loads here waited on memory (a sixth of the 3D stress pass).
-        // (Past the array's end only addresses are formed: a prefetch never faults.)
-        super::prefetch(s.parts.def_grad, r.end + AHEAD - B, B);
-        let fs: &mut [Mat<D>; B] = (&mut s.parts.def_grad[r.clone()])
-            .try_into()
-            .expect("a full batch");
-        let mut f = [[[0.0; B]; D]; D];
-        for l in 0..B {
-            for k in 0..D {
-                for c in 0..D {
-                    f[k][c][l] = fs[l][(k, c)];
-                }
-            }
-        }
-        let mut fnew = [[[0.0; B]; D]; D];
-        for i in 0..D {
-            for c in 0..D {
-                // nalgebra's product: the sum over k in order.
-                let mut x = [0.0; B];
-                for l in 0..B {
-                    x[l] = inc[i][0][l] * f[0][c][l];
-                }
-                for k in 1..D {
-                    for l in 0..B {
-                        x[l] += inc[i][k][l] * f[k][c][l];
-                    }
-                }
-                fnew[i][c] = x;
-            }
-        }
-        // Where the particles carry `F`, their volume is `det F · V₀`: not stored.
-        let stored = s.parts.vol.get_mut(r).map(<&mut [f64; B]>::try_from);
-        let bad = match stored {
-            Some(Ok(vs)) => {
-                let mut vol = [0.0; B];
-                for l in 0..B {
-                    vol[l] = vs[l] * j[l];
-                }
-                *vs = vol;
-                unphysical(&j, &vol, &fnew)
-            }
-            _ => unphysical(&j, &[0.0; B], &fnew),
-        };
-        for l in 0..B {
-            for i in 0..D {
-                for c in 0..D {
-                    fs[l][(i, c)] = fnew[i][c][l];
-                }
-            }
-        }
-        bad
+        lg
     }
 
-    /// `moving_velocity` away from walls: Σ_n S_n v̄_n plus the L̄ terms.
+    /// The velocity two-step schemes move the particles with: the nodal linear
+    /// reconstructions `v̄_j + L̄_j (x − x_j)` blended by the shape functions,
+    /// `u(x) = Σ_j S_j(x) (v̄_j + L̄_j (x − x_j))`. Exact for linear velocity fields, like
+    /// the grid interpolation `Σ_i S_i v_i`, but built from the same nodal averages as the
+    /// particle's velocity gradient, so the particles separate only as fast as their
+    /// deformation gradients register (README, "The schemes"). Next to a wall the
+    /// reconstruction of an interior node, carried to the wall by `L̄_j`, need not vanish
+    /// on it, while the grid velocity of slot `slot` does (the wall's nodes are held): the
+    /// velocity blends from `u` to the grid interpolation `Σ_i S_i v_i` with the particle's
+    /// shape weight on the wall's nodes, all components at a fixed wall, the normal one at
+    /// a slip wall. Still continuous and exact for linear fields that satisfy the walls; on
+    /// the wall it is the grid's. (Unblended, particles squeezed into a cantilever's clamp
+    /// corner left the grid through the clamp, and the clamped beam slid off the clamp.)
+    /// `nd` holds the particles' nodes' data.
     #[inline(always)]
-    fn moving_velocity(&self, ctx: &Ctx<'_, D>, nd: &NodeData<D, N>) -> [[f64; B]; D] {
+    pub fn moving_velocity(
+        &self,
+        ctx: &Ctx<'_, D>,
+        nd: &NodeData<D, N>,
+        slot: usize,
+    ) -> [[f64; B]; D] {
         let h = &ctx.geom.h;
         let mut u = [[0.0; B]; D];
         for a in 0..D {
@@ -340,22 +370,225 @@ impl<const D: usize, const N: usize, const B: usize> Batch<D, N, B> {
             }
             for b in 0..D {
                 for l in 0..B {
-                    u[a][l] += (self.all[a][b][l] * self.xi[b][l] - self.upper[a][b][l]) * h[b];
+                    u[a][l] += (self.all[a][b][l] * self.frac[b][l] - self.upper[a][b][l]) * h[b];
                 }
+            }
+        }
+        if self.at_wall {
+            for l in 0..B {
+                self.blend_at_walls(ctx, nd, slot, l, &mut u);
             }
         }
         u
     }
+
+    /// [`Weights::moving_velocity`]'s blend at the walls for lane `l`: a particle on a
+    /// wall's face moves with the grid, which the walls hold.
+    #[inline(always)]
+    fn blend_at_walls(
+        &self,
+        ctx: &Ctx<'_, D>,
+        nd: &NodeData<D, N>,
+        slot: usize,
+        l: usize,
+        u: &mut [[f64; B]; D],
+    ) {
+        let ends = &self.ends[l];
+        if !ends.iter().flatten().any(|&e| e) {
+            return;
+        }
+        let mut keep_fixed = 1.0;
+        let mut keep = [1.0; D];
+        for a in 0..D {
+            for side in 0..2 {
+                if !ends[a][side] {
+                    continue;
+                }
+                let frac = self.frac[a][l];
+                let on_face = if side == 0 { 1.0 - frac } else { frac };
+                match ctx.faces[a][side] {
+                    Face::Fixed => keep_fixed *= 1.0 - on_face,
+                    Face::Slip => keep[a] *= 1.0 - on_face,
+                    Face::Free | Face::Periodic => {}
+                }
+            }
+        }
+        for a in 0..D {
+            let c = keep_fixed * keep[a];
+            if c < 1.0 {
+                let mut vn = 0.0;
+                for n in 0..N {
+                    vn += self.sh[n][l] * nd.v[slot][a][n];
+                }
+                u[a][l] = c * u[a][l] + (1.0 - c) * vn;
+            }
+        }
+    }
+
+    /// The shape functions, node by node, lane by lane.
+    #[inline(always)]
+    pub fn shape(&self) -> &[[f64; B]; N] {
+        &self.sh
+    }
+
+    /// Whether the run's nodes touch a wall.
+    #[inline(always)]
+    pub fn at_wall(&self) -> bool {
+        self.at_wall
+    }
+
+    /// Whether lane `l` gives weight to a wall's nodes.
+    #[inline(always)]
+    pub fn touches_wall(&self, l: usize) -> bool {
+        self.ends[l].iter().flatten().any(|&e| e)
+    }
+
+    /// Lane `l`'s velocity `v` clipped at the slip walls it touches to `u`'s
+    /// ([`clip_at_slip_walls`]); returns the wall's work, exactly 0 away from walls.
+    #[inline(always)]
+    pub fn clip(
+        &self,
+        ctx: &Ctx<'_, D>,
+        l: usize,
+        v: &mut Vector<D>,
+        u: &[[f64; B]; D],
+        mass: f64,
+    ) -> f64 {
+        let mut vm = Vector::<D>::zeros();
+        for a in 0..D {
+            vm[a] = u[a][l];
+        }
+        clip_at_slip_walls(ctx, &self.ends[l], v, &vm, mass)
+    }
+
+    /// Deform particles `r` of `s` by the velocity gradient `lg` over `dt`: the
+    /// increment I + L dt, its determinant J, the volume, F ← (I + L dt) F and, for a
+    /// material that stores its stress, the stress update lane by lane. Returns the
+    /// lanes' marks of an unphysical state ([`unphysical`]).
+    #[inline(always)]
+    pub fn deform(
+        &self,
+        ctx: &Ctx<'_, D>,
+        s: &mut Slices<'_, D>,
+        r: Range<usize>,
+        lg: &[[[f64; B]; D]; D],
+        dt: f64,
+    ) -> [f64; B] {
+        let mut inc = [[[0.0; B]; D]; D];
+        for i in 0..D {
+            for k in 0..D {
+                let id = if i == k { 1.0 } else { 0.0 };
+                for l in 0..B {
+                    inc[i][k][l] = id + lg[i][k][l] * dt;
+                }
+            }
+        }
+        let j = det_lanes(&inc);
+        let mut fnew = [[[0.0; B]; D]; D];
+        if s.parts.def_grad.is_empty() {
+            // Particles without `F` (a material that needs none) deform with F = I.
+            for (i, row) in fnew.iter_mut().enumerate() {
+                row[i] = [1.0; B];
+            }
+        } else {
+            // `F`, the widest array the pass streams (72 bytes a particle in 3D), asked
+            // for ahead: its loads here waited on memory (a sixth of the 3D stress pass).
+            // (Past the array's end only addresses are formed: a prefetch never faults.)
+            super::prefetch(s.parts.def_grad, r.end + AHEAD - B, B);
+            let fs: &mut [Mat<D>; B] = (&mut s.parts.def_grad[r.clone()])
+                .try_into()
+                .expect("a full batch");
+            let mut f = [[[0.0; B]; D]; D];
+            for l in 0..B {
+                for k in 0..D {
+                    for c in 0..D {
+                        f[k][c][l] = fs[l][(k, c)];
+                    }
+                }
+            }
+            for i in 0..D {
+                for c in 0..D {
+                    // nalgebra's product: the sum over k in order.
+                    let mut x = [0.0; B];
+                    for l in 0..B {
+                        x[l] = inc[i][0][l] * f[0][c][l];
+                    }
+                    for k in 1..D {
+                        for l in 0..B {
+                            x[l] += inc[i][k][l] * f[k][c][l];
+                        }
+                    }
+                    fnew[i][c] = x;
+                }
+            }
+            for l in 0..B {
+                for i in 0..D {
+                    for c in 0..D {
+                        fs[l][(i, c)] = fnew[i][c][l];
+                    }
+                }
+            }
+        }
+        // Where the particles carry `F`, their volume is `det F · V₀`: not stored.
+        let mut vol = [0.0; B];
+        if let Some(Ok(vs)) = s
+            .parts
+            .vol
+            .get_mut(r.clone())
+            .map(<&mut [f64; B]>::try_from)
+        {
+            for l in 0..B {
+                vol[l] = vs[l] * j[l];
+            }
+            *vs = vol;
+        }
+        if s.parts.stress.is_empty() {
+            // The stress follows from F where it is used; for the materials that do
+            // this (neo-Hookean) it is finite where F is and J > 0.
+            return unphysical(&j, &vol, &fnew);
+        }
+        let mut bad = unphysical::<D, B>(&j, &vol, &[[[0.0; B]; D]; D]);
+        for (l, p) in r.enumerate() {
+            bad[l] += update_stress(ctx, s, p, lane(lg, l), lane(&fnew, l), dt);
+        }
+        bad
+    }
 }
 
-/// Per lane, a mark that is ±0 where J > 0 and the volume and `F` are finite, else
+/// Lane `l` of a matrix held lane by lane.
+#[inline(always)]
+pub(crate) fn lane<const D: usize, const B: usize>(m: &[[[f64; B]; D]; D], l: usize) -> Mat<D> {
+    Mat::<D>::from_fn(|i, k| m[i][k][l])
+}
+
+/// The stress update of particle `p` of `s`, whose material stores its stress, by the
+/// velocity gradient `l` at the deformation gradient `f`, over `dt`: a mark that is ±0
+/// where the new stress is finite, else NaN ([`unphysical`]).
+#[inline(always)]
+fn update_stress<const D: usize>(
+    ctx: &Ctx<'_, D>,
+    s: &mut Slices<'_, D>,
+    p: usize,
+    l: Mat<D>,
+    f: Mat<D>,
+    dt: f64,
+) -> f64 {
+    let internal = Internal {
+        plastic: s.parts.be.get_mut(p).zip(s.parts.eps_p.get_mut(p)),
+        damage: s.parts.damage.get_mut(p),
+        stress_zz: s.parts.stress_zz.get_mut(p),
+    };
+    let mat = &ctx.materials[s.parts.kind[p] as usize];
+    mat.update_stress(&mut s.parts.stress[p], &l, &f, dt, internal);
+    s.parts.stress[p].iter().map(|x| x * 0.0).sum()
+}
+
+/// Per lane, a mark that is ±0 where J > 0 and the volume and `f` are finite, else
 /// NaN: numbers, not bools, since `0·x` is ±0 for a finite x and NaN otherwise and a
 /// lane with J <= 0 (or NaN) adds a NaN. Sums of marks stay ±0 exactly while every
 /// state they mark is physical, so a pass adds each batch's marks into running ones
 /// and tests them once ([`physical`]). (Per-lane bools went through the mask
-/// registers bit by bit, a dozen moves and shifts per lane; and a test per batch
-/// summed the lanes at the end of the batch's longest chain, where its samples
-/// gathered: a quarter of the 2D stress pass's.)
+/// registers bit by bit, a dozen moves and shifts per lane.)
 #[inline(always)]
 fn unphysical<const D: usize, const B: usize>(
     j: &[f64; B],
@@ -376,7 +609,7 @@ fn unphysical<const D: usize, const B: usize>(
 
 /// `x += u dt` for particles `r` of `s`.
 #[inline(always)]
-fn advance<const D: usize, const B: usize>(
+pub(crate) fn advance<const D: usize, const B: usize>(
     s: &mut Slices<'_, D>,
     r: Range<usize>,
     u: &[[f64; B]; D],
@@ -390,237 +623,61 @@ fn advance<const D: usize, const B: usize>(
     }
 }
 
-/// Deform and (as `m` asks) move particles `p0 .. p0 + B` of `s`, which share
-/// their nodes, whose data `nd` holds (loaded, with the differences of slot
-/// `m.slot`), and none of which gives weight to a wall's node: the scalar pass's
-/// velocity gradient, deformation, volume, and the move with the reconstruction of
-/// slot `m.slot` (`m.moves`) or by the kept increment (`m.moves_kept`). Returns the
-/// lanes' marks of an unphysical state ([`unphysical`]); the signal speed is left to
-/// the caller.
+/// A particle that touches a slip wall's node (`ends`, [`Kern::ends`]) may move into
+/// that wall no faster than the velocity it moves with, `vm` (which vanishes at the
+/// wall): the normal component of its velocity `v` is clipped to `vm`'s. Returns the
+/// kinetic energy the clip takes out (≤ 0), the wall's work.
 #[inline(always)]
-fn deform_and_move<const D: usize, const N: usize, const B: usize>(
+pub(crate) fn clip_at_slip_walls<const D: usize>(
     ctx: &Ctx<'_, D>,
-    s: &mut Slices<'_, D>,
-    p0: usize,
-    cell: &[f64; D],
-    nd: &NodeData<D, N>,
-    m: &StressMode,
-    batch: &mut Batch<D, N, B>,
-) -> [f64; B] {
-    let r = p0..p0 + B;
-    batch.fill(ctx, s, r.clone(), cell, nd, m.two_step);
-    let bad = batch.deform(s, r.clone(), nd, m.two_step, m.dt);
-    if m.moves {
-        let u = batch.moving_velocity(ctx, nd);
-        advance(s, r, &u, m.dt);
-    } else if m.moves_kept {
-        for p in r {
-            s.parts.x[p] += s.dx[p];
-        }
-    }
-    bad
-}
-
-/// The gather ([`super::gather`]) of particles `p0 .. p0 + B` of `s`, which share
-/// their nodes, whose data `nd` holds (with the differences of the updated slot if
-/// `m.stress`), none of which gives weight to a wall's node, without XPIC: the new
-/// velocity (FLIP/PIC blend), the external work into `t.work` particle by particle
-/// in order, the velocity gradient and deformation (`m.stress`), the move or the
-/// kept increment. The same bits as the scalar gather; returns the lanes' marks of an
-/// unphysical state, a non-finite velocity included ([`unphysical`]; the signal speed
-/// is left to the caller).
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-fn gather<const D: usize, const N: usize, const B: usize>(
-    ctx: &Ctx<'_, D>,
-    s: &mut Slices<'_, D>,
-    p0: usize,
-    cell: &[f64; D],
-    nd: &NodeData<D, N>,
-    m: &GatherMode,
-    batch: &mut Batch<D, N, B>,
-    work: &mut f64,
-) -> [f64; B] {
-    let r = p0..p0 + B;
-    batch.fill(
-        ctx,
-        s,
-        r.clone(),
-        cell,
-        nd,
-        m.two_step && (m.recon || m.stress),
-    );
-    let (vn, dv) = interpolate(&batch.sh, nd);
-    let vs: &mut [Vector<D>; B] = (&mut s.parts.v[r.clone()])
-        .try_into()
-        .expect("a full batch");
-    let mut bad = [0.0; B];
-    for l in 0..B {
-        let old = vs[l];
-        let mut new = Vector::<D>::zeros();
-        for a in 0..D {
-            new[a] = (old[a] + dv[a][l]) * m.flip + vn[a][l] * (1.0 - m.flip);
-        }
-        // The external force's work (the lanes take no run at a wall, so no clip).
-        let p = p0 + l;
-        let mass = particles::mass_of(ctx.kind_mass, s.parts.kind, p);
-        let acc = ctx.accel_kept(s.accel, s.parts.x0, p);
-        *work += m.dt * mass * acc.dot(&(old + new)) * 0.5;
-        vs[l] = new;
-        for a in 0..D {
-            bad[l] += new[a] * 0.0;
-        }
-    }
-    if m.stress {
-        let deformed = batch.deform(s, r.clone(), nd, m.two_step, m.dt);
-        for l in 0..B {
-            bad[l] += deformed[l];
-        }
-    }
-    let u = if m.recon {
-        batch.moving_velocity(ctx, nd)
-    } else {
-        vn
-    };
-    if m.move_now {
-        advance(s, r, &u, m.dt);
-    } else if !m.two_step {
-        for (l, p) in r.enumerate() {
-            for a in 0..D {
-                s.dx[p][a] = u[a][l] * m.dt;
-            }
-        }
-    }
-    bad
-}
-
-/// The remap's share of a batch ([`crate::mpm::remap`]): for particles with local
-/// coordinates `xi` (hat functions), `Σ_n S_n v_n` of the updated slot and
-/// `Σ_n S_n (v_n − v_n^old)` over the run's nodes `nd`, summed node by node as the
-/// scalar loop sums them, and the shape functions for the momentum's sums.
-#[allow(clippy::type_complexity)]
-#[inline(always)]
-pub(crate) fn velocities<const D: usize, const N: usize, const B: usize>(
-    ctx: &Ctx<'_, D>,
-    xi: &[[f64; B]; D],
-    nd: &NodeData<D, N>,
-) -> ([[f64; B]; D], [[f64; B]; D], [[f64; B]; N]) {
-    // (The shape functions into a caller's array, not returned, lost their `memcpy`
-    // in 3D but made the 2D remap 1.13 of its time.)
-    let mut sh = [[0.0; B]; N];
-    let mut g = [[[0.0; B]; N]; D];
-    weights_into::<D, N, B>(ctx, xi, &mut sh, &mut g);
-    let (vn, dv) = interpolate(&sh, nd);
-    (vn, dv, sh)
-}
-
-/// With shape functions `sh`, `Σ_n S_n v_n` of the updated slot and
-/// `Σ_n S_n (v_n − v_n^old)` over the nodes `nd`, node by node in order as the
-/// scalar loops sum them.
-#[allow(clippy::type_complexity)]
-#[inline(always)]
-fn interpolate<const D: usize, const N: usize, const B: usize>(
-    sh: &[[f64; B]; N],
-    nd: &NodeData<D, N>,
-) -> ([[f64; B]; D], [[f64; B]; D]) {
-    let mut vn = [[0.0; B]; D];
-    let mut dv = [[0.0; B]; D];
-    for n in 0..N {
-        for a in 0..D {
-            let (v0, v1) = (nd.v[FROM_MOMENTUM][a][n], nd.v[UPDATED][a][n]);
-            let d = v1 - v0;
-            for l in 0..B {
-                vn[a][l] += sh[n][l] * v1;
-                dv[a][l] += sh[n][l] * d;
-            }
-        }
-    }
-    (vn, dv)
-}
-
-/// [`Ctx::local`] of the particles at `xs`, all in `cell`, lane by lane into `xi`
-/// (the same arithmetic, so the same bits).
-#[inline(always)]
-pub(crate) fn local_lanes<const D: usize, const B: usize>(
-    ctx: &Ctx<'_, D>,
-    xs: &[Vector<D>; B],
-    cell: &[f64; D],
-    xi: &mut [[f64; B]; D],
-) {
+    ends: &[[bool; 2]; D],
+    v: &mut Vector<D>,
+    vm: &Vector<D>,
+    mass: f64,
+) -> f64 {
+    let free = *v;
+    let mut at_wall = false;
     for a in 0..D {
-        let (lower, inv_h, c) = (ctx.geom.lower[a], ctx.geom.inv_h[a], cell[a]);
-        for l in 0..B {
-            xi[a][l] = (xs[l][a] - lower) * inv_h - c;
+        for side in 0..2 {
+            if ends[a][side] && ctx.faces[a][side] == Face::Slip {
+                at_wall = true;
+                v[a] = if side == 0 {
+                    v[a].max(vm[a])
+                } else {
+                    v[a].min(vm[a])
+                };
+            }
         }
     }
+    // Away from walls no work, exactly (also for a velocity that is not finite).
+    if !at_wall {
+        return 0.0;
+    }
+    // The wall is an external force: its impulse m (new − free) does the work
+    // m (new − free)·(new + free)/2 by the midpoint rule gravity's work uses, i.e. the
+    // kinetic energy the clip takes out. A wall at rest does no work on the continuum;
+    // this is what the discrete impact dissipates there, counted so that the balance
+    // keeps measuring the integrator.
+    0.5 * mass * (v.norm_squared() - free.norm_squared())
 }
 
-/// [`Ctx::weights`] with hat functions, lane by lane: the shape functions `sh[n]`,
-/// their gradients `g[d][n]` at the upper node `n` of each pair along `d` ([`pair`];
-/// the other entries are left as they were) and α (returned) of particles with
-/// local coordinates `xi[a]`.
-#[inline(always)]
-fn weights_into<const D: usize, const N: usize, const B: usize>(
-    ctx: &Ctx<'_, D>,
-    xi: &[[f64; B]; D],
-    sh: &mut [[f64; B]; N],
-    g: &mut [[[f64; B]; N]; D],
-) -> [f64; B] {
-    // Hat functions (`shape::hat`): weights 1 − ξ and ξ, derivatives ∓ 1/h.
-    let mut w = [[[0.0; B]; 2]; D];
-    let mut dw = [[0.0; 2]; D];
-    for a in 0..D {
-        for l in 0..B {
-            w[a][0][l] = 1.0 - xi[a][l];
-        }
-        w[a][1] = xi[a];
-        dw[a] = [-ctx.geom.inv_h[a], ctx.geom.inv_h[a]];
-    }
-    let alpha: [f64; B] = match ctx.alpha {
-        // `shape::bubble`: Π_a 4 ξ_a (1 − ξ_a).
-        Alpha::ProductOfShapes => {
-            let mut b = [1.0; B];
-            for xa in xi {
-                for l in 0..B {
-                    b[l] *= 4.0 * xa[l] * (1.0 - xa[l]);
-                }
-            }
-            b
-        }
-        Alpha::Constant(c) => [c; B],
-    };
-    // `Ctx::weights`: shape functions and gradients over the cell's corners.
-    for n in 0..N {
-        let mut o = [0; D];
-        for (a, o) in o.iter_mut().enumerate() {
-            *o = (n >> a) & 1;
-        }
-        let mut sn = [1.0; B];
+impl<const D: usize, const N: usize> Weights<D, N, 1> {
+    /// One particle's weights `k` (any shape functions, GIMP's included).
+    #[inline(always)]
+    pub fn one(&mut self, k: &Kern<D, N>, at_wall: bool) {
         for a in 0..D {
-            for l in 0..B {
-                sn[l] *= w[a][o[a]][l];
+            self.frac[a] = [k.frac[a]];
+        }
+        for n in 0..N {
+            self.sh[n] = [k.s[n]];
+            for d in 0..D {
+                self.g[d][n] = [k.g[d][n]];
             }
         }
-        sh[n] = sn;
-        for d in 0..D {
-            // The gradient's entries at the lower node of a pair along `d` are never
-            // read (see `g`'s docs): half the products and stores of the 3D batch's
-            // gradients.
-            if o[d] == 0 {
-                continue;
-            }
-            let mut p = [dw[d][o[d]]; B];
-            for e in 0..D {
-                if e != d {
-                    for l in 0..B {
-                        p[l] *= w[e][o[e]][l];
-                    }
-                }
-            }
-            g[d][n] = p;
-        }
+        self.alpha = [k.alpha];
+        self.ends = [k.ends];
+        self.at_wall = at_wall;
     }
-    alpha
 }
 
 /// [`crate::physics::tensor::det`] lane by lane, term for term.
@@ -739,15 +796,19 @@ pub fn fold<const B: usize>(max: f64, lanes: &[f64; B]) -> f64 {
 
 #[cfg(test)]
 mod tests {
-    use super::super::{gather_one, raise_speed as speed_one, stress_one, Kern, Tally};
+    use super::super::gather::{hat_batch, Pass};
+    use super::super::{
+        raise_speed as speed_one, signal_speeds, GatherMode, Run, StressMode, Tally,
+    };
     use super::*;
-    use crate::input::scene::Face;
     use crate::mpm::particles::Particles;
+    use crate::physics::material::brittle::Brittle;
+    use crate::physics::material::j2_plastic::J2Plastic;
     use crate::physics::material::{lame, neo_hookean::NeoHookean, Material};
     use crate::physics::shape::Geom;
-    use crate::physics::tensor::Vector;
     use decomposition::splitmix::Rng;
     use decomposition::Tiles;
+    use nalgebra::Matrix3;
 
     /// The reference volume (and mass: density 1) of [`Setup`]'s kind `k`, one kind
     /// per lane, so that the lanes' masses differ.
@@ -755,12 +816,31 @@ mod tests {
         1e-4 * (0.5 + (k as f64 + 0.5) / LANES as f64)
     }
 
+    /// What the test particles are made of and what they carry.
+    #[derive(Clone, Copy, Debug, PartialEq)]
+    enum Law {
+        /// Neo-Hookean: `F`, the stress formed from it; the volume stored or not.
+        Hyper { vol: bool },
+        /// Materials that store their stress (J2 plasticity and brittle damage, kind
+        /// by kind), with `F` carried or not.
+        Stored { f: bool },
+    }
+
+    const LAWS: [Law; 4] = [
+        Law::Hyper { vol: true },
+        Law::Hyper { vol: false },
+        Law::Stored { f: true },
+        Law::Stored { f: false },
+    ];
+
     /// Eight particles of one cell with random local coordinates (among them ξ = 0
     /// on the first axis, where α = 0, and ξ = ½ on all axes, where α = 1),
-    /// deformation gradients, volumes on both sides of J = 1, velocities and
-    /// positions, of kind `l` in lane `l`; one lane with a non-finite F.
+    /// deformation gradients, volumes on both sides of J = 1, stresses, velocities
+    /// and positions, of kind `l` in lane `l`; one lane with a non-finite F (or
+    /// stress).
     fn particles<const D: usize>(
         rng: &mut Rng,
+        law: Law,
         nan_lane: Option<usize>,
     ) -> (Particles<D>, [f64; D]) {
         let mut p = Particles::<D>::default();
@@ -776,11 +856,31 @@ mod tests {
             p.v.push(Vector::<D>::from_fn(|_, _| rng.f64() - 0.5));
             let mut f =
                 Mat::<D>::from_fn(|i, k| f64::from(u8::from(i == k)) + 0.2 * (rng.f64() - 0.5));
+            let mut sigma = Mat::<D>::from_fn(|_, _| 0.1 * (rng.f64() - 0.5));
+            sigma = (sigma + sigma.transpose()) * 0.5;
             if nan_lane == Some(l) {
                 f[(1, 0)] = f64::NAN;
+                sigma[(1, 0)] = f64::NAN;
             }
-            p.def_grad.push(f);
-            p.vol.push(kind_vol0(l) * (0.85 + 0.3 * rng.f64()));
+            match law {
+                Law::Hyper { vol } => {
+                    p.def_grad.push(f);
+                    if vol {
+                        p.vol.push(kind_vol0(l) * (0.85 + 0.3 * rng.f64()));
+                    }
+                }
+                Law::Stored { f: with_f } => {
+                    if with_f {
+                        p.def_grad.push(f);
+                    }
+                    p.vol.push(kind_vol0(l) * (0.85 + 0.3 * rng.f64()));
+                    p.stress.push(sigma);
+                    p.be.push(Matrix3::identity() + Matrix3::from_fn(|_, _| 0.01 * rng.f64()));
+                    p.eps_p.push(0.0);
+                    p.damage.push(0.0);
+                    p.stress_zz.push(0.0);
+                }
+            }
             p.kind.push(l as u16);
         }
         // Their cell (the grid's h is 0.1, [`Setup::new`]): `Ctx::local` gives the
@@ -788,49 +888,85 @@ mod tests {
         (p, std::array::from_fn(|a| [3.0, 6.0, 4.0][a]))
     }
 
-    /// A material, a kind of particle per lane ([`kind_vol0`]), a grid and the context
-    /// of a pass with gradient `alpha`.
+    /// A material per kind of particle ([`kind_vol0`]) and law, a grid and the
+    /// context of a pass.
     struct Setup<const D: usize> {
         geom: Geom<D>,
         tiles: Tiles<D>,
-        materials: Vec<Material>,
+        hyper: Vec<Material>,
+        stored: Vec<Material>,
         kind_vol0: Vec<f64>,
     }
 
     impl<const D: usize> Setup<D> {
         fn new() -> Self {
             let (lambda, mu) = lame(1e3, 0.2);
-            Setup {
-                geom: Geom::<D>::new([0.0; D], [1.0; D], [10; D], [false; D]),
-                tiles: Tiles::<D>::new([12; D], [1; D]),
-                materials: vec![
-                    Material::NeoHookean(NeoHookean {
+            let hyper = Material::NeoHookean(NeoHookean {
+                lambda,
+                mu,
+                density: 1.0,
+            });
+            // Yield and tensile strength within the test's stresses, so that some
+            // lanes yield or fail.
+            let stored = (0..LANES)
+                .map(|k| match k % 2 {
+                    0 => Material::J2Plastic(J2Plastic {
                         lambda,
                         mu,
                         density: 1.0,
-                    });
-                    LANES
-                ],
+                        yield_stress: 0.05,
+                        hardening: 1.0,
+                    }),
+                    _ => Material::Brittle(Brittle {
+                        lambda,
+                        mu,
+                        density: 1.0,
+                        tensile_strength: 0.05,
+                    }),
+                })
+                .collect();
+            Setup {
+                geom: Geom::<D>::new([0.0; D], [1.0; D], [10; D], [false; D]),
+                tiles: Tiles::<D>::new([12; D], [1; D]),
+                hyper: vec![hyper; LANES],
+                stored,
                 kind_vol0: (0..LANES).map(kind_vol0).collect(),
             }
         }
 
-        fn ctx(&self, alpha: Alpha) -> Ctx<'_, D> {
+        /// The context of a pass with gradient `alpha` over particles of `law`, with
+        /// walls (slip across the first and third axes, fixed across the second) if
+        /// `walls`.
+        fn ctx(&self, alpha: Alpha, law: Law, walls: bool) -> Ctx<'_, D> {
             Ctx {
                 geom: &self.geom,
                 node_lo: [-1; D],
                 tiles: &self.tiles,
                 gimp: false,
                 alpha,
-                materials: &self.materials,
+                materials: match law {
+                    Law::Hyper { .. } => &self.hyper,
+                    Law::Stored { .. } => &self.stored,
+                },
                 kind_mass: &self.kind_vol0,
                 kind_vol0: &self.kind_vol0,
                 gravity: Vector::<D>::from_fn(|a, _| if a == 1 { -9.81 } else { 0.0 }),
                 body_force: None,
-                faces: [[Face::Slip; 2]; D],
-                walls: false,
+                faces: std::array::from_fn(|a| [if a == 1 { Face::Fixed } else { Face::Slip }; 2]),
+                walls,
             }
         }
+    }
+
+    /// The run of the test particles' cell: with walls, a slip wall at its lower
+    /// nodes along the first axis and a fixed wall at its upper nodes along the
+    /// second.
+    fn run<const D: usize, const N: usize>(walls: bool) -> Run<D, 2, N> {
+        Run::with_sides(std::array::from_fn(|a| match a {
+            0 if walls => [-1, 0],
+            1 if walls => [0, 1],
+            _ => [0, 0],
+        }))
     }
 
     const ALPHAS: [Alpha; 4] = [
@@ -842,7 +978,7 @@ mod tests {
 
     /// Velocity gradient scale, starting maximum of the signal speed, lane with a
     /// non-finite F, batch width: gentle and steep (inverting) gradients, maxima
-    /// below and above the particles' speeds, both widths.
+    /// below and above the particles' speeds, every width.
     const VARIANTS: [(f64, f64, Option<usize>, usize); 10] = [
         (1.0, 0.0, None, LANES),
         (1.0, 1e3, None, LANES),
@@ -857,7 +993,7 @@ mod tests {
     ];
 
     /// Random node data of a run, velocities scaled by `steep`, with the
-    /// differences of slot `slot`.
+    /// differences of slot `slot` and an XPIC field.
     fn nodes<const D: usize, const N: usize>(
         rng: &mut Rng,
         steep: f64,
@@ -870,6 +1006,7 @@ mod tests {
                     nd.v[slot][a][n] = steep * (rng.f64() - 0.5);
                 }
                 nd.vb[a][n] = rng.f64() - 0.5;
+                nd.x[a][n] = rng.f64() - 0.5;
                 for b in 0..D {
                     nd.lb[a][b][n] = steep * (rng.f64() - 0.5);
                 }
@@ -894,56 +1031,41 @@ mod tests {
         }
     }
 
-    /// One batch of `width` particles from the first of `sb`, in `cell`, through
-    /// pass `m` (the gather's external work into `work`) in `room`, which may have
-    /// served earlier batches of the same pass: whether every state is physical,
-    /// and the signal speed raised from `max0` after it.
+    /// Particles `p .. p + width` of `s`, in `cell` of `run`, through `pass` as the
+    /// pass's loop takes a batch of that width (`gather::hats`), with `room`, which
+    /// may have served earlier batches of the same pass; the work into `work`, the
+    /// lanes' marks into `marks`.
     #[allow(clippy::too_many_arguments)]
-    fn one_batch<const D: usize, const N: usize>(
+    fn batch<const D: usize, const N: usize>(
         ctx: &Ctx<'_, D>,
-        sb: &mut Slices<'_, D>,
+        s: &mut Slices<'_, D>,
+        p: usize,
         width: usize,
         cell: &[f64; D],
+        run: &Run<D, 2, N>,
         nd: &NodeData<D, N>,
-        m: Pass<'_>,
+        pass: Pass<'_>,
         room: &mut Room<D, N>,
-        max0: f64,
         work: &mut f64,
-    ) -> (bool, f64) {
-        #[allow(clippy::too_many_arguments)]
-        fn of<const D: usize, const N: usize, const B: usize>(
-            ctx: &Ctx<'_, D>,
-            sb: &mut Slices<'_, D>,
-            cell: &[f64; D],
-            nd: &NodeData<D, N>,
-            m: Pass<'_>,
-            batch: &mut Batch<D, N, B>,
-            max0: f64,
-            work: &mut f64,
-        ) -> (bool, f64) {
-            let bad = match m {
-                Pass::Stress(m) => deform_and_move::<D, N, B>(ctx, sb, 0, cell, nd, m, batch),
-                Pass::Gather(m) => gather::<D, N, B>(ctx, sb, 0, cell, nd, m, batch, work),
-            };
-            (physical(&bad), batch_speed::<D, B>(ctx, sb, max0))
-        }
+        marks: &mut [f64; LANES],
+    ) {
         match width {
-            LANES => of::<D, N, LANES>(ctx, sb, cell, nd, m, &mut room.lanes, max0, work),
-            HALF => of::<D, N, HALF>(ctx, sb, cell, nd, m, &mut room.half, max0, work),
-            _ => of::<D, N, QUARTER>(ctx, sb, cell, nd, m, &mut room.quarter, max0, work),
+            LANES => hat_batch(ctx, s, p, cell, run, nd, pass, &mut room.lanes, work, marks),
+            HALF => hat_batch(ctx, s, p, cell, run, nd, pass, &mut room.half, work, marks),
+            QUARTER => hat_batch(
+                ctx,
+                s,
+                p,
+                cell,
+                run,
+                nd,
+                pass,
+                &mut room.quarter,
+                work,
+                marks,
+            ),
+            _ => hat_batch(ctx, s, p, cell, run, nd, pass, &mut room.one, work, marks),
         }
-    }
-
-    /// The signal speed of the batch at the start of `s`, from `max` ([`raise_speed`]
-    /// and its lanes' [`fold`]).
-    fn batch_speed<const D: usize, const B: usize>(
-        ctx: &Ctx<'_, D>,
-        s: &Slices<'_, D>,
-        max: f64,
-    ) -> f64 {
-        let mut lanes = [f64::NEG_INFINITY; B];
-        let top = raise_speed::<D, B>(ctx, s, 0, max, &mut lanes);
-        fold(top, &lanes)
     }
 
     /// Both particle sets (and kept increments) hold the same bits.
@@ -957,13 +1079,20 @@ mod tests {
         for p in 0..LANES {
             let bits = |v: &[f64]| v.get(p).map(|x| x.to_bits());
             assert_eq!(bits(&a.vol), bits(&b.vol), "vol {p}: {what}");
-            let pairs = [
-                (a.def_grad[p].as_slice(), b.def_grad[p].as_slice(), "F"),
+            assert_eq!(bits(&a.damage), bits(&b.damage), "damage {p}: {what}");
+            assert_eq!(bits(&a.stress_zz), bits(&b.stress_zz), "σ_zz {p}: {what}");
+            assert_eq!(bits(&a.eps_p), bits(&b.eps_p), "ε_p {p}: {what}");
+            let mats = |m: &[Mat<D>]| m.get(p).map(|m| m.map(f64::to_bits));
+            assert_eq!(mats(&a.def_grad), mats(&b.def_grad), "F {p}: {what}");
+            assert_eq!(mats(&a.stress), mats(&b.stress), "σ {p}: {what}");
+            let be = |m: &[Matrix3<f64>]| m.get(p).map(|m| m.map(f64::to_bits));
+            assert_eq!(be(&a.be), be(&b.be), "b_e {p}: {what}");
+            let vecs = [
                 (a.x[p].as_slice(), b.x[p].as_slice(), "x"),
                 (a.v[p].as_slice(), b.v[p].as_slice(), "v"),
                 (dx[p].as_slice(), dx_b[p].as_slice(), "dx"),
             ];
-            for (x, y, name) in pairs {
+            for (x, y, name) in vecs {
                 for (x, y) in x.iter().zip(y) {
                     assert_eq!(x.to_bits(), y.to_bits(), "{name} {p}: {what}");
                 }
@@ -971,106 +1100,241 @@ mod tests {
         }
     }
 
-    /// The stress pass's lanes give its scalar body's bits: volumes, deformation
-    /// gradients, positions, the physical-state flag and the signal speed's running
-    /// maximum, for both gradients' α (the bubble, 0, 1 and between), one- and
-    /// two-step schemes, each way of moving, and the [`VARIANTS`]; in every other
-    /// case the particles store no volume (it is then `det F · V₀`).
-    #[test]
-    fn lanes_match_the_scalar_pass() {
-        stress_lanes_match::<2, 4>(11);
+    /// What a comparison of widths covered: cases, states found unphysical without a
+    /// NaN put in, and cases whose walls did work.
+    #[derive(Default)]
+    struct Cover {
+        cases: usize,
+        inverted: usize,
+        clipped: usize,
     }
 
-    /// [`lanes_match_the_scalar_pass`] in 3D.
-    #[test]
-    fn lanes_match_the_scalar_pass_in_3d() {
-        stress_lanes_match::<3, 8>(13);
+    /// Pass `pass` over `width` of the particles of `law` made from `rng` (a NaN in
+    /// lane `nan_lane`), once as one batch and once one particle at a time, in one
+    /// room each that earlier cases used (as `by_runs` keeps one per pass), and
+    /// compare every bit: the particles' state, the external work, the physical-state
+    /// flag and the signal speed's running maximum from `max0`.
+    #[allow(clippy::too_many_arguments)]
+    fn compare<const D: usize, const N: usize>(
+        ctx: &Ctx<'_, D>,
+        rng: &mut Rng,
+        law: Law,
+        walls: bool,
+        (nd, max0, nan_lane, width): (&NodeData<D, N>, f64, Option<usize>, usize),
+        pass: Pass<'_>,
+        rooms: &mut (Room<D, N>, Room<D, N>),
+        cover: &mut Cover,
+        what: &str,
+    ) {
+        let (mut a, cell) = particles::<D>(rng, law, nan_lane);
+        let mut b = a.clone();
+        let mut dx: Vec<Vector<D>> = (0..LANES)
+            .map(|_| Vector::<D>::from_fn(|_, _| rng.f64()) * 1e-3)
+            .collect();
+        let mut dx_b = dx.clone();
+        // A kept body force in half the cases, gravity alone in the others.
+        let accel: Vec<Vector<D>> = if cover.cases.is_multiple_of(2) {
+            (0..LANES)
+                .map(|_| Vector::<D>::from_fn(|a, _| rng.f64() - if a == 1 { 10.0 } else { 0.0 }))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let tile = vec![0u32; LANES];
+        let run = run::<D, N>(walls);
+        let work0 = 0.25;
+        // One at a time.
+        let mut sa = slices(&mut a, &mut dx, &tile, &accel);
+        let (mut work_a, mut marks_a) = (work0, [0.0; LANES]);
+        for p in 0..width {
+            batch(
+                ctx,
+                &mut sa,
+                p,
+                1,
+                &cell,
+                &run,
+                nd,
+                pass,
+                &mut rooms.0,
+                &mut work_a,
+                &mut marks_a,
+            );
+        }
+        let top_a = (0..width).fold(max0, |v, p| speed_one(ctx, &sa, p, v));
+        // A batch.
+        let mut sb = slices(&mut b, &mut dx_b, &tile, &accel);
+        let (mut work_b, mut marks_b) = (work0, [0.0; LANES]);
+        batch(
+            ctx,
+            &mut sb,
+            0,
+            width,
+            &cell,
+            &run,
+            nd,
+            pass,
+            &mut rooms.1,
+            &mut work_b,
+            &mut marks_b,
+        );
+        let mut per_lane = [f64::NEG_INFINITY; LANES];
+        let top_b = match width {
+            LANES => fold(
+                raise_speed::<D, LANES>(ctx, &sb, 0, max0, &mut per_lane),
+                &per_lane,
+            ),
+            _ => (0..width).fold(max0, |v, p| speed_one(ctx, &sb, p, v)),
+        };
+        let what = format!("{width} lanes, {law:?}, walls {walls}, NaN {nan_lane:?}, {what}");
+        let ok = physical(&marks_a);
+        assert_eq!(ok, physical(&marks_b), "{what}");
+        assert_eq!(top_a.to_bits(), top_b.to_bits(), "speed: {what}");
+        assert_eq!(work_a.to_bits(), work_b.to_bits(), "work: {what}");
+        same_bits(&a, &b, &dx, &dx_b, &what);
+        cover.cases += 1;
+        cover.inverted += usize::from(!ok && nan_lane.is_none());
+        let gravity_only = accel.is_empty() && matches!(pass, Pass::Stress(_));
+        cover.clipped += usize::from(walls && gravity_only && work_a != work0);
     }
 
-    fn stress_lanes_match<const D: usize, const N: usize>(seed: u64) {
+    /// The stress pass gives the same bits whatever the batch width: volumes,
+    /// deformation gradients, stored stresses and internal variables, positions,
+    /// velocities clipped at walls, the walls' work, the physical-state flag and the
+    /// signal speed's running maximum, for each α (the bubble, 0, 1 and between),
+    /// one- and two-step schemes, each way of moving, each law, with and without
+    /// walls, and the [`VARIANTS`].
+    #[test]
+    fn stress_pass_is_the_same_at_every_width() {
+        stress_widths::<2, 4>(11);
+    }
+
+    /// [`stress_pass_is_the_same_at_every_width`] in 3D.
+    #[test]
+    fn stress_pass_is_the_same_at_every_width_in_3d() {
+        stress_widths::<3, 8>(13);
+    }
+
+    fn stress_widths<const D: usize, const N: usize>(seed: u64) {
         let setup = Setup::<D>::new();
         let mut rng = Rng::new(seed);
-        let (mut cases, mut inverted) = (0, 0);
+        let mut cover = Cover::default();
         for alpha in ALPHAS {
-            let ctx = setup.ctx(alpha);
-            for (two_step, moves, moves_kept) in [
-                (true, true, false),
-                (true, false, false),
-                (false, false, true),
-                (false, false, false),
-            ] {
-                // One room for the pass's batches, as `by_runs` keeps one: each
-                // batch after the first finds the last one's numbers in it.
-                let mut room = Room::new();
-                for (steep, max0, nan_lane, width) in VARIANTS {
-                    let slot = rng.below(2);
-                    let nd = nodes::<D, N>(&mut rng, steep, slot);
-                    let m = StressMode {
-                        slot,
-                        dt: 1e-3,
-                        two_step,
-                        moves,
-                        moves_kept,
-                        speed: true,
-                    };
-                    let (mut a, cell) = particles::<D>(&mut rng, nan_lane);
-                    // Every other case without stored volumes: then `det F · V₀`.
-                    if cases % 2 == 1 {
-                        a.vol = Vec::new();
-                    }
-                    let mut b = a.clone();
-                    let mut dx: Vec<Vector<D>> = (0..LANES)
-                        .map(|_| Vector::<D>::from_fn(|_, _| rng.f64()) * 1e-3)
-                        .collect();
-                    let mut dx_b = dx.clone();
-                    let tile = vec![0u32; LANES];
-                    // One by one: the scalar pass's body.
-                    let mut sa = slices(&mut a, &mut dx, &tile, &[]);
-                    let mut ta = Tally {
-                        max_speed: max0,
-                        ..Tally::ZERO
-                    };
-                    for p in 0..width {
-                        let (k, _, _): (Kern<D, N>, _, _) = ctx.weights::<2, N>(
-                            &sa.parts.x[p],
-                            None,
-                            &ctx.local(&sa.parts.x[p], &cell),
-                        );
-                        stress_one(&ctx, &mut sa, p, &k, &nd, &m, &mut ta);
-                    }
-                    // The signal speed, particle by particle after the pass.
-                    ta.max_speed = (0..width).fold(ta.max_speed, |v, p| speed_one(&ctx, &sa, p, v));
-                    // A batch at a time.
-                    let mut sb = slices(&mut b, &mut dx_b, &tile, &[]);
-                    assert!(applies(false, &sb));
-                    let (ok, top) = one_batch(
-                        &ctx,
-                        &mut sb,
-                        width,
-                        &cell,
-                        &nd,
-                        Pass::Stress(&m),
-                        &mut room,
-                        max0,
-                        &mut 0.0,
-                    );
-                    let what = format!(
-                        "{width} lanes, {alpha:?}, two-step {two_step}, moves {moves}/{moves_kept}, steep {steep}, max {max0}, NaN {nan_lane:?}"
-                    );
-                    assert_eq!(ok, ta.ok, "{what}");
-                    assert_eq!(top.to_bits(), ta.max_speed.to_bits(), "{what}");
-                    // (Particles past the batch are untouched by both.)
-                    same_bits(&a, &b, &dx, &dx_b, &what);
-                    cases += 1;
-                    if !ok && nan_lane.is_none() {
-                        inverted += 1;
+            for law in LAWS {
+                for walls in [false, true] {
+                    let ctx = setup.ctx(alpha, law, walls);
+                    for (two_step, moves, moves_kept) in [
+                        (true, true, false),
+                        (true, false, false),
+                        (false, false, true),
+                        (false, false, false),
+                    ] {
+                        let mut rooms = (Room::new(), Room::new());
+                        for (steep, max0, nan_lane, width) in VARIANTS {
+                            let slot = rng.below(2);
+                            let nd = nodes::<D, N>(&mut rng, steep, slot);
+                            let m = StressMode {
+                                slot,
+                                dt: 1e-3,
+                                two_step,
+                                moves,
+                                moves_kept,
+                                speed: true,
+                            };
+                            let what = format!(
+                                "{alpha:?}, two-step {two_step}, moves {moves}/{moves_kept}, steep {steep}, max {max0}"
+                            );
+                            let case = (&nd, max0, nan_lane, width);
+                            let pass = Pass::Stress(&m);
+                            compare(
+                                &ctx, &mut rng, law, walls, case, pass, &mut rooms, &mut cover,
+                                &what,
+                            );
+                        }
                     }
                 }
             }
         }
-        assert_eq!(cases, 160);
-        // The comparison covered inverted states, not only physical ones.
-        assert!(inverted >= 8, "{inverted} cases inverted a particle");
+        assert_eq!(cover.cases, 4 * 4 * 2 * 4 * VARIANTS.len());
+        // The comparison covered inverted states and walls that clipped.
+        assert!(
+            cover.inverted >= 16,
+            "{} cases inverted a particle",
+            cover.inverted
+        );
+        assert!(
+            cover.clipped >= 16,
+            "{} cases clipped at a wall",
+            cover.clipped
+        );
+    }
+
+    /// The gather gives the same bits whatever the batch width: velocities (FLIP,
+    /// PIC, a blend and XPIC), clipped at walls, the external work (gravity, a kept
+    /// body force, the walls'), volumes, deformation gradients, stresses, positions or
+    /// kept increments, the physical-state flag and the signal speed, for each α,
+    /// one- and two-step schemes (the latter moving with the reconstruction), with and
+    /// without the stress update, moving now or keeping the increment, each law, with
+    /// and without walls, and the [`VARIANTS`].
+    #[test]
+    fn gather_is_the_same_at_every_width() {
+        gather_widths::<2, 4>(12);
+    }
+
+    /// [`gather_is_the_same_at_every_width`] in 3D.
+    #[test]
+    fn gather_is_the_same_at_every_width_in_3d() {
+        gather_widths::<3, 8>(14);
+    }
+
+    fn gather_widths<const D: usize, const N: usize>(seed: u64) {
+        let setup = Setup::<D>::new();
+        let mut rng = Rng::new(seed);
+        let mut cover = Cover::default();
+        for alpha in ALPHAS {
+            for law in LAWS {
+                for walls in [false, true] {
+                    let ctx = setup.ctx(alpha, law, walls);
+                    for (two_step, recon, stress, move_now, flip, xpic) in [
+                        (true, true, true, true, 1.0, false),
+                        (true, true, false, true, 0.0, false),
+                        (true, false, true, true, 0.95, false),
+                        (false, false, true, true, 1.0, false),
+                        (false, false, true, false, 0.5, false),
+                        (false, false, false, false, 1.0, true),
+                    ] {
+                        let mut rooms = (Room::new(), Room::new());
+                        for (steep, max0, nan_lane, width) in VARIANTS {
+                            let nd = nodes::<D, N>(&mut rng, steep, UPDATED);
+                            let m = GatherMode {
+                                dt: 1e-3,
+                                flip,
+                                stress,
+                                move_now,
+                                two_step,
+                                recon,
+                                speed: true,
+                            };
+                            let what = format!(
+                                "{alpha:?}, two-step {two_step}, recon {recon}, stress {stress}, move now {move_now}, flip {flip}, XPIC {xpic}, steep {steep}, max {max0}"
+                            );
+                            let case = (&nd, max0, nan_lane, width);
+                            let pass = Pass::Gather(&m, xpic);
+                            compare(
+                                &ctx, &mut rng, law, walls, case, pass, &mut rooms, &mut cover,
+                                &what,
+                            );
+                        }
+                    }
+                }
+            }
+        }
+        assert_eq!(cover.cases, 4 * 4 * 2 * 6 * VARIANTS.len());
+        assert!(
+            cover.inverted >= 16,
+            "{} cases inverted a particle",
+            cover.inverted
+        );
     }
 
     /// A pass's signal speed (`kernel::signal_speeds`: eight particles at a time,
@@ -1080,7 +1344,7 @@ mod tests {
     #[test]
     fn signal_speeds_are_the_particle_by_particle_maximum() {
         let setup = Setup::<2>::new();
-        let ctx = setup.ctx(Alpha::ProductOfShapes);
+        let ctx = setup.ctx(Alpha::ProductOfShapes, Law::Hyper { vol: true }, false);
         let mut rng = Rng::new(31);
         let mut p = Particles::<2>::default();
         let n = 3 * LANES + 5;
@@ -1108,7 +1372,7 @@ mod tests {
         let all = one_by_one(0.0);
         let (mut below, mut above) = (0, 0);
         for max in [0.0, 0.5 * all, 0.999 * all, 2.0 * all] {
-            let lanes = super::super::signal_speeds(&ctx, &s, max);
+            let lanes = signal_speeds(&ctx, &s, max);
             assert_eq!(lanes.to_bits(), one_by_one(max).to_bits(), "from {max}");
             below += usize::from(lanes > max);
             above += usize::from(lanes == max);
@@ -1117,15 +1381,16 @@ mod tests {
         assert_eq!((below, above), (3, 1));
     }
 
-    /// A pass tests its lanes' marks once, after its last batch ([`batch`] adds each
+    /// A pass tests its lanes' marks once, after its last batch (`by_runs` adds each
     /// batch's into running ones): a batch with an unphysical lane (a NaN in `F`, or
     /// a particle inverted by a steep gradient) leaves them unphysical through
-    /// physical batches of either width after it, and physical batches alone leave
+    /// physical batches of any width after it, and physical batches alone leave
     /// them physical.
     #[test]
     fn marks_keep_a_failure_through_later_batches() {
         let setup = Setup::<2>::new();
-        let ctx = setup.ctx(Alpha::ProductOfShapes);
+        let law = Law::Hyper { vol: true };
+        let ctx = setup.ctx(Alpha::ProductOfShapes, law, false);
         let mut rng = Rng::new(21);
         let m = StressMode {
             slot: 0,
@@ -1135,28 +1400,31 @@ mod tests {
             moves_kept: false,
             speed: false,
         };
+        let run = run::<2, 4>(false);
         let mut pass = |marks: &mut [f64; LANES], nan_lane, steep, width| {
             let nd = nodes::<2, 4>(&mut rng, steep, 0);
-            let (mut p, cell) = particles::<2>(&mut rng, nan_lane);
+            let (mut p, cell) = particles::<2>(&mut rng, law, nan_lane);
             let mut dx = vec![Vector::<2>::zeros(); LANES];
             let tile = vec![0u32; LANES];
             let mut s = slices(&mut p, &mut dx, &tile, &[]);
             let mut t = Tally::ZERO;
+            let (pass, room) = (Pass::Stress(&m), &mut Room::new());
             batch(
                 &ctx,
                 &mut s,
                 0,
                 width,
                 &cell,
+                &run,
                 &nd,
-                Pass::Stress(&m),
-                &mut Room::new(),
-                &mut t,
+                pass,
+                room,
+                &mut t.work,
                 marks,
             );
         };
         let mut marks = [0.0; LANES];
-        for width in [LANES, HALF, QUARTER, LANES] {
+        for width in [LANES, HALF, QUARTER, 1, LANES] {
             pass(&mut marks, None, 1.0, width);
         }
         assert!(physical(&marks));
@@ -1164,6 +1432,7 @@ mod tests {
             (Some(3), 1.0, LANES),
             (None, 1e5, HALF),
             (Some(1), 1.0, QUARTER),
+            (Some(0), 1.0, 1),
         ] {
             let mut marks = [0.0; LANES];
             pass(&mut marks, nan_lane, steep, width);
@@ -1171,116 +1440,10 @@ mod tests {
                 !physical(&marks),
                 "NaN {nan_lane:?}, steep {steep}: the batch itself"
             );
-            for width in [HALF, LANES, HALF] {
+            for width in [HALF, LANES, 1, HALF] {
                 pass(&mut marks, None, 1.0, width);
             }
             assert!(!physical(&marks), "NaN {nan_lane:?}, steep {steep}");
         }
-    }
-
-    /// The gather's lanes give its scalar body's bits: velocities, the external
-    /// work (gravity, and a kept body force), volumes, deformation gradients,
-    /// positions or kept increments, the physical-state flag and the signal
-    /// speed, for each α, one- and two-step schemes (the latter moving with the
-    /// reconstruction), with and without the stress update, moving now or keeping
-    /// the increment, FLIP, PIC and a blend, and the [`VARIANTS`].
-    #[test]
-    fn gather_lanes_match_the_scalar_gather() {
-        gather_lanes_match::<2, 4>(12);
-    }
-
-    /// [`gather_lanes_match_the_scalar_gather`] in 3D.
-    #[test]
-    fn gather_lanes_match_the_scalar_gather_in_3d() {
-        gather_lanes_match::<3, 8>(14);
-    }
-
-    fn gather_lanes_match<const D: usize, const N: usize>(seed: u64) {
-        let setup = Setup::<D>::new();
-        let mut rng = Rng::new(seed);
-        let (mut cases, mut inverted) = (0, 0);
-        for alpha in ALPHAS {
-            let ctx = setup.ctx(alpha);
-            for (two_step, recon, stress, move_now, flip) in [
-                (true, true, true, true, 1.0),
-                (true, true, false, true, 0.0),
-                (true, false, true, true, 0.95),
-                (false, false, true, true, 1.0),
-                (false, false, true, false, 0.5),
-            ] {
-                // One room for the pass's batches, as in `stress_lanes_match`.
-                let mut room = Room::new();
-                for (steep, max0, nan_lane, width) in VARIANTS {
-                    let nd = nodes::<D, N>(&mut rng, steep, UPDATED);
-                    let m = GatherMode {
-                        dt: 1e-3,
-                        flip,
-                        stress,
-                        move_now,
-                        two_step,
-                        recon,
-                        speed: true,
-                    };
-                    let (mut a, cell) = particles::<D>(&mut rng, nan_lane);
-                    let mut b = a.clone();
-                    let mut dx = vec![Vector::<D>::zeros(); LANES];
-                    let mut dx_b = dx.clone();
-                    // A kept body force in half the cases, gravity alone in the others.
-                    let accel: Vec<Vector<D>> = if cases % 2 == 0 {
-                        (0..LANES)
-                            .map(|_| {
-                                Vector::<D>::from_fn(|a, _| {
-                                    rng.f64() - if a == 1 { 10.0 } else { 0.0 }
-                                })
-                            })
-                            .collect()
-                    } else {
-                        Vec::new()
-                    };
-                    let tile = vec![0u32; LANES];
-                    let mut sa = slices(&mut a, &mut dx, &tile, &accel);
-                    let mut ta = Tally {
-                        max_speed: max0,
-                        work: 0.25,
-                        ..Tally::ZERO
-                    };
-                    for p in 0..width {
-                        let (k, _, _): (Kern<D, N>, _, _) = ctx.weights::<2, N>(
-                            &sa.parts.x[p],
-                            None,
-                            &ctx.local(&sa.parts.x[p], &cell),
-                        );
-                        gather_one(&ctx, &mut sa, p, &k, &nd, None, &m, &mut ta);
-                    }
-                    ta.max_speed = (0..width).fold(ta.max_speed, |v, p| speed_one(&ctx, &sa, p, v));
-                    let mut sb = slices(&mut b, &mut dx_b, &tile, &accel);
-                    let mut work = 0.25;
-                    let (ok, top) = one_batch(
-                        &ctx,
-                        &mut sb,
-                        width,
-                        &cell,
-                        &nd,
-                        Pass::Gather(&m),
-                        &mut room,
-                        max0,
-                        &mut work,
-                    );
-                    let what = format!(
-                        "{width} lanes, {alpha:?}, two-step {two_step}, recon {recon}, stress {stress}, move now {move_now}, flip {flip}, steep {steep}, max {max0}, NaN {nan_lane:?}"
-                    );
-                    assert_eq!(ok, ta.ok, "{what}");
-                    assert_eq!(top.to_bits(), ta.max_speed.to_bits(), "{what}");
-                    assert_eq!(work.to_bits(), ta.work.to_bits(), "work: {what}");
-                    same_bits(&a, &b, &dx, &dx_b, &what);
-                    cases += 1;
-                    if !ok && nan_lane.is_none() {
-                        inverted += 1;
-                    }
-                }
-            }
-        }
-        assert_eq!(cases, 200);
-        assert!(inverted >= 8, "{inverted} cases inverted a particle");
     }
 }

@@ -213,6 +213,16 @@ impl<const D: usize, const NA: usize, const N: usize> Run<D, NA, N> {
     }
 
     /// Whether any of the run's nodes lies on a grid face.
+    /// A run whose nodes lie on the walls `sides` ([`Ctx::node_sides`]), for tests.
+    #[cfg(test)]
+    pub fn with_sides(sides: [[i32; NA]; D]) -> Self {
+        Run {
+            at_wall: sides.iter().flatten().any(|&s| s != 0),
+            sides,
+            ..Self::new()
+        }
+    }
+
     pub fn at_wall(&self) -> bool {
         self.at_wall
     }
@@ -269,164 +279,9 @@ impl<const D: usize, const NA: usize, const N: usize> Run<D, NA, N> {
     }
 }
 
-/// The nodal `L̄` of a two-step scheme interpolated at a particle, shared by its
-/// velocity gradient and the velocity it moves with: `all = Σ_n S_n L̄_n`, and per
-/// column `b` the part of that sum from the nodes on the upper side of the cell along
-/// axis `b`, `upper[a][b] = Σ_{n: o_b(n) = 1} S_n L̄_n[a][b]`. Zero for one-step schemes.
-pub(crate) struct LbarAt<const D: usize> {
-    pub all: [[f64; D]; D],
-    pub upper: [[f64; D]; D],
-}
-
-/// [`LbarAt`] of a particle with weights `k` over its nodes' data `nd`.
-#[inline(always)]
-pub(crate) fn lbar_at<const D: usize, const N: usize>(
-    k: &Kern<D, N>,
-    nd: &NodeData<D, N>,
-    two: bool,
-) -> LbarAt<D> {
-    let mut lb = LbarAt {
-        all: [[0.0; D]; D],
-        upper: [[0.0; D]; D],
-    };
-    if two {
-        for a in 0..D {
-            for b in 0..D {
-                // The lower and the upper side's sums, two independent chains.
-                let (mut lower, mut upper) = (0.0, 0.0);
-                for n in 0..N {
-                    let t = k.s[n] * nd.lb[a][b][n];
-                    if (n >> b) & 1 == 1 {
-                        upper += t;
-                    } else {
-                        lower += t;
-                    }
-                }
-                lb.all[a][b] = lower + upper;
-                lb.upper[a][b] = upper;
-            }
-        }
-    }
-    lb
-}
-
-/// The velocity two-step schemes move a particle with: the nodal linear
-/// reconstructions `v̄_j + L̄_j (x − x_j)` blended by the shape functions,
-/// `u(x) = Σ_j S_j(x) (v̄_j + L̄_j (x − x_j))`. Exact for linear velocity fields, like
-/// the grid interpolation `Σ_i S_i v_i`, but built from the same nodal averages as the
-/// particle's velocity gradient, so the particles separate only as fast as their
-/// deformation gradients register (README, "The schemes"). Next to a wall the
-/// reconstruction of an interior node, carried to the wall by `L̄_j`, need not vanish
-/// on it, while the grid velocity of slot `slot` does (the wall's nodes are held): the
-/// velocity blends from `u` to the grid interpolation `Σ_i S_i v_i` with the particle's
-/// shape weight on the wall's nodes, all components at a fixed wall, the normal one at
-/// a slip wall. Still continuous and exact for linear fields that satisfy the walls; on
-/// the wall it is the grid's. (Unblended, particles squeezed into a cantilever's clamp
-/// corner left the grid through the clamp, and the clamped beam slid off the clamp.)
-/// `nd` holds the particle's nodes' data ([`NodeData`]).
-#[inline(always)]
-pub(crate) fn moving_velocity<const D: usize, const N: usize>(
-    ctx: &Ctx<'_, D>,
-    k: &Kern<D, N>,
-    nd: &NodeData<D, N>,
-    lb: &LbarAt<D>,
-    slot: usize,
-) -> Vector<D> {
-    // Node n's offset from the particle is (ξ − o_n) h, so
-    // Σ_n S_n L̄_n (ξ − o_n) h = (Σ_n S_n L̄_n) ξ h − Σ_{n: o_b(n) = 1} S_n L̄_n h_b:
-    // the interpolated L̄ the velocity gradient needs anyway, and half its terms again.
-    let h = &ctx.geom.h;
-    let mut u = Vector::<D>::zeros();
-    for a in 0..D {
-        let mut x = 0.0;
-        for n in 0..N {
-            x += k.s[n] * nd.vb[a][n];
-        }
-        for b in 0..D {
-            x += (lb.all[a][b] * k.frac[b] - lb.upper[a][b]) * h[b];
-        }
-        u[a] = x;
-    }
-    if ctx.walls && k.ends.iter().flatten().any(|&e| e) {
-        // The share of the particle's shape weight on wall nodes: on fixed faces (all
-        // components) and on slip faces normal to each axis (that component).
-        let mut keep_fixed = 1.0;
-        let mut keep = [1.0; D];
-        for a in 0..D {
-            for side in 0..2 {
-                if !k.ends[a][side] {
-                    continue;
-                }
-                let on_face = if side == 0 {
-                    1.0 - k.frac[a]
-                } else {
-                    k.frac[a]
-                };
-                match ctx.faces[a][side] {
-                    Face::Fixed => keep_fixed *= 1.0 - on_face,
-                    Face::Slip => keep[a] *= 1.0 - on_face,
-                    Face::Free | Face::Periodic => {}
-                }
-            }
-        }
-        if keep_fixed < 1.0 || keep.iter().any(|&k| k < 1.0) {
-            for a in 0..D {
-                let c = keep_fixed * keep[a];
-                if c < 1.0 {
-                    let mut vn = 0.0;
-                    for n in 0..N {
-                        vn += k.s[n] * nd.v[slot][a][n];
-                    }
-                    u[a] = c * u[a] + (1.0 - c) * vn;
-                }
-            }
-        }
-    }
-    u
-}
-
-/// A particle that touches a slip wall's node may move into that wall no faster than
-/// the velocity it moves with, `vm` (which vanishes at the wall): the normal component
-/// of its velocity `v` is clipped to `vm`'s. Returns the kinetic energy the clip takes
-/// out (≤ 0), the wall's work.
-#[inline(always)]
-pub(crate) fn clip_at_slip_walls<const D: usize, const N: usize>(
-    ctx: &Ctx<'_, D>,
-    k: &Kern<D, N>,
-    v: &mut Vector<D>,
-    vm: &Vector<D>,
-    mass: f64,
-) -> f64 {
-    let free = *v;
-    let mut at_wall = false;
-    for a in 0..D {
-        for side in 0..2 {
-            if k.ends[a][side] && ctx.faces[a][side] == Face::Slip {
-                at_wall = true;
-                v[a] = if side == 0 {
-                    v[a].max(vm[a])
-                } else {
-                    v[a].min(vm[a])
-                };
-            }
-        }
-    }
-    // Away from walls no work, exactly (also for a velocity that is not finite, as
-    // the lanes, which take no particle at a wall, add none).
-    if !at_wall {
-        return 0.0;
-    }
-    // The wall is an external force: its impulse m (new − free) does the work
-    // m (new − free)·(new + free)/2 by the midpoint rule gravity's work uses, i.e. the
-    // kinetic energy the clip takes out. A wall at rest does no work on the continuum;
-    // this is what the discrete impact dissipates there, counted so that the balance
-    // keeps measuring the integrator.
-    0.5 * mass * (v.norm_squared() - free.norm_squared())
-}
-
-/// Velocity gradient at a particle from velocity slot `slot` and, for two-step
-/// schemes, the nodal `L̄`, read from the grid (the particle loops read their nodes'
-/// data once per run and call [`velocity_gradient_at`]).
+/// Velocity gradient at a particle with weights `k` from velocity slot `slot` and,
+/// for two-step schemes, the nodal `L̄`, read from the grid (the particle loops read
+/// their nodes' data once per run, [`lanes::Weights::velocity_gradient`]).
 #[cfg(test)]
 pub(crate) fn velocity_gradient<const D: usize, const N: usize>(
     k: &Kern<D, N>,
@@ -439,68 +294,10 @@ pub(crate) fn velocity_gradient<const D: usize, const N: usize>(
     let mut nd = NodeData::<D, N>::new();
     nd.load(idx, vel, if two { avg } else { &[] }, None);
     nd.load_differences(slot);
-    velocity_gradient_at(k, &nd, &lbar_at(k, &nd, two), slot, two)
-}
-
-/// Velocity gradient at a particle from velocity slot `slot` and, for two-step
-/// schemes, the nodal `L̄`, of its nodes' data `nd`.
-#[inline(always)]
-pub(crate) fn velocity_gradient_at<const D: usize, const N: usize>(
-    k: &Kern<D, N>,
-    nd: &NodeData<D, N>,
-    lb: &LbarAt<D>,
-    slot: usize,
-    two: bool,
-) -> Mat<D> {
-    let mut l = Mat::<D>::zeros();
-    if k.alpha != 0.0 {
-        for a in 0..D {
-            for b in 0..D {
-                let mut x = 0.0;
-                if hats::<D, N>() {
-                    // A hat's derivative along b at the lower node of a pair is minus
-                    // the upper one's (exactly: the same product with −1/h for 1/h),
-                    // so the pair enters as its velocity difference (`nd.dv`, of
-                    // `slot`).
-                    for m in 0..N / 2 {
-                        x += nd.dv[a][b][m] * k.g[b][pair(b, m).1];
-                    }
-                } else {
-                    for n in 0..N {
-                        x += nd.v[slot][a][n] * k.g[b][n];
-                    }
-                }
-                l[(a, b)] = k.alpha * x;
-            }
-        }
+    let mut room = lanes::Room::<D, N>::new();
+    room.one.one(k, false);
+    if two {
+        room.one.lbar(&nd);
     }
-    if two && k.alpha != 1.0 {
-        let c = 1.0 - k.alpha;
-        for a in 0..D {
-            for b in 0..D {
-                l[(a, b)] += c * lb.all[a][b];
-            }
-        }
-    }
-    l
-}
-
-/// At a particle with weights `k` over its nodes' data `nd`: `Σ_n S_n v_n` of the
-/// updated slot and `Σ_n S_n (v_n − v_n^old)` (the gather's and the remap's grid and
-/// FLIP velocities).
-#[inline(always)]
-pub(crate) fn interpolate<const D: usize, const N: usize>(
-    k: &Kern<D, N>,
-    nd: &NodeData<D, N>,
-) -> (Vector<D>, Vector<D>) {
-    let mut vn = Vector::<D>::zeros();
-    let mut dv = Vector::<D>::zeros();
-    for n in 0..N {
-        for a in 0..D {
-            let (v0, v1) = (nd.v[FROM_MOMENTUM][a][n], nd.v[UPDATED][a][n]);
-            vn[a] += k.s[n] * v1;
-            dv[a] += k.s[n] * (v1 - v0);
-        }
-    }
-    (vn, dv)
+    lanes::lane(&room.one.velocity_gradient(&nd, slot, two), 0)
 }
