@@ -154,34 +154,24 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
         }
     }
 
-    /// Locate the chunk's particle `p`, at `x`.
+    /// Locate the chunk's particle `p`, at `x`, by `Geom::locate` (its floor clamped
+    /// to the grid): for a particle on a bounded grid's upper face, which
+    /// [`ChunkLocator::locate`] refuses.
     #[inline(always)]
-    pub(super) fn locate(&mut self, p: usize, x: &Vector<D>) {
+    pub(super) fn locate_clamped(&mut self, p: usize, x: &Vector<D>) {
         let (c, _) = self.geom.locate(&std::array::from_fn(|a| x[a]));
         self.store(p, c);
     }
 
-    /// [`ChunkLocator::locate`] of a particle whose grid coordinates `s` (per axis
-    /// `(x − lower) / h`, as `Geom::locate` forms them) lie in the block's cells
-    /// ([`block_coordinates`]): they are then at least 0 and below the cell count,
-    /// where `Geom::locate`'s floor is the truncation and its clamp changes nothing,
-    /// so this is its cell without either (a fifth of the tile pass's instructions).
+    /// Locate the `L` particles from the chunk's `p0`, at `xs`, if all of them lie in
+    /// the block's cells `[lo, hi)` ([`block_coordinates`]); else return `false` and
+    /// store nothing. Their grid coordinates `s` (per axis `(x − lower) / h`, as
+    /// `Geom::locate` forms them) are then at least 0 and below the cell count, where
+    /// `Geom::locate`'s floor is the truncation and its clamp changes nothing, so this
+    /// is its cell without either; over `L` particles as vector operations, the same
+    /// arithmetic per lane, so the same cells and runs at every `L`.
     #[inline(always)]
-    pub(super) fn locate_inside(&mut self, p: usize, s: &[f64; D]) {
-        let mut c = [0i64; D];
-        for a in 0..D {
-            debug_assert!(s[a] >= 0.0 && s[a] < self.geom.cells[a] as f64);
-            c[a] = s[a] as i64;
-        }
-        self.store(p, c);
-    }
-
-    /// [`block_coordinates`] and [`ChunkLocator::locate_inside`] of the `L` particles
-    /// from the chunk's `p0`, at `xs`, as vector operations over them: `false`, with
-    /// nothing stored, unless all of them lie in the block `[lo, hi)`. The same
-    /// arithmetic per lane, so the same bits and runs as one at a time.
-    #[inline(always)]
-    pub(super) fn locate_lanes<const L: usize>(
+    pub(super) fn locate<const L: usize>(
         &mut self,
         p0: usize,
         xs: &[Vector<D>; L],
@@ -189,6 +179,7 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
     ) -> bool {
         let geom = self.geom;
         let mut s = [[0.0; L]; D];
+        // `&`, not `&&` or `all`: no branch per axis and lane.
         let mut inside = true;
         for a in 0..D {
             let (lower, inv_h) = (geom.lower[a], geom.inv_h[a]);
@@ -201,9 +192,9 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
         if !inside {
             return false;
         }
-        // Truncation, as `locate_inside` casts. `as` would also saturate and map NaN
-        // to 0, which per lane takes scalar compares and moves (they were half of
-        // this function); here no lane needs it.
+        // Truncation. `as` would also saturate and map NaN to 0, which per lane takes
+        // scalar compares and moves (they were half of this function); here no lane
+        // needs it.
         let mut c = [[0i64; L]; D];
         for a in 0..D {
             for l in 0..L {
@@ -272,16 +263,30 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// count.
     pub(super) fn locate_all(&mut self) {
         let chunks = self.begin_locate();
-        let geom = &self.geom;
+        let (geom, lo, hi) = (&self.geom, &self.block.cell_lo, &self.block.cell_hi);
         self.parts
             .x
             .par_chunks(LOCATE_CHUNK)
             .zip(self.cell_runs.par_iter_mut())
             .enumerate()
-            .for_each(|(k, (x, runs))| {
+            .for_each(|(k, (xs, runs))| {
                 let mut loc = ChunkLocator::new(geom, k, runs);
-                for (p, x) in x.iter().enumerate() {
-                    loc.locate(p, x);
+                // Eight at a time where all eight lie in the block's cells, else one
+                // by one (one on the grid's upper face by `Geom::locate`).
+                let mut p = 0;
+                while p < xs.len() {
+                    if let Some(batch) = xs.get(p..p + LANES) {
+                        let batch = <&[Vector<D>; LANES]>::try_from(batch).expect("a batch");
+                        if loc.locate(p, batch, (lo, hi)) {
+                            p += LANES;
+                            continue;
+                        }
+                    }
+                    let one = std::array::from_ref(&xs[p]);
+                    if !loc.locate(p, one, (lo, hi)) {
+                        loc.locate_clamped(p, &xs[p]);
+                    }
+                    p += 1;
                 }
             });
         self.cell_runs.truncate(chunks);
@@ -464,9 +469,9 @@ impl<'c, const D: usize> Solver<'c, D> {
 
 #[cfg(test)]
 mod locate_tests {
-    //! The tile pass's shortcut ([`block_coordinates`], [`ChunkLocator::locate_inside`])
+    //! The tile pass's shortcut ([`block_coordinates`], [`ChunkLocator::locate`])
     //! against what it replaced: the grid test and the block test, then
-    //! `Geom::locate` ([`ChunkLocator::locate`]).
+    //! `Geom::locate` ([`ChunkLocator::locate_clamped`]).
     use super::*;
     use decomposition::splitmix::Rng;
 
@@ -503,15 +508,15 @@ mod locate_tests {
                 let mut lb = ChunkLocator::new(&geom, 0, &mut runs_b);
                 let mut inside_count = 0;
                 for (p, x) in xs.iter().enumerate() {
-                    let (s, inside) = block_coordinates(&geom, &lo, &hi, x);
+                    let inside = block_coordinates(&geom, &lo, &hi, x).1;
                     let on_grid = (0..2).all(|a| on_grid(&geom, a, x[a]));
                     assert_eq!(inside, on_grid && in_block(&geom, &lo, &hi, x), "{x:?}");
                     if !inside {
                         continue;
                     }
                     inside_count += 1;
-                    la.locate(p, x);
-                    lb.locate_inside(p, &s);
+                    la.locate_clamped(p, x);
+                    assert!(lb.locate(p, std::array::from_ref(x), (&lo, &hi)));
                     assert_eq!(la.prev, lb.prev, "{x:?}");
                 }
                 assert!(inside_count > 1000, "{inside_count} inside");
@@ -520,8 +525,8 @@ mod locate_tests {
         }
     }
 
-    /// Eight particles at a time ([`ChunkLocator::locate_lanes`]) give what one at a
-    /// time gives ([`block_coordinates`], [`ChunkLocator::locate_inside`]): the same
+    /// Eight particles at a time ([`ChunkLocator::locate`]) give what one at a time
+    /// gives (the same at width 1, and [`block_coordinates`]): the same
     /// cells and runs, in 2D and 3D, with
     /// runs that start at any lane and span batches; and a batch with a particle
     /// outside the block (beyond a face, on the upper face, NaN) is refused whole,
@@ -562,13 +567,13 @@ mod locate_tests {
             for p0 in (0..xs.len()).step_by(LANES) {
                 let batch: &[Vector<D>; LANES] = xs[p0..p0 + LANES].try_into().unwrap();
                 let (runs, prev) = (la.runs.len(), la.prev);
-                let ok = la.locate_lanes(p0, batch, (&lo, &hi));
+                let ok = la.locate(p0, batch, (&lo, &hi));
                 let mut all = true;
                 for (l, x) in batch.iter().enumerate() {
-                    let (s, inside) = block_coordinates(&geom, &lo, &hi, x);
+                    let inside = block_coordinates(&geom, &lo, &hi, x).1;
                     all &= inside;
                     if ok {
-                        lb.locate_inside(p0 + l, &s);
+                        assert!(lb.locate(p0 + l, std::array::from_ref(x), (&lo, &hi)));
                     }
                 }
                 assert_eq!(ok, all, "batch at {p0}");

@@ -25,13 +25,9 @@ impl<'c, const D: usize> Solver<'c, D> {
                 // One particle: whether it left the block.
                 let one = |loc: &mut ChunkLocator<'_, D>, p: usize, x: &mut Vector<D>| {
                     wrap_periodic(geom, x);
-                    // In the block is on the grid: one test for both.
-                    let (s, inside) = block_coordinates(geom, lo, hi, x);
-                    // A flagged chunk is located again after the exchange.
-                    if inside {
-                        loc.locate_inside(p, &s);
-                    }
-                    !inside
+                    // In the block is on the grid: one test for both. A flagged chunk
+                    // is located again after the exchange.
+                    !loc.locate(p, std::array::from_ref(x), (lo, hi))
                 };
                 // Eight at a time where all eight stay in the block (nearly all of
                 // them), one by one where one left it and at the chunk's end.
@@ -46,7 +42,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                                 .for_each(|x| wrap_periodic(geom, x));
                         }
                         let batch = <&[Vector<D>; LANES]>::try_from(&xs[r]).unwrap();
-                        if loc.locate_lanes(p, batch, (lo, hi)) {
+                        if loc.locate(p, batch, (lo, hi)) {
                             p += LANES;
                             continue;
                         }
