@@ -47,7 +47,7 @@ PHASES = [
     (r"kernel::gather|^gather<", "gather"),
     (r"kernel::update_stress|^update_stress<", "stress update"),
     (r"relocate", "relocate"),
-    (r"wrap_and_flag|locate_all|locate_lanes|ChunkLocator|touch_runs|run_nodes|activate_tiles|slot_of_key",
+    (r"wrap_and_flag|locate_all|ChunkLocator|touch_runs|run_nodes|activate_tiles|slot_of_key",
      "tile pass"),
     (r"Solver.*::sort|::sort::|^sort<|permute", "sort"),
     (r"totals|strain_energy|errors<", "history totals"),
