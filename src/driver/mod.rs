@@ -15,9 +15,12 @@ macro_rules! say {
     }};
 }
 
+#[allow(unsafe_code)] // `_exit` after a failed write of the help text.
 pub mod cli;
+#[allow(unsafe_code)] // `xgetbv`: the OS's saved vector registers.
 pub mod cpu;
 pub mod progress;
 pub mod run;
+#[allow(unsafe_code)] // Signal handlers.
 pub mod signals;
 pub mod sweep;

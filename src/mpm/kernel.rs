@@ -30,9 +30,13 @@ use rayon::prelude::*;
 pub(crate) mod lanes;
 use lanes::{HALF, LANES, QUARTER};
 
+// The coloured passes' parallel writes: the pointers and the slab order in `colour`,
+// the scatter's writes through them.
+#[allow(unsafe_code)]
 mod colour;
 mod gather;
 mod node_data;
+#[allow(unsafe_code)]
 mod scatter;
 pub use colour::*;
 pub use gather::*;
@@ -581,8 +585,8 @@ mod tests {
         ix: SlabIndex,
     }
 
-    // SAFETY: `each` walks chunk `c`'s particles once, in order, the same every call.
-    unsafe impl SlabRuns for CellSlabs<'_> {
+    // `each` walks chunk `c`'s particles once, in order, the same every call.
+    impl SlabRuns for CellSlabs<'_> {
         fn count(&self) -> usize {
             self.cells.len()
         }

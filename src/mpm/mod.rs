@@ -4,5 +4,6 @@
 
 pub mod kernel;
 pub mod particles;
+#[allow(unsafe_code)] // Writes through `kernel::colour`'s pointers, each with its proof.
 pub mod remap;
 pub mod solver;

@@ -14,7 +14,7 @@
 //! round-off.
 
 use crate::mpm::kernel::lanes::{self, Room, Weights, HALF, LANES, QUARTER};
-use crate::mpm::kernel::{CellAt, Ctx, GridPtr, NodeData, Run, SlabOrder};
+use crate::mpm::kernel::{CellAt, Ctx, GridPtr, NodeData, RowPtr, Run, SlabOrder};
 use crate::physics::tensor::Vector;
 
 /// Read-only particle arrays of the remap.
@@ -42,20 +42,16 @@ pub struct RemapMode {
     pub record: (usize, usize),
 }
 
-/// The particle arrays the remap writes, shared by its threads.
+/// The particle arrays the remap writes, shared by its threads: each visits the
+/// particles of its slabs, and `SlabOrder::finish` lists every particle exactly once
+/// (checked), slabs are disjoint ranges of the order, and `remap_slabs` gives every
+/// slab to one thread.
 #[derive(Clone, Copy)]
 struct ParticlePtr<const D: usize> {
-    v: *mut Vector<D>,
-    dx: *mut Vector<D>,
-    len: usize,
+    v: RowPtr<Vector<D>>,
+    /// Empty unless the increment is kept.
+    dx: RowPtr<Vector<D>>,
 }
-
-// SAFETY: made in `remap` from `&mut` slices that it holds for its whole run. Each
-// particle index is visited by one thread only: `SlabOrder::finish` puts every particle
-// into `order` exactly once (a counting sort of their slabs), slabs are
-// disjoint ranges of `order`, and `remap_slabs` gives every slab to one thread.
-unsafe impl<const D: usize> Send for ParticlePtr<D> {}
-unsafe impl<const D: usize> Sync for ParticlePtr<D> {}
 
 /// External work done (gravity, body force, slip-wall clips) and whether every new
 /// velocity is finite.
@@ -92,9 +88,8 @@ pub fn remap<const D: usize, const NA: usize, const N: usize>(
 ) -> RemapTally {
     assert!(v.len() == parts.x.len() && (!m.keep_dx || dx.len() == v.len()));
     let pp = ParticlePtr {
-        v: v.as_mut_ptr(),
-        dx: dx.as_mut_ptr(),
-        len: v.len(),
+        v: RowPtr::new(v),
+        dx: RowPtr::new(if m.keep_dx { dx } else { &mut [] }),
     };
     slabs.check_reach::<NA>();
     let grid = GridPtr::new(mom);
@@ -169,7 +164,6 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
     let mut i = 0;
     while i < order.len() {
         let p = order[i] as usize;
-        assert!(p < pp.len, "slab order names particle {p} of {}", pp.len);
         let c = *cell.of(ctx, parts.tile[p]);
         let mut enter = |run: &mut Run<D, NA, N>, below: [usize; D]| {
             if run.is_new(parts.tile[p], below) {
@@ -303,10 +297,9 @@ fn remap_batch<const D: usize, const N: usize, const B: usize>(
     }
     for (l, &p) in ps.iter().enumerate() {
         let p = p as usize;
-        assert!(p < pp.len, "slab order names particle {p} of {}", pp.len);
-        // SAFETY: p is in bounds (asserted) and visited by this thread only (see
-        // `ParticlePtr`); no other reference to v[p] or dx[p] lives meanwhile.
-        let vp = unsafe { &mut *pp.v.add(p) };
+        // SAFETY: p is visited by this thread only (see `ParticlePtr`); no other
+        // reference to v[p] or dx[p] lives meanwhile.
+        let vp = unsafe { pp.v.row(p) };
         let old = *vp;
         let mass = parts.mass.get(p);
         let mut new = Vector::<D>::zeros();
@@ -323,8 +316,8 @@ fn remap_batch<const D: usize, const N: usize, const B: usize>(
         *vp = new;
         t.ok &= new.iter().all(|x| x.is_finite());
         if m.keep_dx {
-            // SAFETY: as for v[p]; dx has the particles' length when kept (asserted).
-            unsafe { *pp.dx.add(p) = vnl * m.dt };
+            // SAFETY: as for v[p].
+            unsafe { *pp.dx.row(p) = vnl * m.dt };
         }
         let mv = new * mass;
         for a in 0..D {
@@ -463,9 +456,8 @@ mod tests {
                         let (mut dxa, mut dxb) =
                             (vec![Vector::<D>::zeros(); n], vec![Vector::<D>::zeros(); n]);
                         let ptr = |v: &mut Vec<Vector<D>>, dx: &mut Vec<Vector<D>>| ParticlePtr {
-                            v: v.as_mut_ptr(),
-                            dx: dx.as_mut_ptr(),
-                            len: n,
+                            v: RowPtr::new(v),
+                            dx: RowPtr::new(dx),
                         };
                         let mut ta = RemapTally {
                             ok: true,

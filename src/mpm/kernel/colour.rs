@@ -74,16 +74,12 @@ impl SlabIndex {
 /// so the order needs no slab stored per particle (4 bytes each).
 ///
 /// `each(c, …)`'s runs must cover chunk `c`'s particles (`c · CHUNK ..`, up to
-/// `count`) exactly, in order: [`SlabOrder::finish`] checks that the order it builds
-/// lists every particle exactly once, which the parallel writes of the scatter and
-/// the remap rely on, and stops the run otherwise.
-///
-/// # Safety
-///
-/// [`SlabOrder::finish`] writes the order from several threads where a first call of
-/// `each` counted runs: `each` must give the same runs every time it is called, so
-/// that each chunk writes only the places it counted.
-pub unsafe trait SlabRuns: Sync {
+/// `count`) exactly, in order, the same runs every call. [`SlabOrder::finish`] checks
+/// what its soundness needs whatever an implementation does: its parallel writes stay
+/// within the places each chunk counted for each slab (else it stops the run), and the
+/// order it builds lists every particle exactly once, which the parallel writes of the
+/// scatter and the remap rely on.
+pub trait SlabRuns: Sync {
     /// The particle count.
     fn count(&self) -> usize;
 
@@ -104,6 +100,8 @@ pub struct SlabOrder {
     /// Per chunk of [`SlabOrder::CHUNK`] particles, its particles per slab (chunk-major),
     /// then where its first particle of each slab goes in `order`.
     counts: Vec<usize>,
+    /// Per chunk and slab, the end of its places in `order`.
+    ends: Vec<usize>,
     /// `below[s]`: the particles of the slabs `s − 2, s − 4, …` (same colour, below).
     below: Vec<usize>,
     /// Owned cells along the last axis, `[lo, hi)`, in slabs of `thick` cells.
@@ -118,13 +116,12 @@ pub struct SlabOrder {
 #[derive(Clone, Copy)]
 struct OrderPtr(*mut u32, usize);
 
-// SAFETY: made in `SlabOrder::finish` from `&mut self.order`, held for its whole use;
-// every write is bounds-checked (`OrderPtr::write`).
-// Chunk `c` writes `order[counts[c][s] ..]` for each of its particles in slab `s`, as
-// many as it counted there (its runs are the same both times, `SlabRuns`'s contract); the offsets are an exclusive prefix sum over (slab, chunk)
-// of those counts, so the ranges of different (chunk, slab) pairs are disjoint and lie
-// within `order` (whose length is their total). No two threads
-// write one element and no element is read while they run.
+// SAFETY: made in `SlabOrder::count_in_chunks` from `&mut self.order`, held for its
+// whole use; every write is bounds-checked (`OrderPtr::write`). Chunk `c` writes its
+// particles of slab `s` into `order[counts[c][s] .. ends[c][s]]`, checked per run; the
+// ranges are an exclusive prefix sum over (slab, chunk) of the counts, so those of
+// different (chunk, slab) pairs are disjoint. No two threads write one element and no
+// element is read while they run.
 unsafe impl Send for OrderPtr {}
 
 unsafe impl Sync for OrderPtr {}
@@ -155,6 +152,7 @@ impl SlabOrder {
             start: vec![0],
             order: Vec::new(),
             counts: Vec::new(),
+            ends: Vec::new(),
             below: vec![0, 0],
             lo: 0,
             hi: 0,
@@ -302,15 +300,19 @@ impl SlabOrder {
         for s in 0..nslab {
             self.start[s + 1] += self.start[s];
         }
+        self.ends.clear();
+        self.ends.resize(nchunk * nslab, 0);
         for c in 0..nchunk {
-            let (next, row) = (
+            let (next, row, ends) = (
                 &mut self.start[..nslab],
                 &mut self.counts[c * nslab..][..nslab],
+                &mut self.ends[c * nslab..][..nslab],
             );
-            for (k, at) in row.iter_mut().zip(next.iter_mut()) {
+            for ((k, at), end) in row.iter_mut().zip(next.iter_mut()).zip(ends) {
                 let count = *k;
                 *k = *at;
                 *at += count;
+                *end = *at;
             }
         }
         let total = self.start[nslab];
@@ -325,16 +327,21 @@ impl SlabOrder {
         let out = OrderPtr(self.order.as_mut_ptr(), self.order.len());
         self.counts
             .par_chunks_mut(nslab)
+            .zip(self.ends.par_chunks(nslab))
             .enumerate()
-            .for_each(|(c, cursor)| {
+            .for_each(|(c, (cursor, ends))| {
                 runs.each(c, |s, run| {
                     // In a local, not through `cursor`, which the writes might alias
                     // as far as the compiler knows.
                     let mut k = cursor[s as usize];
+                    assert!(
+                        k + run.len() <= ends[s as usize],
+                        "a chunk's runs differ from those it counted"
+                    );
                     for p in run {
                         // SAFETY: see `OrderPtr`: `k` stays within this chunk's range
-                        // for slab `s`, which lies in `order` and no other thread
-                        // writes.
+                        // for slab `s` (checked above), which lies in `order` and no
+                        // other thread writes.
                         unsafe { out.write(k, p as u32) };
                         k += 1;
                     }
@@ -421,6 +428,44 @@ impl GridPtr {
     }
 }
 
+/// A particle array that the remap's threads write, each the particles of its own
+/// slabs (the slab order lists every particle once and gives each slab to one task).
+#[derive(Clone, Copy)]
+pub(crate) struct RowPtr<T> {
+    ptr: *mut T,
+    len: usize,
+}
+
+impl<T> RowPtr<T> {
+    pub(crate) fn new(rows: &mut [T]) -> Self {
+        RowPtr {
+            ptr: rows.as_mut_ptr(),
+            len: rows.len(),
+        }
+    }
+
+    /// Row `p` (bounds checked).
+    ///
+    /// # Safety
+    /// The array the pointer was made from is still borrowed exclusively by the
+    /// caller's caller, and no other thread reads or writes row `p` while the
+    /// reference lives.
+    #[inline(always)]
+    pub(crate) unsafe fn row<'a>(self, p: usize) -> &'a mut T {
+        assert!(p < self.len, "particle {p} of {}", self.len);
+        // SAFETY: in bounds (checked above); exclusive by the caller's contract.
+        unsafe { &mut *self.ptr.add(p) }
+    }
+}
+
+// SAFETY: a `RowPtr` is made from a `&mut [T]` that its maker holds for the whole
+// parallel pass, and the threads given copies touch disjoint rows (the callers'
+// contract of `RowPtr::row`): sharing it is sharing disjoint parts of an exclusively
+// borrowed array, as sending `&mut` to them would be.
+unsafe impl<T: Send> Send for RowPtr<T> {}
+
+unsafe impl<T: Send> Sync for RowPtr<T> {}
+
 /// Ask for the cache lines of `field[at..at + width]` ahead of their use: a hint, no
 /// access (a range outside the field is never touched).
 #[inline(always)]
@@ -500,8 +545,7 @@ mod tests {
     /// Runs that list one particle twice (and so another never).
     struct Twice;
 
-    // SAFETY: `each` gives the same runs every call.
-    unsafe impl SlabRuns for Twice {
+    impl SlabRuns for Twice {
         fn count(&self) -> usize {
             3
         }
@@ -533,8 +577,7 @@ mod tests {
     #[test]
     fn scratch_empties_the_order() {
         struct One;
-        // SAFETY: `each` gives the same runs every call.
-        unsafe impl SlabRuns for One {
+        impl SlabRuns for One {
             fn count(&self) -> usize {
                 5
             }
@@ -549,5 +592,27 @@ mod tests {
         o.lend_scratch().push(7);
         assert_eq!(o.slabs(), 0);
         assert_eq!(o.split(0, 0), None);
+    }
+
+    /// Runs that change between the count and the placing (the parallel path: two
+    /// chunks, two slabs): the first call puts every particle in slab 0, later ones
+    /// in slab 1, so slab 1's writes would run past the places counted for it.
+    #[test]
+    #[should_panic(expected = "a chunk's runs differ from those it counted")]
+    fn runs_that_change_between_count_and_placing_are_refused() {
+        struct Shifty(std::sync::atomic::AtomicUsize);
+        impl SlabRuns for Shifty {
+            fn count(&self) -> usize {
+                2 * SlabOrder::CHUNK
+            }
+            fn each(&self, c: usize, mut f: impl FnMut(u32, std::ops::Range<usize>)) {
+                let calls = self.0.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let s = u32::from(calls >= 2);
+                f(s, c * SlabOrder::CHUNK..(c + 1) * SlabOrder::CHUNK);
+            }
+        }
+        let mut o = SlabOrder::new();
+        o.begin(0, 2, 1);
+        o.finish(&Shifty(std::sync::atomic::AtomicUsize::new(0)));
     }
 }

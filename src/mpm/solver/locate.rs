@@ -122,10 +122,10 @@ pub(super) struct RunSlabs<'a, const D: usize> {
 
 const _: () = assert!(LOCATE_CHUNK == kernel::SlabOrder::CHUNK);
 
-// SAFETY: `each` only reads the runs, which it borrows: the same every call. (They
+// `each` only reads the runs, which it borrows: the same every call. (They
 // cover the chunk: its first particle starts a run, later ones start at increasing
 // particles within it (`ChunkLocator`), and run k ends where run k + 1 starts.)
-unsafe impl<const D: usize> kernel::SlabRuns for RunSlabs<'_, D> {
+impl<const D: usize> kernel::SlabRuns for RunSlabs<'_, D> {
     fn count(&self) -> usize {
         self.count
     }
@@ -192,16 +192,12 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
         if !inside {
             return false;
         }
-        // Truncation. `as` would also saturate and map NaN to 0, which per lane takes
-        // scalar compares and moves (they were half of this function); here no lane
-        // needs it.
+        // Truncation: every lane passed `lo[a] <= s < hi[a]` (a NaN fails it), so `s`
+        // is finite and in range, and `as` truncates.
         let mut c = [[0i64; L]; D];
         for a in 0..D {
             for l in 0..L {
-                // SAFETY: every lane passed `lo[a] <= s < hi[a]` above (a NaN fails
-                // it), so `s` is finite and truncates to an integer in `[0, hi[a])`,
-                // which an i64 holds: `to_int_unchecked`'s condition.
-                c[a][l] = unsafe { s[a][l].to_int_unchecked::<i64>() };
+                c[a][l] = s[a][l] as i64;
             }
         }
         // A run starts where a lane's cell differs from the one before it: a bit per
