@@ -62,6 +62,13 @@ pub struct RemapTally {
 }
 
 impl RemapTally {
+    fn zero() -> Self {
+        RemapTally {
+            ok: true,
+            work: 0.0,
+        }
+    }
+
     fn join(a: Self, b: Self) -> Self {
         RemapTally {
             ok: a.ok && b.ok,
@@ -93,17 +100,8 @@ pub fn remap<const D: usize, const NA: usize, const N: usize>(
     };
     slabs.check_reach::<NA>();
     let grid = GridPtr::new(mom);
-    let ns = slabs.slabs();
-    let mut t = RemapTally {
-        ok: true,
-        work: 0.0,
-    };
-    for colour in 0..2.min(ns) {
-        let count = (ns - colour).div_ceil(2);
-        let c = remap_slabs::<D, NA, N>(ctx, parts, pp, slabs, vel, grid, colour, count, m);
-        t = RemapTally::join(t, c);
-    }
-    t
+    let slab = |order: &[u32]| remap_slab::<D, NA, N>(ctx, parts, pp, order, vel, grid, m);
+    slabs.for_each_slab(&RemapTally::zero, &slab, &RemapTally::join)
 }
 
 /// How many of the particles `order` names, from its first, the remap takes at once:
@@ -120,35 +118,18 @@ fn run_width(tile: &[u32], order: &[u32]) -> usize {
         .unwrap_or(1)
 }
 
-#[allow(clippy::too_many_arguments)]
-fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
+/// The remap of one slab's particles `order`: their velocities, and their momentum
+/// into the records behind `grid`.
+fn remap_slab<const D: usize, const NA: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
     parts: &RemapParts<'_, D>,
     pp: ParticlePtr<D>,
-    slabs: &SlabOrder,
+    order: &[u32],
     vel: &[f64],
     grid: GridPtr,
-    first: usize,
-    count: usize,
     m: RemapMode,
 ) -> RemapTally {
-    let mut t = RemapTally {
-        ok: true,
-        work: 0.0,
-    };
-    if count > 1 {
-        let Some(half) = slabs.split(first, count) else {
-            return t;
-        };
-        let (a, b) = rayon::join(
-            || remap_slabs::<D, NA, N>(ctx, parts, pp, slabs, vel, grid, first, half, m),
-            || {
-                let rest = count - half;
-                remap_slabs::<D, NA, N>(ctx, parts, pp, slabs, vel, grid, first + 2 * half, rest, m)
-            },
-        );
-        return RemapTally::join(a, b);
-    }
+    let mut t = RemapTally::zero();
     // Particles sorted by cell share their nodes in runs: the nodes' velocities are
     // read, and their momentum sums added into the grid, once per run.
     let mut nd = NodeData::<D, N>::new();
@@ -156,7 +137,6 @@ fn remap_slabs<const D: usize, const NA: usize, const N: usize>(
     let mut run = Run::<D, NA, N>::new();
     let mut cell = CellAt::<D>::new();
     let mut room = Room::<D, N>::new();
-    let order = slabs.slab(first);
     // Hat functions: up to eight particles of a run at a time (`kernel::lanes`; in 3D
     // too: unlike the stress pass, the remap's lanes are few numbers, the nodes'
     // weights and two interpolated velocities, and fit the registers). GIMP's: one at

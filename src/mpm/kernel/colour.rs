@@ -354,6 +354,49 @@ impl SlabOrder {
         self.start.len() - 1
     }
 
+    /// `f` over the particles of every slab, colour by colour: first the slabs
+    /// `0, 2, 4, …`, then `1, 3, …`, the slabs of one colour in parallel (never
+    /// sharing a node, [`slab_thickness`]). The slabs of a colour are halved where they
+    /// hold half of their particles ([`SlabOrder::split`]), so the same slabs go
+    /// together whatever the thread count, and their results are joined by `join` in
+    /// that fixed tree, from `zero()`: the same sums every run.
+    pub fn for_each_slab<T: Send>(
+        &self,
+        zero: &(impl Fn() -> T + Sync),
+        f: &(impl Fn(&[u32]) -> T + Sync),
+        join: &(impl Fn(T, T) -> T + Sync),
+    ) -> T {
+        let ns = self.slabs();
+        let mut t = zero();
+        for colour in 0..2.min(ns) {
+            let count = (ns - colour).div_ceil(2);
+            t = join(t, self.same_colour(colour, count, zero, f, join));
+        }
+        t
+    }
+
+    /// [`SlabOrder::for_each_slab`] over the slabs `first, first + 2, …` (`count`).
+    fn same_colour<T: Send>(
+        &self,
+        first: usize,
+        count: usize,
+        zero: &(impl Fn() -> T + Sync),
+        f: &(impl Fn(&[u32]) -> T + Sync),
+        join: &(impl Fn(T, T) -> T + Sync),
+    ) -> T {
+        if count == 1 {
+            return f(self.slab(first));
+        }
+        let Some(half) = self.split(first, count) else {
+            return zero();
+        };
+        let (a, b) = rayon::join(
+            || self.same_colour(first, half, zero, f, join),
+            || self.same_colour(first + 2 * half, count - half, zero, f, join),
+        );
+        join(a, b)
+    }
+
     /// How the same-coloured slabs `first, first + 2, …` (`count` of them, at least 2)
     /// split between two tasks: `None` if they hold no particle, else how many go to
     /// the first task, at least one each, so that its particles come nearest to half

@@ -78,47 +78,18 @@ pub fn scatter<const D: usize, const NA: usize, const N: usize>(
 ) {
     slabs.check_reach::<NA>();
     let grid = GridPtr::new(scat);
-    let ns = slabs.slabs();
-    for colour in 0..2 {
-        let first = colour;
-        if first >= ns {
-            continue;
-        }
-        let count = (ns - first).div_ceil(2);
-        scatter_slabs::<D, NA, N>(ctx, parts, slabs, grid, first, count, m);
-    }
+    let slab = |order: &[u32]| scatter_slab::<D, NA, N>(ctx, parts, order, grid, m);
+    slabs.for_each_slab(&|| (), &slab, &|(), ()| ());
 }
 
-pub(super) fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
+/// The scatter of one slab's particles `order` into the records behind `grid`.
+pub(super) fn scatter_slab<const D: usize, const NA: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
     parts: &ScatterParts<'_, D>,
-    slabs: &SlabOrder,
+    order: &[u32],
     grid: GridPtr,
-    first: usize,
-    count: usize,
     m: ScatterMode,
 ) {
-    if count > 1 {
-        // Same-coloured slabs `first, first + 2, ...`: split them in two runs.
-        let Some(half) = slabs.split(first, count) else {
-            return;
-        };
-        rayon::join(
-            || scatter_slabs::<D, NA, N>(ctx, parts, slabs, grid, first, half, m),
-            || {
-                scatter_slabs::<D, NA, N>(
-                    ctx,
-                    parts,
-                    slabs,
-                    grid,
-                    first + 2 * half,
-                    count - half,
-                    m,
-                )
-            },
-        );
-        return;
-    }
     let mut acc = ScatterSums::<D, N>::new();
     // The sums stay in memory (L1), added into by vector loads and stores. Held in
     // registers, the compiler split them into single numbers and put them back into
@@ -138,7 +109,7 @@ pub(super) fn scatter_slabs<const D: usize, const NA: usize, const N: usize>(
         &parts.tile[..len],
         &parts.kind[..len],
     );
-    for &p in slabs.slab(first) {
+    for &p in order {
         let p = p as usize;
         assert!(p < len, "slab order names particle {p} of {len}");
         let at = kinds.get(kind[p]);
