@@ -35,7 +35,7 @@ macro_rules! ctx {
                 .benchmark
                 .as_ref()
                 .filter(|b| b.has_body_force())
-                .map(|b| b.at($s.t).with_memo(&$s.memo)),
+                .map(|b| b.at($s.t).with_memo(&$s.scratch.memo)),
             faces: $s.faces,
             walls: false,
         }
@@ -47,9 +47,9 @@ macro_rules! slices {
     ($s:ident) => {
         kernel::Slices {
             parts: $s.parts.slices(),
-            dx: &mut $s.dx,
-            tile: &$s.ptile,
-            accel: &$s.accel,
+            dx: &mut $s.scratch.dx,
+            tile: &$s.place.ptile,
+            accel: &$s.scratch.accel,
         }
     };
 }
@@ -183,14 +183,21 @@ pub struct Solver<'c, const D: usize> {
     external_work: f64,
     /// Maximum of wave speed + particle speed after the last update (this rank).
     max_speed: f64,
-    // Grid fields, node-major over the storage of the active tiles (`tiles`): memory
-    // and every grid pass follow the tiles the particles touch, not the box.
     /// Which tiles of the local node box are stored, and where.
     pub tiles: Tiles<D>,
-    /// Per particle: storage index of its cell's lower corner node (set by a scatter
-    /// of moved particles, valid until they move again). The particle loops form the
-    /// local coordinate in that cell from the position ([`kernel::Ctx::local`]).
-    ptile: Vec<u32>,
+    /// XPIC's order m, if the scene asks for it (else FLIP/PIC by `flip`).
+    xpic: Option<usize>,
+    grid: GridFields<D>,
+    place: Placement<D>,
+    migrator: Migrator<D>,
+    carries: Carries,
+    scratch: Scratch<D>,
+}
+
+/// The grid's fields, node-major over the storage of the active tiles
+/// ([`Solver::tiles`]): memory and every grid pass follow the tiles the particles touch,
+/// not the box.
+struct GridFields<const D: usize> {
     /// Scatter records, `sw` numbers per node laid out as [`NodeRecord`] says; once
     /// the grid velocities are formed, two-step schemes' L̄ and v̄ ([`avg_of`]).
     scat: Vec<f64>,
@@ -198,8 +205,6 @@ pub struct Solver<'c, const D: usize> {
     /// Per node: velocity before (D) and after (D) the force update; before the grid
     /// update, two-step schemes' σ̄ ([`Solver::averaged_force`]).
     vel: Vec<f64>,
-    /// XPIC's order m, if the scene asks for it (else FLIP/PIC by `flip`).
-    xpic: Option<usize>,
     /// Per node (D), XPIC only: the field `(m − 1) v − m v*` the gather adds to the
     /// updated grid velocity ([`Solver::xpic_field`]), and the recursion's current term.
     xpic_add: Vec<f64>,
@@ -219,25 +224,53 @@ pub struct Solver<'c, const D: usize> {
     cell_md: [[f64; D]; CORNERS],
     /// Node mass below which a node is treated as empty.
     mass_floor: f64,
-    // Scratch reused every step (no allocation in the loop once grown).
+}
+
+/// Where the particles are: the tile pass's cells and runs, the slab order of the
+/// coloured passes, and how far the particles are from their order by cell.
+struct Placement<const D: usize> {
+    /// Per particle: storage index of its cell's lower corner node (set by a scatter
+    /// of moved particles, valid until they move again). The particle loops form the
+    /// local coordinate in that cell from the position ([`kernel::Ctx::local`]).
+    ptile: Vec<u32>,
+    /// The tile pass's runs of particles in one cell, per chunk of [`LOCATE_CHUNK`]
+    /// particles.
+    cell_runs: Vec<Vec<CellRun<D>>>,
+    /// Per chunk of `cell_runs`, the keys of the tiles its runs' nodes lie in (each
+    /// once per chunk, mostly), gathered on threads and touched after.
+    run_keys: Vec<Vec<u64>>,
+    /// The particles grouped by slab for the scatter and the remap.
     slabs: SlabOrder,
-    migrator: Migrator<D>,
-    carries: Carries,
-    keep: Vec<bool>,
-    /// Per chunk of [`LOCATE_CHUNK`] particles, whether one left the grid or its block
-    /// ([`Solver::wrap_and_flag`]).
-    flagged: Vec<bool>,
     /// Whether the slab order's slabs and `cell_runs` hold the tile pass's
     /// location of every particle as it is now: `relocate` locates them with the wrap
     /// (one read of the positions, not two) and keeps it if none left or arrived; the
     /// sort, a new layout and the next tile pass, which uses it, end it.
     located: bool,
+    /// Per chunk of [`LOCATE_CHUNK`] particles, whether one left the grid or its block
+    /// ([`Solver::wrap_and_flag`]).
+    flagged: Vec<bool>,
+    /// How far this rank's particles are from their order by cell after the step's
+    /// move: the runs whose cell comes before the previous run's, and the particles
+    /// that arrived (appended at the end). A function of the particles' positions
+    /// and order alone, so a restart sorts where the uninterrupted run did.
+    disorder: usize,
+    /// Sorts since the start (or the restart): what the tests ask of the criterion.
+    sorts: u64,
+}
+
+/// Scratch reused every step (no allocation in the loop once grown).
+struct Scratch<const D: usize> {
+    /// Which particles stay on this rank in a migration.
+    keep: Vec<bool>,
+    /// A particle's record, packed for migration.
     record: Vec<f64>,
+    /// Per particle, the position increment a one-step scheme keeps for the move.
     dx: Vec<Vector<D>>,
     /// The sort's permutation and its in-place application's marks.
     perm: Vec<u32>,
     permuted: Vec<u64>,
-    scratch: Vec<f64>,
+    /// The load balance's particle counts per cell slab.
+    buf: Vec<f64>,
     /// Each particle's external force per unit mass, kept by the step's scatter of
     /// forces for the work counted after it, where the scene has a body force (else
     /// empty: gravity is one vector).
@@ -247,19 +280,6 @@ pub struct Solver<'c, const D: usize> {
     memo: Memo<D>,
     /// Per chunk of particles, the sums of [`Solver::errors_keeping_forces`].
     error_sums: Vec<[f64; 3]>,
-    /// The tile pass's runs of particles in one cell, per chunk of [`LOCATE_CHUNK`]
-    /// particles.
-    cell_runs: Vec<Vec<CellRun<D>>>,
-    /// How far this rank's particles are from their order by cell after the step's
-    /// move: the runs whose cell comes before the previous run's, and the particles
-    /// that arrived (appended at the end). A function of the particles' positions
-    /// and order alone, so a restart sorts where the uninterrupted run did.
-    disorder: usize,
-    /// Sorts since the start (or the restart): what the tests ask of the criterion.
-    sorts: u64,
-    /// Per chunk of [`Solver::cell_runs`], the keys of the tiles its runs' nodes lie
-    /// in (each once per chunk, mostly), gathered on threads and touched after.
-    run_keys: Vec<Vec<u64>>,
 }
 
 impl<'c, const D: usize> Solver<'c, D> {
@@ -292,7 +312,7 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// (any value that is the maximum over ranks gives the same step).
     pub fn restore(&mut self, t: f64, step: u64, dt: f64, external_work: f64, max_speed: f64) {
         // Located afresh at the next step.
-        self.located = false;
+        self.place.located = false;
         self.t = t;
         self.step = step;
         self.dt = dt;
@@ -335,14 +355,14 @@ impl<'c, const D: usize> Solver<'c, D> {
         let dt = self.choose_dt()?;
         self.dt = dt;
         if let Some(b) = &self.benchmark {
-            self.memo.refresh(b, &self.parts.x0);
+            self.scratch.memo.refresh(b, &self.parts.x0);
         }
         let mut ok = true;
         for k in 0..self.phases.len() {
             ok &= self.run_phase(self.phases[k], dt);
         }
         // Valid for this step only (and the particle count may change below).
-        self.accel.clear();
+        self.scratch.accel.clear();
         self.t += dt;
         self.step += 1;
         let mut agree = [0.0; 4];
@@ -357,7 +377,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             )));
         }
         self.relocate()?;
-        if self.disorder as f64 > SORT_DISORDER * self.parts.len() as f64 {
+        if self.place.disorder as f64 > SORT_DISORDER * self.parts.len() as f64 {
             self.sort();
         }
         Ok(())

@@ -118,7 +118,7 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// benchmark's exact solution at the current time (over all ranks).
     pub fn errors(&self) -> Option<(f64, f64)> {
         let b = self.benchmark.as_ref()?;
-        let b = b.at(self.t).with_memo(&self.memo);
+        let b = b.at(self.t).with_memo(&self.scratch.memo);
         let (parts, vol0) = (&self.parts, &self.kinds.vol0[..]);
         // Summed per fixed chunk, then in a fixed tree: the same on any thread count.
         let chunk = |k: usize| {
@@ -150,12 +150,13 @@ impl<'c, const D: usize> Solver<'c, D> {
         let (parts, vol0) = (&self.parts, &self.kinds.vol0[..]);
         let n = parts.len();
         let chunks = n.div_ceil(LOCATE_CHUNK);
-        self.error_sums.resize(chunks, [0.0; 3]);
+        self.scratch.error_sums.resize(chunks, [0.0; 3]);
         // Each chunk's sums as `errors` forms them, then the same tree.
-        self.memo
+        self.scratch
+            .memo
             .entries_for(n)
             .par_chunks_mut(LOCATE_CHUNK)
-            .zip(self.error_sums.par_iter_mut())
+            .zip(self.scratch.error_sums.par_iter_mut())
             .enumerate()
             .for_each(|(k, (memo, sums))| {
                 let mut s = [0.0; 3];
@@ -172,7 +173,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                 });
                 *sums = s;
             });
-        let sums = &self.error_sums;
+        let sums = &self.scratch.error_sums;
         let s = tree_sum(0, chunks, &|k| sums[k]);
         Some(self.error_norms(s))
     }

@@ -11,15 +11,19 @@ impl<'c, const D: usize> Solver<'c, D> {
         let keep_dx = !self.scheme.two_step();
         // A one-step scheme moves by the increment kept here, at the end of the
         // stress pass; a two-step scheme's stress pass moves with the reconstruction.
-        self.dx
+        self.scratch
+            .dx
             .resize(if keep_dx { n } else { 0 }, Vector::<D>::zeros());
         // Summed into the records' momentum slots in place: no field of its own.
-        let (sw, mom) = (self.sw, NodeRecord::<D>::momentum(0));
-        self.scat.par_chunks_mut(sw * ZERO_CHUNK).for_each(|recs| {
-            for rec in recs.chunks_exact_mut(sw) {
-                rec[mom..mom + D].fill(0.0);
-            }
-        });
+        let (sw, mom) = (self.grid.sw, NodeRecord::<D>::momentum(0));
+        self.grid
+            .scat
+            .par_chunks_mut(sw * ZERO_CHUNK)
+            .for_each(|recs| {
+                for rec in recs.chunks_exact_mut(sw) {
+                    rec[mom..mom + D].fill(0.0);
+                }
+            });
         let mut ctx = ctx!(self);
         ctx.walls = self.has_walls();
         let parts = crate::mpm::remap::RemapParts {
@@ -27,8 +31,8 @@ impl<'c, const D: usize> Solver<'c, D> {
             mass: particles::Masses::of(&self.kinds, &self.parts.kind),
             x0: &self.parts.x0,
             half: &self.parts.half,
-            tile: &self.ptile,
-            accel: &self.accel,
+            tile: &self.place.ptile,
+            accel: &self.scratch.accel,
         };
         let m = crate::mpm::remap::RemapMode {
             dt,
@@ -47,14 +51,14 @@ impl<'c, const D: usize> Solver<'c, D> {
             &ctx,
             &parts,
             &mut self.parts.v,
-            &mut self.dx,
-            &self.slabs,
-            &self.vel,
-            &mut self.scat,
+            &mut self.scratch.dx,
+            &self.place.slabs,
+            &self.grid.vel,
+            &mut self.grid.scat,
             m,
         );
         self.block
-            .ghost_sum_slots(self.comm, &mut self.scat, sw, mom..mom + D);
+            .ghost_sum_slots(self.comm, &mut self.grid.scat, sw, mom..mom + D);
         self.external_work += t.work;
         t.ok
     }
@@ -75,7 +79,8 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// next step size follows.
     pub(super) fn gather(&mut self, dt: f64, stress: bool, move_now: bool, speed: bool) -> bool {
         let n = self.parts.len();
-        self.dx
+        self.scratch
+            .dx
             .resize(if move_now { 0 } else { n }, Vector::<D>::zeros());
         let mode = kernel::GatherMode {
             dt,
@@ -94,9 +99,9 @@ impl<'c, const D: usize> Solver<'c, D> {
             gather,
             &ctx,
             parts,
-            &self.vel,
-            avg_of::<D>(&self.scat, self.node_vol.len()),
-            self.xpic.map(|_| &self.xpic_add[..]),
+            &self.grid.vel,
+            avg_of::<D>(&self.grid.scat, self.grid.node_vol.len()),
+            self.xpic.map(|_| &self.grid.xpic_add[..]),
             mode
         );
         self.external_work += t.work;
@@ -130,8 +135,8 @@ impl<'c, const D: usize> Solver<'c, D> {
             update_stress,
             &ctx,
             parts,
-            &self.vel,
-            avg_of::<D>(&self.scat, self.node_vol.len()),
+            &self.grid.vel,
+            avg_of::<D>(&self.grid.scat, self.grid.node_vol.len()),
             m
         );
         self.external_work += t.work;

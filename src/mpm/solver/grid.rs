@@ -41,10 +41,10 @@ impl<'c, const D: usize> Solver<'c, D> {
             own_hi: self.block.own_hi,
             node_lo: self.block.node_lo,
             faces: self.faces,
-            cell_w: &self.cell_w,
-            cell_k: &self.cell_k,
-            cell_m: &self.cell_m,
-            cell_md: &self.cell_md,
+            cell_w: &self.grid.cell_w,
+            cell_k: &self.grid.cell_k,
+            cell_m: &self.grid.cell_m,
+            cell_md: &self.grid.cell_md,
         }
     }
 
@@ -63,24 +63,24 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// `Σ_i x_i ⊗ G_i = I` hold for any weights, because the same `w` enters `V_j` and
     /// `∫ w S_j ∇S_i`.
     pub(super) fn domain_weights(&mut self) {
-        let sw = self.sw;
+        let sw = self.grid.sw;
         let col = NodeRecord::<D>::cover(sw);
-        let mut fill = std::mem::take(&mut self.fill);
-        let (nodes, scat) = (self.nodes(), &self.scat);
+        let mut fill = std::mem::take(&mut self.grid.fill);
+        let (nodes, scat) = (self.nodes(), &self.grid.scat);
         nodes.par_owned(&mut fill, 1, |n, c, fill| {
             let g: [i64; D] = std::array::from_fn(|a| nodes.node_lo[a] + c[a] as i64);
             let support = nodes.geom.node_volume(g);
             fill[0] = (scat[n * sw + col] / (FULL_FILL * support)).min(1.0);
         });
         self.block.ghost_copy(self.comm, &mut fill, 1);
-        self.fill = fill;
+        self.grid.fill = fill;
         // Cells whose corners all lie in the local box (the others are never visited),
         // over the active tiles: a cell with its lower corner in a tile that is not
         // active has an untouched corner, so weight 0, which its zero tile reads.
         let dims = self.block.node_dims;
         let tn = self.tiles.tile_nodes();
-        let mut cw = std::mem::take(&mut self.cell_w);
-        let (tiles, fill) = (&self.tiles, &self.fill);
+        let mut cw = std::mem::take(&mut self.grid.cell_w);
+        let (tiles, fill) = (&self.tiles, &self.grid.fill);
         cw[..tiles.slots() * tn]
             .par_chunks_mut(tn)
             .enumerate()
@@ -110,10 +110,10 @@ impl<'c, const D: usize> Solver<'c, D> {
                     };
                 }
             });
-        self.cell_w = cw;
+        self.grid.cell_w = cw;
         let share = self.geom.cell_volume() / (1 << D) as f64;
-        let mut vol = std::mem::take(&mut self.node_vol);
-        let (nodes, cell_w) = (self.nodes(), &self.cell_w);
+        let mut vol = std::mem::take(&mut self.grid.node_vol);
+        let (nodes, cell_w) = (self.nodes(), &self.grid.cell_w);
         nodes.par_owned(&mut vol, 1, |n, c, vol| {
             // The cells around the node, corners in order (as `NodeView::row_cells`).
             let mut cells = [0; 8];
@@ -126,19 +126,19 @@ impl<'c, const D: usize> Solver<'c, D> {
             }
             vol[0] = v * share;
         });
-        self.node_vol = vol;
+        self.grid.node_vol = vol;
     }
 
     /// Node → node step of the internal force: `f_i −= Σ_j σ̄_j · ∫ w S_j ∇S_i dv`,
     /// assembled cell by cell over the weighted cells around each owned node.
     pub(super) fn averaged_force(&mut self) {
-        let (sw, sym) = (self.sw, NodeRecord::<D>::SYM);
+        let (sw, sym) = (self.grid.sw, NodeRecord::<D>::SYM);
         // σ̄_j = T_j / V_j on owned nodes, then to the ghosts: its upper triangle, in
         // the grid velocities' storage, which the grid update after this rewrites
         // (SYM numbers fit in its 2 D a node).
-        let mut vel = std::mem::take(&mut self.vel);
-        let sigma = &mut vel[..self.node_vol.len() * sym];
-        let (nodes, scat, node_vol) = (self.nodes(), &self.scat, &self.node_vol);
+        let mut vel = std::mem::take(&mut self.grid.vel);
+        let sigma = &mut vel[..self.grid.node_vol.len() * sym];
+        let (nodes, scat, node_vol) = (self.nodes(), &self.grid.scat, &self.grid.node_vol);
         nodes.par_owned(sigma, sym, |n, _, rec| {
             let v = node_vol[n];
             // One division per entry: σ̄ is symmetric to the bit, which `force_tiles`
@@ -154,19 +154,19 @@ impl<'c, const D: usize> Solver<'c, D> {
             }
         });
         self.block.ghost_copy(self.comm, sigma, sym);
-        let mut scat = std::mem::take(&mut self.scat);
+        let mut scat = std::mem::take(&mut self.grid.scat);
         let nodes = self.nodes();
         by_pad!(D, nodes, force_tiles, &mut scat, sw, sigma);
-        self.scat = scat;
-        self.vel = vel;
+        self.grid.scat = scat;
+        self.grid.vel = vel;
     }
 
     /// Grid velocities from momentum (and, if `dt > 0`, forces), with boundary
     /// conditions, on owned nodes; then copied to ghosts.
     pub(super) fn grid_velocity(&mut self, dt: f64) {
-        let sw = self.sw;
-        let mut vel = std::mem::take(&mut self.vel);
-        let (nodes, scat, floor) = (self.nodes(), &self.scat, self.mass_floor);
+        let sw = self.grid.sw;
+        let mut vel = std::mem::take(&mut self.grid.vel);
+        let (nodes, scat, floor) = (self.nodes(), &self.grid.scat, self.grid.mass_floor);
         // Both slots of a node's record (`VelRecord`).
         nodes.par_owned(&mut vel, VelRecord::<D>::WIDTH, |n, c, v| {
             let rec = &scat[n * sw..(n + 1) * sw];
@@ -182,7 +182,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             }
         });
         self.block.ghost_copy(self.comm, &mut vel, 2 * D);
-        self.vel = vel;
+        self.grid.vel = vel;
     }
 
     /// Fixed and slip faces on both velocity slots of a node ([`NodeView::apply_bc`]).
@@ -199,20 +199,20 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// velocity they move with ([`kernel::moving_velocity`]) are built from these.
     pub(super) fn averaged_velocity_gradient(&mut self, slot: usize) {
         let aw = AvgRecord::<D>::WIDTH;
-        let mut scat = std::mem::take(&mut self.scat);
-        let avg = &mut scat[..self.node_vol.len() * aw];
+        let mut scat = std::mem::take(&mut self.grid.scat);
+        let avg = &mut scat[..self.grid.node_vol.len() * aw];
         let nodes = self.nodes();
         by_pad!(
             D,
             nodes,
             gradient_tiles,
             avg,
-            &self.vel,
+            &self.grid.vel,
             slot,
-            &self.node_vol
+            &self.grid.node_vol
         );
         self.block.ghost_copy(self.comm, avg, aw);
-        self.scat = scat;
+        self.grid.scat = scat;
     }
 
     /// Largest wave speed plus particle speed on this rank.

@@ -263,7 +263,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.parts
             .x
             .par_chunks(LOCATE_CHUNK)
-            .zip(self.cell_runs.par_iter_mut())
+            .zip(self.place.cell_runs.par_iter_mut())
             .enumerate()
             .for_each(|(k, (xs, runs))| {
                 let mut loc = ChunkLocator::new(geom, k, runs);
@@ -285,7 +285,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                     p += 1;
                 }
             });
-        self.cell_runs.truncate(chunks);
+        self.place.cell_runs.truncate(chunks);
     }
 
     /// The tile pass's arrays sized for this rank's particles: the chunk count.
@@ -294,12 +294,12 @@ impl<'c, const D: usize> Solver<'c, D> {
         // As much room as the particles' arrays have (which grow with a sixteenth to
         // spare, [`particles::reserve`]): no more, and it grows when they do.
         let room = self.parts.x.capacity().max(n);
-        particles::reserve_exact(&mut self.ptile, room);
+        particles::reserve_exact(&mut self.place.ptile, room);
         // Every entry is written below: only new ones need a value (no serial fill).
-        self.ptile.resize(n, 0);
+        self.place.ptile.resize(n, 0);
         let chunks = n.div_ceil(LOCATE_CHUNK);
-        if self.cell_runs.len() < chunks {
-            self.cell_runs.resize_with(chunks, Vec::new);
+        if self.place.cell_runs.len() < chunks {
+            self.place.cell_runs.resize_with(chunks, Vec::new);
         }
         chunks
     }
@@ -316,15 +316,16 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// lists short), then touched in chunk order.
     pub(super) fn touch_runs(&mut self) {
         let (below, above) = if self.scheme.gimp { (1, 2) } else { (0, 1) };
-        let chunks = self.cell_runs.len();
-        if self.run_keys.len() < chunks {
-            self.run_keys.resize_with(chunks, Vec::new);
+        let chunks = self.place.cell_runs.len();
+        if self.place.run_keys.len() < chunks {
+            self.place.run_keys.resize_with(chunks, Vec::new);
         }
         let tiles = &self.tiles;
         let node_lo = &self.block.node_lo;
-        self.cell_runs
+        self.place
+            .cell_runs
             .par_iter()
-            .zip(self.run_keys.par_iter_mut())
+            .zip(self.place.run_keys.par_iter_mut())
             .for_each(|(runs, keys)| {
                 keys.clear();
                 let mut recent = [u64::MAX; 16];
@@ -342,7 +343,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                     }
                 }
             });
-        for &k in self.run_keys[..chunks].iter().flatten() {
+        for &k in self.place.run_keys[..chunks].iter().flatten() {
             self.tiles.touch_key(k);
         }
     }
@@ -353,7 +354,7 @@ impl<'c, const D: usize> Solver<'c, D> {
     pub(super) fn run_nodes(&mut self) {
         let tiles = &self.tiles;
         let node_lo = &self.block.node_lo;
-        self.cell_runs.par_iter_mut().for_each(|runs| {
+        self.place.cell_runs.par_iter_mut().for_each(|runs| {
             let mut tile = (u64::MAX, 0u32);
             for run in runs.iter_mut() {
                 let l = Self::run_cell(node_lo, run).map(|v| v as usize);
@@ -380,8 +381,8 @@ impl<'c, const D: usize> Solver<'c, D> {
     pub fn sort(&mut self) {
         // The wrap's location, if it holds, names every particle's cell; after the
         // sort it is stale.
-        let located = std::mem::take(&mut self.located);
-        self.sorts += 1;
+        let located = std::mem::take(&mut self.place.located);
+        self.place.sorts += 1;
         let n = self.parts.len();
         // Each particle's cell as one number, the last axis first as the order by
         // cell is (a number in mixed radix whose digits are the cell's coordinates).
@@ -412,10 +413,10 @@ impl<'c, const D: usize> Solver<'c, D> {
         };
         let cell_of = |p: usize| geom.locate(&std::array::from_fn(|a| self.parts.x[p][a])).0;
         if span <= 1 << 32 {
-            let keys = &mut self.ptile;
+            let keys = &mut self.place.ptile;
             particles::reserve(keys, n);
             keys.resize(n, 0);
-            let runs = &self.cell_runs;
+            let runs = &self.place.cell_runs;
             keys.par_chunks_mut(LOCATE_CHUNK)
                 .enumerate()
                 .for_each(|(k, keys)| {
@@ -434,32 +435,38 @@ impl<'c, const D: usize> Solver<'c, D> {
                         keys[run.first as usize - base..end].fill(block_key(&run.cell()) as u32);
                     }
                 });
-            let keys = &self.ptile;
+            let keys = &self.place.ptile;
             let key = |p: u32| u64::from(keys[p as usize]);
             particles::order_by_key_then_id(
                 key,
                 &self.parts.id,
-                &mut self.perm,
-                self.slabs.lend_scratch(),
+                &mut self.scratch.perm,
+                self.place.slabs.lend_scratch(),
             );
         } else {
             // A block of more than 2^32 cells (sparse): each key formed where the sort
             // asks for it, `ptile` the room.
             let key = |p: u32| block_key(&cell_of(p as usize));
-            particles::order_by_key_then_id(key, &self.parts.id, &mut self.perm, &mut self.ptile);
+            particles::order_by_key_then_id(
+                key,
+                &self.parts.id,
+                &mut self.scratch.perm,
+                &mut self.place.ptile,
+            );
         }
-        let perm = std::mem::take(&mut self.perm);
+        let perm = std::mem::take(&mut self.scratch.perm);
         // A benchmark's memo goes with its particles where it has one entry each:
         // formed again, its factors cost an `atan2` and sines per particle (the
         // vortex), and a sort moves most particles.
-        let memo = self.memo.entries_mut();
+        let memo = self.scratch.memo.entries_mut();
         let memo = if memo.len() == perm.len() {
             memo
         } else {
             &mut []
         };
-        self.parts.permute_with(&perm, &mut self.permuted, memo);
-        self.perm = perm;
+        self.parts
+            .permute_with(&perm, &mut self.scratch.permuted, memo);
+        self.scratch.perm = perm;
     }
 }
 
@@ -625,22 +632,22 @@ mod sort_tests {
         let mut s = vortex("0.1");
         let mut most = 0.0f64;
         for _ in 0..25 {
-            let sorts = s.sorts;
+            let sorts = s.place.sorts;
             s.advance().unwrap();
-            let out_of_order = s.disorder as f64 / s.parts.len() as f64;
-            assert_eq!(s.sorts > sorts, out_of_order > SORT_DISORDER);
+            let out_of_order = s.place.disorder as f64 / s.parts.len() as f64;
+            assert_eq!(s.place.sorts > sorts, out_of_order > SORT_DISORDER);
             most = most.max(out_of_order);
         }
-        assert!(s.sorts > 0, "the turning ring was sorted");
+        assert!(s.place.sorts > 0, "the turning ring was sorted");
         // Out of order again, then sorted by hand.
-        while s.disorder == 0 {
+        while s.place.disorder == 0 {
             s.advance().unwrap();
         }
         s.sort();
         s.locate_all();
-        assert_eq!(descents(&s.cell_runs), 0);
+        assert_eq!(descents(&s.place.cell_runs), 0);
         let mut seen = std::collections::HashSet::new();
-        for (k, runs) in s.cell_runs.iter().enumerate() {
+        for (k, runs) in s.place.cell_runs.iter().enumerate() {
             for (r, run) in runs.iter().enumerate() {
                 assert!(
                     seen.insert((k, run.cell)),
@@ -666,8 +673,8 @@ mod sort_tests {
         let mut s = vortex("0.0");
         for _ in 0..30 {
             s.advance().unwrap();
-            assert_eq!(s.disorder, 0);
+            assert_eq!(s.place.disorder, 0);
         }
-        assert_eq!(s.sorts, 0);
+        assert_eq!(s.place.sorts, 0);
     }
 }

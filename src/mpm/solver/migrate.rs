@@ -10,15 +10,15 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// [`Solver::locate_all`], while their positions are at hand.
     pub(super) fn wrap_and_flag(&mut self) {
         let chunks = self.begin_locate();
-        self.flagged.clear();
-        self.flagged.resize(chunks, false);
+        self.place.flagged.clear();
+        self.place.flagged.resize(chunks, false);
         let (geom, lo, hi) = (&self.geom, &self.block.cell_lo, &self.block.cell_hi);
         let periodic = geom.periodic.contains(&true);
         self.parts
             .x
             .par_chunks_mut(LOCATE_CHUNK)
-            .zip(self.flagged.par_iter_mut())
-            .zip(self.cell_runs.par_iter_mut())
+            .zip(self.place.flagged.par_iter_mut())
+            .zip(self.place.cell_runs.par_iter_mut())
             .enumerate()
             .for_each(|(k, ((xs, flag), runs))| {
                 let mut loc = ChunkLocator::new(geom, k, runs);
@@ -53,7 +53,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                     p += b;
                 }
             });
-        self.cell_runs.truncate(chunks);
+        self.place.cell_runs.truncate(chunks);
     }
 
     /// Wrap periodic coordinates, check bounded ones, and hand particles that left the
@@ -62,11 +62,11 @@ impl<'c, const D: usize> Solver<'c, D> {
         let mut left = None;
         let me = self.comm.rank();
         let n = self.parts.len();
-        self.keep.clear();
-        self.keep.resize(n, true);
+        self.scratch.keep.clear();
+        self.scratch.keep.resize(n, true);
         self.wrap_and_flag();
         let mut leaving = 0usize;
-        let flagged = self.flagged.iter().enumerate().filter(|f| *f.1);
+        let flagged = self.place.flagged.iter().enumerate().filter(|f| *f.1);
         for p in flagged.flat_map(|(k, _)| k * LOCATE_CHUNK..n.min((k + 1) * LOCATE_CHUNK)) {
             let x = &self.parts.x[p];
             for a in 0..D {
@@ -95,9 +95,9 @@ impl<'c, const D: usize> Solver<'c, D> {
             match self.migrator.destination(cell) {
                 Ok(d) if d.rank == me => {}
                 Ok(d) => {
-                    self.parts.pack(p, self.carries, &mut self.record);
-                    self.migrator.push(d.rank, &self.record);
-                    self.keep[p] = false;
+                    self.parts.pack(p, self.carries, &mut self.scratch.record);
+                    self.migrator.push(d.rank, &self.scratch.record);
+                    self.scratch.keep[p] = false;
                     leaving += 1;
                 }
                 Err(e) => self.migrator.fail(e),
@@ -112,7 +112,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             });
         }
         if leaving > 0 {
-            self.parts.retain(&self.keep);
+            self.parts.retain(&self.scratch.keep);
         }
         let carries = self.carries;
         let parts = &mut self.parts;
@@ -120,8 +120,8 @@ impl<'c, const D: usize> Solver<'c, D> {
             Ok(recs) => {
                 // The tile pass's location of every particle, done with the wrap, holds
                 // if none left (none was flagged) and none arrived.
-                self.located = !self.flagged.contains(&true) && recs.is_empty();
-                self.disorder = descents(&self.cell_runs) + recs.len();
+                self.place.located = !self.place.flagged.contains(&true) && recs.is_empty();
+                self.place.disorder = descents(&self.place.cell_runs) + recs.len();
                 parts.reserve_total(parts.len() + recs.len(), carries);
                 for r in recs.iter() {
                     parts.unpack(r, carries);
@@ -176,7 +176,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         // Particles per cell slab along every axis, summed over ranks.
         let cells = self.geom.cells;
         let total: usize = cells.iter().sum();
-        let mut slab = std::mem::take(&mut self.scratch);
+        let mut slab = std::mem::take(&mut self.scratch.buf);
         slab.clear();
         slab.resize(total + ranks, 0.0);
         for p in 0..self.parts.len() {
@@ -203,7 +203,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.comm.sum_f64(per_rank);
         let mean = per_rank.iter().sum::<f64>() / ranks as f64;
         let then = per_rank.iter().cloned().fold(0.0, f64::max) / mean;
-        self.scratch = slab;
+        self.scratch.buf = slab;
         if next == self.layout || then - 1.0 > 0.8 * (now - 1.0) {
             return false;
         }
@@ -216,21 +216,21 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// the same grid and rank count) and rebuild this rank's block, halo, tiles and
     /// migration for it. The grid fields are rebuilt by the next step's scatter.
     pub fn relayout(&mut self, layout: Layout<D>) {
-        self.located = false;
+        self.place.located = false;
         let me = self.comm.rank();
         let n = self.parts.len();
         let mut mig = Migrator::everywhere(&layout, &self.block, self.migrator.width());
-        self.keep.clear();
-        self.keep.resize(n, true);
+        self.scratch.keep.clear();
+        self.scratch.keep.resize(n, true);
         for p in 0..n {
             let to = layout.cell_owner(self.cell_of(p));
             if to != me {
-                self.parts.pack(p, self.carries, &mut self.record);
-                mig.push(to, &self.record);
-                self.keep[p] = false;
+                self.parts.pack(p, self.carries, &mut self.scratch.record);
+                mig.push(to, &self.scratch.record);
+                self.scratch.keep[p] = false;
             }
         }
-        self.parts.retain(&self.keep);
+        self.parts.retain(&self.scratch.keep);
         let recs = mig
             .exchange(self.comm)
             .expect("no rank records a routing error in a relayout");
@@ -247,8 +247,8 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.layout = layout;
         self.block = block;
         self.tiles = tiles;
-        self.ptile.clear();
-        particles::reserve(&mut self.ptile, self.parts.len());
+        self.place.ptile.clear();
+        particles::reserve(&mut self.place.ptile, self.parts.len());
         self.size_fields();
         self.rebalances += 1;
         // Arrival order depends on the old owners: sort for the same order as a run

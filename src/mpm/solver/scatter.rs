@@ -29,19 +29,19 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// field `xpic_term` interpolated at the particles instead of their velocities.
     pub(super) fn scatter_pass(&mut self, forces: bool, from_grid: bool) {
         let two = self.scheme.two_step() && !from_grid;
-        zero(&mut self.scat);
+        zero(&mut self.grid.scat);
         let ctx = ctx!(self);
         // The forces' scatter has each particle's body force formed before it, and it
         // is kept for the gather or remap after it (every update order has one between
         // them); other scatters leave it.
         if forces {
             let keep = ctx.body_force.is_some();
-            self.accel.resize(
+            self.scratch.accel.resize(
                 if keep { self.parts.len() } else { 0 },
                 Vector::<D>::zeros(),
             );
             if keep {
-                kernel::external_accel(&ctx, &self.parts.x0, &mut self.accel);
+                kernel::external_accel(&ctx, &self.parts.x0, &mut self.scratch.accel);
             }
         }
         let parts = kernel::ScatterParts {
@@ -54,12 +54,12 @@ impl<'c, const D: usize> Solver<'c, D> {
             mass: particles::Masses::of(&self.kinds, &self.parts.kind),
             x0: &self.parts.x0,
             half: &self.parts.half,
-            tile: &self.ptile,
-            src: &self.xpic_term,
-            accel: if forces { &self.accel } else { &[] },
+            tile: &self.place.ptile,
+            src: &self.grid.xpic_term,
+            accel: if forces { &self.scratch.accel } else { &[] },
         };
         let m = kernel::ScatterMode {
-            sw: self.sw,
+            sw: self.grid.sw,
             forces,
             two_step: two,
             from_grid,
@@ -69,11 +69,12 @@ impl<'c, const D: usize> Solver<'c, D> {
             scatter,
             &ctx,
             &parts,
-            &self.slabs,
-            &mut self.scat,
+            &self.place.slabs,
+            &mut self.grid.scat,
             m
         );
-        self.block.ghost_sum(self.comm, &mut self.scat, self.sw);
+        self.block
+            .ghost_sum(self.comm, &mut self.grid.scat, self.grid.sw);
     }
 
     /// XPIC(m) (Hammerquist & Nairn 2017): the particles' new velocities are
@@ -91,25 +92,25 @@ impl<'c, const D: usize> Solver<'c, D> {
     pub(super) fn xpic_field(&mut self) {
         let m = self.xpic.expect("XPIC phase only in XPIC runs");
         let mf = m as f64;
-        let sw = self.sw;
+        let sw = self.grid.sw;
         let d2 = VelRecord::<D>::WIDTH;
-        let nn = self.vel.len() / d2;
+        let nn = self.grid.vel.len() / d2;
         for n in 0..nn {
             for a in 0..D {
-                let v = self.vel[VelRecord::<D>::at(n, FROM_MOMENTUM) + a];
-                self.xpic_term[n * D + a] = v;
-                self.xpic_add[n * D + a] = (mf - 1.0) * v;
+                let v = self.grid.vel[VelRecord::<D>::at(n, FROM_MOMENTUM) + a];
+                self.grid.xpic_term[n * D + a] = v;
+                self.grid.xpic_add[n * D + a] = (mf - 1.0) * v;
             }
         }
         for r in 2..=m {
             self.scatter_pass(false, true);
             let f = (mf - r as f64 + 1.0) / r as f64;
-            let mut term = std::mem::take(&mut self.xpic_term);
+            let mut term = std::mem::take(&mut self.grid.xpic_term);
             self.for_owned(|n, c| {
-                let rec = &self.scat[n * sw..(n + 1) * sw];
+                let rec = &self.grid.scat[n * sw..(n + 1) * sw];
                 let mass = rec[NodeRecord::<D>::MASS];
                 let mut v = [0.0; 6];
-                if mass > self.mass_floor {
+                if mass > self.grid.mass_floor {
                     for a in 0..D {
                         v[a] = f * rec[NodeRecord::<D>::momentum(a)] / mass;
                         v[D + a] = v[a];
@@ -121,10 +122,10 @@ impl<'c, const D: usize> Solver<'c, D> {
             self.block.ghost_copy(self.comm, &mut term, D);
             // v* gains (−1)^r v*_r, so the field gains −m (−1)^r v*_r.
             let sign = if r % 2 == 0 { -mf } else { mf };
-            for (x, t) in self.xpic_add.iter_mut().zip(&term) {
+            for (x, t) in self.grid.xpic_add.iter_mut().zip(&term) {
                 *x += sign * t;
             }
-            self.xpic_term = term;
+            self.grid.xpic_term = term;
         }
     }
 }
@@ -232,7 +233,7 @@ particles_per_cell = 2
                 }
             }
             for n in 0..nn {
-                g[n] = if mass[n] > s.mass_floor {
+                g[n] = if mass[n] > s.grid.mass_floor {
                     g[n] / mass[n]
                 } else {
                     Vector::<2>::zeros()
@@ -243,7 +244,7 @@ particles_per_cell = 2
         let v = to_grid(&s.parts.v);
         let vplus: Vec<Vector<2>> = (0..nn)
             .map(|n| {
-                if mass[n] > s.mass_floor {
+                if mass[n] > s.grid.mass_floor {
                     v[n] + s.gravity * dt
                 } else {
                     v[n]

@@ -69,38 +69,44 @@ impl<'c, const D: usize> Solver<'c, D> {
             external_work: 0.0,
             max_speed: 0.0,
             tiles,
-            ptile: Vec::new(),
-            scat: Vec::new(),
-            sw: 0,
-            vel: Vec::new(),
             xpic: scene.method.xpic.map(|m| m as usize),
-            xpic_add: Vec::new(),
-            xpic_term: Vec::new(),
-            fill: Vec::new(),
-            cell_w: Vec::new(),
-            node_vol: Vec::new(),
-            cell_k: [[[0.0; D]; CORNERS]; CORNERS],
-            cell_m: [[0.0; CORNERS]; CORNERS],
-            cell_md: [[0.0; D]; CORNERS],
-            mass_floor: 0.0,
-            slabs: SlabOrder::new(),
+            grid: GridFields {
+                scat: Vec::new(),
+                sw: 0,
+                vel: Vec::new(),
+                xpic_add: Vec::new(),
+                xpic_term: Vec::new(),
+                fill: Vec::new(),
+                cell_w: Vec::new(),
+                node_vol: Vec::new(),
+                cell_k: [[[0.0; D]; CORNERS]; CORNERS],
+                cell_m: [[0.0; CORNERS]; CORNERS],
+                cell_md: [[0.0; D]; CORNERS],
+                mass_floor: 0.0,
+            },
+            place: Placement {
+                ptile: Vec::new(),
+                cell_runs: Vec::new(),
+                run_keys: Vec::new(),
+                slabs: SlabOrder::new(),
+                located: false,
+                flagged: Vec::new(),
+                disorder: 0,
+                sorts: 0,
+            },
             migrator,
             carries,
-            keep: Vec::new(),
-            record: Vec::new(),
-            dx: Vec::new(),
-            perm: Vec::new(),
-            cell_runs: Vec::new(),
-            run_keys: Vec::new(),
-            accel: Vec::new(),
-            memo: Memo::default(),
-            error_sums: Vec::new(),
-            flagged: Vec::new(),
-            located: false,
-            disorder: 0,
-            sorts: 0,
-            permuted: Vec::new(),
-            scratch: Vec::new(),
+            scratch: Scratch {
+                keep: Vec::new(),
+                record: Vec::new(),
+                dx: Vec::new(),
+                perm: Vec::new(),
+                permuted: Vec::new(),
+                buf: Vec::new(),
+                accel: Vec::new(),
+                memo: Memo::default(),
+                error_sums: Vec::new(),
+            },
         };
         s.resolve_phases();
         s.setup_grid();
@@ -108,7 +114,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             .map(|p| s.particle_mass(p))
             .fold(f64::INFINITY, f64::min)];
         s.comm.min_f64(&mut mmin);
-        s.mass_floor = if mmin[0].is_finite() {
+        s.grid.mass_floor = if mmin[0].is_finite() {
             1e-12 * mmin[0]
         } else {
             0.0
@@ -135,13 +141,13 @@ impl<'c, const D: usize> Solver<'c, D> {
 
     pub(super) fn setup_grid(&mut self) {
         let two = self.scheme.two_step();
-        self.sw = NodeRecord::<D>::width(two);
+        self.grid.sw = NodeRecord::<D>::width(two);
         if two {
             for q in 0..(1 << D) {
                 for r in 0..(1 << D) {
-                    self.cell_k[r][q] = cell_integral::<D>(&self.geom.h, r, q);
+                    self.grid.cell_k[r][q] = cell_integral::<D>(&self.geom.h, r, q);
                     // ∫_c S_r S_q dv: h/3 per axis on which the corners agree, h/6 else.
-                    self.cell_m[r][q] = (0..D)
+                    self.grid.cell_m[r][q] = (0..D)
                         .map(|a| {
                             let same = (r >> a) & 1 == (q >> a) & 1;
                             self.geom.h[a] / if same { 3.0 } else { 6.0 }
@@ -152,8 +158,8 @@ impl<'c, const D: usize> Solver<'c, D> {
             for q in 0..(1 << D) {
                 for b in 0..D {
                     let bit = |c: usize| ((c >> b) & 1) as f64;
-                    self.cell_md[q][b] = (0..1 << D)
-                        .map(|r| self.cell_m[q][r] * (bit(q) - bit(r)) * self.geom.h[b])
+                    self.grid.cell_md[q][b] = (0..1 << D)
+                        .map(|r| self.grid.cell_m[q][r] * (bit(q) - bit(r)) * self.geom.h[b])
                         .sum();
                 }
             }
@@ -177,8 +183,8 @@ impl<'c, const D: usize> Solver<'c, D> {
             v.clear();
             v.resize(len, 0.0);
         };
-        fit(&mut self.scat, nn * self.sw);
-        fit(&mut self.vel, nn * VelRecord::<D>::WIDTH);
+        fit(&mut self.grid.scat, nn * self.grid.sw);
+        fit(&mut self.grid.vel, nn * VelRecord::<D>::WIDTH);
         let n2 = if two { nn } else { 0 };
         // σ̄ lives in `vel` and L̄, v̄ in `scat` for part of a step (`averaged_force`,
         // `avg`).
@@ -187,11 +193,11 @@ impl<'c, const D: usize> Solver<'c, D> {
             assert!(AvgRecord::<D>::WIDTH <= NodeRecord::<D>::width(true));
         }
         let nx = if self.xpic.is_some() { nn * D } else { 0 };
-        fit(&mut self.xpic_add, nx);
-        fit(&mut self.xpic_term, nx);
-        fit(&mut self.fill, n2);
-        fit(&mut self.cell_w, n2);
-        fit(&mut self.node_vol, n2);
+        fit(&mut self.grid.xpic_add, nx);
+        fit(&mut self.grid.xpic_term, nx);
+        fit(&mut self.grid.fill, n2);
+        fit(&mut self.grid.cell_w, n2);
+        fit(&mut self.grid.node_vol, n2);
     }
 
     /// Activate the tiles the particles' nodes lie in (GIMP reaches one node below
@@ -200,15 +206,15 @@ impl<'c, const D: usize> Solver<'c, D> {
     pub(super) fn activate_tiles(&mut self) {
         self.tiles.begin();
         // Located by `relocate` if nothing moved, left or arrived since.
-        let located = std::mem::take(&mut self.located);
+        let located = std::mem::take(&mut self.place.located);
         if !located {
             self.locate_all();
         } else if cfg!(debug_assertions) {
             // The tests' builds check that claim: locating again changes nothing.
-            let runs = self.cell_runs.clone();
+            let runs = self.place.cell_runs.clone();
             self.locate_all();
             assert!(
-                runs == self.cell_runs,
+                runs == self.place.cell_runs,
                 "the particles' location kept from the wrap is stale at step {}",
                 self.step
             );
@@ -217,9 +223,9 @@ impl<'c, const D: usize> Solver<'c, D> {
         let last = D - 1;
         let (lo, hi) = (self.block.cell_lo[last], self.block.cell_hi[last]);
         let thick = kernel::slab_thickness_for(self.scheme.gimp);
-        let index = self.slabs.begin(lo, hi, thick);
-        self.slabs.finish(&RunSlabs {
-            runs: &self.cell_runs,
+        let index = self.place.slabs.begin(lo, hi, thick);
+        self.place.slabs.finish(&RunSlabs {
+            runs: &self.place.cell_runs,
             count: self.parts.len(),
             index,
         });
@@ -236,9 +242,10 @@ impl<'c, const D: usize> Solver<'c, D> {
         }
         self.run_nodes();
         // Every particle gets its run's node.
-        self.ptile
+        self.place
+            .ptile
             .par_chunks_mut(LOCATE_CHUNK)
-            .zip(self.cell_runs.par_iter())
+            .zip(self.place.cell_runs.par_iter())
             .enumerate()
             .for_each(|(k, (tile, runs))| {
                 let base = k * LOCATE_CHUNK;
@@ -415,8 +422,8 @@ velocity_gradient = {{ value = {grad}, about = {c} }}
             let mut at = kernel::CellAt::<D>::new();
             for (p, x) in s.parts.x.iter().enumerate() {
                 let (c, xi) = s.geom.locate(&std::array::from_fn(|a| x[a]));
-                let cell = *at.of(&ctx, s.ptile[p]);
-                assert_eq!(cell, ctx.cell_of(s.ptile[p]));
+                let cell = *at.of(&ctx, s.place.ptile[p]);
+                assert_eq!(cell, ctx.cell_of(s.place.ptile[p]));
                 assert_eq!(
                     cell,
                     c.map(|c| c as f64),
@@ -450,7 +457,11 @@ velocity_gradient = {{ value = {grad}, about = {c} }}
             huge.tiles.active(),
             "{what}: active tiles"
         );
-        assert_eq!(tight.scat.len(), huge.scat.len(), "{what}: grid storage");
+        assert_eq!(
+            tight.grid.scat.len(),
+            huge.grid.scat.len(),
+            "{what}: grid storage"
+        );
         // The body covers 8^D of the 16^D cells; its tiles with their margin stay
         // below the whole tight box's tiles.
         let all_tiles = 17usize.div_ceil(decomposition::TILE).pow(D as u32);

@@ -698,7 +698,7 @@ particles_per_cell = 3
         s.for_owned(|n, c| owned.push((n, c)));
         for &(n, c) in &owned {
             let v = &mut vel[n * 4..n * 4 + 4];
-            if s.scat[n * s.sw + NodeRecord::<2>::MASS] > s.mass_floor {
+            if s.grid.scat[n * s.grid.sw + NodeRecord::<2>::MASS] > s.grid.mass_floor {
                 v[0] = rng.f64() - 0.5;
                 v[1] = rng.f64() - 0.5;
                 v[2] = v[0];
@@ -709,11 +709,12 @@ particles_per_cell = 3
             }
         }
         s.block.ghost_copy(s.comm, &mut vel, 4);
-        s.vel = vel;
+        s.grid.vel = vel;
         let mut fv = 0.0;
         for &(n, _) in &owned {
             for a in 0..2 {
-                fv += s.scat[n * s.sw + NodeRecord::<2>::force(a)] * s.vel[n * 4 + 2 + a];
+                fv += s.grid.scat[n * s.grid.sw + NodeRecord::<2>::force(a)]
+                    * s.grid.vel[n * 4 + 2 + a];
             }
         }
         if s.scheme.two_step() {
@@ -733,9 +734,9 @@ particles_per_cell = 3
     /// has it), as the particle passes form it.
     pub(super) fn gradient_at(s: &Solver<'_, 2>, p: usize) -> Mat<2> {
         let ctx = ctx!(s);
-        let (k, idx) = ctx.kern::<2, 4>(&s.parts.x[p], None, s.ptile[p]);
-        let avg = avg_of::<2>(&s.scat, s.node_vol.len());
-        kernel::velocity_gradient(&k, &idx, &s.vel, avg, 1, s.scheme.two_step())
+        let (k, idx) = ctx.kern::<2, 4>(&s.parts.x[p], None, s.place.ptile[p]);
+        let avg = avg_of::<2>(&s.grid.scat, s.grid.node_vol.len());
+        kernel::velocity_gradient(&k, &idx, &s.grid.vel, avg, 1, s.scheme.two_step())
     }
 
     pub(super) fn beam(
@@ -775,7 +776,7 @@ particles_per_cell = 3
                 let mut owned = Vec::new();
                 s.for_owned(|n, c| owned.push((n, c)));
                 for &(n, ci) in &owned {
-                    if s.scat[n * s.sw + NodeRecord::<2>::MASS] > s.mass_floor {
+                    if s.grid.scat[n * s.grid.sw + NodeRecord::<2>::MASS] > s.grid.mass_floor {
                         let node = std::array::from_fn(|a| s.block.node_lo[a] + ci[a] as i64);
                         let x = s.geom.node_position(node);
                         for a in 0..2 {
@@ -786,7 +787,7 @@ particles_per_cell = 3
                     }
                 }
                 s.block.ghost_copy(s.comm, &mut vel, 4);
-                s.vel = vel;
+                s.grid.vel = vel;
                 if s.scheme.two_step() {
                     s.averaged_velocity_gradient(1);
                 }
@@ -815,10 +816,10 @@ particles_per_cell = 3
         }
         let mut f = std::collections::BTreeMap::new();
         s.for_owned(|n, c| {
-            let r = n * s.sw;
+            let r = n * s.grid.sw;
             let force = [
-                s.scat[r + NodeRecord::<2>::force(0)],
-                s.scat[r + NodeRecord::<2>::force(1)],
+                s.grid.scat[r + NodeRecord::<2>::force(0)],
+                s.grid.scat[r + NodeRecord::<2>::force(1)],
             ];
             f.insert([c[1], c[0]], force);
         });
@@ -914,7 +915,7 @@ particles_per_cell = 3
         s.scatter(true, true);
         s.averaged_force();
         // The records as the grid update reads them: L̄ is formed in their storage.
-        let records = s.scat.clone();
+        let records = s.grid.scat.clone();
         let mut owned = Vec::new();
         s.for_owned(|n, c| owned.push((n, c)));
         let w = [[0.3, -1.1, 0.4], [0.7, 0.2, -0.5], [-0.6, 0.9, 0.1]];
@@ -923,7 +924,7 @@ particles_per_cell = 3
         for linear in [true, false] {
             let mut vel = vec![0.0; s.tiles.nodes() * 6];
             for &(n, ci) in &owned {
-                if records[n * s.sw + NodeRecord::<3>::MASS] > s.mass_floor {
+                if records[n * s.grid.sw + NodeRecord::<3>::MASS] > s.grid.mass_floor {
                     let node = std::array::from_fn(|a| s.block.node_lo[a] + ci[a] as i64);
                     let x = s.geom.node_position(node);
                     for a in 0..3 {
@@ -938,17 +939,17 @@ particles_per_cell = 3
                 }
             }
             s.block.ghost_copy(s.comm, &mut vel, 6);
-            s.vel = vel;
+            s.grid.vel = vel;
             s.averaged_velocity_gradient(1);
             let ctx = ctx!(s);
             let mut work = 0.0;
             for p in 0..s.parts.len() {
-                let (k, idx) = ctx.kern::<2, 8>(&s.parts.x[p], None, s.ptile[p]);
+                let (k, idx) = ctx.kern::<2, 8>(&s.parts.x[p], None, s.place.ptile[p]);
                 let l = kernel::velocity_gradient(
                     &k,
                     &idx,
-                    &s.vel,
-                    avg_of::<3>(&s.scat, s.node_vol.len()),
+                    &s.grid.vel,
+                    avg_of::<3>(&s.grid.scat, s.grid.node_vol.len()),
                     1,
                     true,
                 );
@@ -968,7 +969,8 @@ particles_per_cell = 3
                 let mut fv = 0.0;
                 for &(n, _) in &owned {
                     for a in 0..3 {
-                        fv += records[n * s.sw + NodeRecord::<3>::force(a)] * s.vel[n * 6 + 3 + a];
+                        fv += records[n * s.grid.sw + NodeRecord::<3>::force(a)]
+                            * s.grid.vel[n * 6 + 3 + a];
                     }
                 }
                 sides = [fv, work];
@@ -1013,10 +1015,20 @@ mod kept_force_tests {
             assert_eq!(bits(a), bits(b), "step {step}");
             // The forces are kept, for this time, and only where asked for.
             let t = kept.t.to_bits();
-            assert!(kept.memo.entries_mut().iter().all(|e| e.2.to_bits() == t));
-            assert!(formed.memo.entries_mut().iter().all(|e| e.2.is_nan()));
+            assert!(kept
+                .scratch
+                .memo
+                .entries_mut()
+                .iter()
+                .all(|e| e.2.to_bits() == t));
+            assert!(formed
+                .scratch
+                .memo
+                .entries_mut()
+                .iter()
+                .all(|e| e.2.is_nan()));
         }
-        assert!(kept.sorts > 0, "a sort among the steps");
+        assert!(kept.place.sorts > 0, "a sort among the steps");
         assert_eq!(kept.parts.len(), formed.parts.len());
         for p in 0..kept.parts.len() {
             for (a, b) in [
