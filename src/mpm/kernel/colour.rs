@@ -585,6 +585,79 @@ mod tests {
         assert_eq!(slab_thickness_for(true), 3);
     }
 
+    /// Particles in cells along one axis, each writing through a `GridPtr` the node
+    /// rows of a stencil of `NA` nodes (`c − below ..= c + above`) and through a
+    /// `RowPtr` its own row, from the tasks of `for_each_slab` on three threads: the
+    /// sums equal one thread's, and the joined tally counts every particle once. (Under
+    /// Miri, a race between two tasks' writes would stop the test.)
+    fn parallel_writes<const NA: usize>() {
+        let (cells, n) = (23usize, 157usize);
+        let cell = |p: usize| ((p * 7919) % cells) as i64;
+        let (below, above) = ((NA - 1) / 2, NA - 1);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .expect("a thread pool");
+        let mut o = SlabOrder::new();
+        let ix = o.begin(0, cells, slab_thickness::<NA>());
+        struct Cells<F: Fn(usize) -> i64 + Sync>(usize, SlabIndex, F);
+        impl<F: Fn(usize) -> i64 + Sync> SlabRuns for Cells<F> {
+            fn count(&self) -> usize {
+                self.0
+            }
+            fn each(&self, c: usize, mut f: impl FnMut(u32, std::ops::Range<usize>)) {
+                let end = self.0.min((c + 1) * SlabOrder::CHUNK);
+                for p in c * SlabOrder::CHUNK..end {
+                    f(self.1.slab((self.2)(p)), p..p + 1);
+                }
+            }
+        }
+        o.finish(&Cells(n, ix, cell));
+        o.check_reach::<NA>();
+        let mut grid = vec![0.0; cells + NA + 1];
+        let mut mine = vec![0u32; n];
+        let (g, rows) = (GridPtr::new(&mut grid), RowPtr::new(&mut mine));
+        let visited = pool.install(|| {
+            o.for_each_slab(
+                &|| 0usize,
+                &|order| {
+                    for &p in order {
+                        let c = cell(p as usize) as usize + below;
+                        // SAFETY: the slab's particles write rows within its reach,
+                        // which no same-coloured slab shares (the property tested).
+                        let rec = unsafe { g.record(c - below, below + above + 1) };
+                        for (k, r) in rec.iter_mut().enumerate() {
+                            *r += (k + 1) as f64;
+                        }
+                        // SAFETY: the order lists particle p once.
+                        unsafe { *rows.row(p as usize) += 1 };
+                    }
+                    order.len()
+                },
+                &|a, b| a + b,
+            )
+        });
+        let mut expect = vec![0.0; cells + NA + 1];
+        for p in 0..n {
+            let c = cell(p) as usize + below;
+            for k in 0..=below + above {
+                expect[c - below + k] += (k + 1) as f64;
+            }
+        }
+        assert_eq!(visited, n, "NA {NA}");
+        assert!(
+            mine.iter().all(|&m| m == 1),
+            "NA {NA}: a particle's row written twice"
+        );
+        assert_eq!(grid, expect, "NA {NA}");
+    }
+
+    #[test]
+    fn parallel_writes_through_the_slab_order_do_not_race() {
+        parallel_writes::<2>();
+        parallel_writes::<3>();
+    }
+
     /// Runs that list one particle twice (and so another never).
     struct Twice;
 

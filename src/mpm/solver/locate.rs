@@ -59,7 +59,7 @@ pub(super) fn in_block<const D: usize>(
 }
 
 /// The sort by cell runs when more than this fraction of a rank's particles are out
-/// of order ([`Solver::disorder`]). Particles that cross cells break their cells' runs,
+/// of order ([`Placement::disorder`]). Particles that cross cells break their cells' runs,
 /// and every particle pass pays per run: on the vortex, whose ring turns through the
 /// cells, a step costs 1.3 % more for each step since the last sort, while a sort
 /// (keys, order, the arrays moved and the next tile pass's locating) costs about
@@ -348,7 +348,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         }
     }
 
-    /// The storage index of each run's cell's lower corner node ([`Solver::cell_runs`]),
+    /// The storage index of each run's cell's lower corner node ([`Placement::cell_runs`]),
     /// on threads, once the active set holds every run's tile ([`Solver::touch_runs`],
     /// [`Tiles::finish`]).
     pub(super) fn run_nodes(&mut self) {

@@ -145,7 +145,7 @@ pub(super) struct NodeView<'a, const D: usize> {
     pub(super) node_lo: [i64; D],
     pub(super) faces: [[Face; 2]; D],
     pub(super) cell_w: &'a [f64],
-    /// The cell integrals of [`Solver::cell_k`], [`Solver::cell_m`], [`Solver::cell_md`].
+    /// The cell integrals of [`GridFields::cell_k`], [`GridFields::cell_m`], [`GridFields::cell_md`].
     pub(super) cell_k: &'a [[[f64; D]; CORNERS]; CORNERS],
     pub(super) cell_m: &'a [[f64; CORNERS]; CORNERS],
     pub(super) cell_md: &'a [[f64; D]; CORNERS],
