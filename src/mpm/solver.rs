@@ -258,6 +258,42 @@ struct Placement<const D: usize> {
     sorts: u64,
 }
 
+impl<const D: usize> GridFields<D> {
+    /// Empty, sized by [`Solver::setup_grid`].
+    fn new() -> Self {
+        GridFields {
+            scat: Vec::new(),
+            sw: 0,
+            vel: Vec::new(),
+            xpic_add: Vec::new(),
+            xpic_term: Vec::new(),
+            fill: Vec::new(),
+            cell_w: Vec::new(),
+            node_vol: Vec::new(),
+            cell_k: [[[0.0; D]; CORNERS]; CORNERS],
+            cell_m: [[0.0; CORNERS]; CORNERS],
+            cell_md: [[0.0; D]; CORNERS],
+            mass_floor: 0.0,
+        }
+    }
+}
+
+impl<const D: usize> Placement<D> {
+    /// No particle located yet.
+    fn new() -> Self {
+        Placement {
+            ptile: Vec::new(),
+            cell_runs: Vec::new(),
+            run_keys: Vec::new(),
+            slabs: SlabOrder::new(),
+            located: false,
+            flagged: Vec::new(),
+            disorder: 0,
+            sorts: 0,
+        }
+    }
+}
+
 /// Scratch reused every step (no allocation in the loop once grown).
 struct Scratch<const D: usize> {
     /// Which particles stay on this rank in a migration.
@@ -280,6 +316,22 @@ struct Scratch<const D: usize> {
     memo: Memo<D>,
     /// Per chunk of particles, the sums of [`Solver::errors_keeping_forces`].
     error_sums: Vec<[f64; 3]>,
+}
+
+impl<const D: usize> Scratch<D> {
+    fn new() -> Self {
+        Scratch {
+            keep: Vec::new(),
+            record: Vec::new(),
+            dx: Vec::new(),
+            perm: Vec::new(),
+            permuted: Vec::new(),
+            buf: Vec::new(),
+            accel: Vec::new(),
+            memo: Memo::default(),
+            error_sums: Vec::new(),
+        }
+    }
 }
 
 impl<'c, const D: usize> Solver<'c, D> {
