@@ -14,7 +14,7 @@
 //! round-off.
 
 use crate::mpm::kernel::lanes::{self, Room, Weights, HALF, LANES, QUARTER};
-use crate::mpm::kernel::{CellAt, Ctx, GridPtr, NodeData, RowPtr, Run, SlabOrder};
+use crate::mpm::kernel::{CellAt, Ctx, GridPtr, NodeData, RowPtr, Run, Slab, SlabOrder};
 use crate::physics::tensor::Vector;
 
 /// Read-only particle arrays of the remap.
@@ -100,7 +100,7 @@ pub fn remap<const D: usize, const NA: usize, const N: usize>(
     };
     slabs.check_reach::<NA>();
     let grid = GridPtr::new(mom);
-    let slab = |order: &[u32]| remap_slab::<D, NA, N>(ctx, parts, pp, order, vel, grid, m);
+    let slab = |slab: Slab<'_>| remap_slab::<D, NA, N>(ctx, parts, pp, slab, vel, grid, m);
     slabs.for_each_slab(&RemapTally::zero, &slab, &RemapTally::join)
 }
 
@@ -118,13 +118,13 @@ fn run_width(tile: &[u32], order: &[u32]) -> usize {
         .unwrap_or(1)
 }
 
-/// The remap of one slab's particles `order`: their velocities, and their momentum
-/// into the records behind `grid`.
+/// The remap of one slab's particles: their velocities, and their momentum into the
+/// records behind `grid`.
 fn remap_slab<const D: usize, const NA: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
     parts: &RemapParts<'_, D>,
     pp: ParticlePtr<D>,
-    order: &[u32],
+    slab: Slab<'_>,
     vel: &[f64],
     grid: GridPtr,
     m: RemapMode,
@@ -141,6 +141,7 @@ fn remap_slab<const D: usize, const NA: usize, const N: usize>(
     // too: unlike the stress pass, the remap's lanes are few numbers, the nodes'
     // weights and two interpolated velocities, and fit the registers). GIMP's: one at
     // a time, their nodes depend on the particle, not only its cell.
+    let order = slab.particles;
     let mut i = 0;
     while i < order.len() {
         let p = order[i] as usize;
@@ -150,6 +151,7 @@ fn remap_slab<const D: usize, const NA: usize, const N: usize>(
                 if run.started() {
                     add_momentum(grid, m.record, &run.idx, &mut sum);
                 }
+                slab.check_cell(c[D - 1] as i64);
                 run.enter(ctx, parts.tile[p], below);
                 nd.load(&run.idx, vel, &[], None);
             }

@@ -88,6 +88,29 @@ pub trait SlabRuns: Sync {
     fn each(&self, c: usize, f: impl FnMut(u32, std::ops::Range<usize>));
 }
 
+/// One slab's particles, as [`SlabOrder::for_each_slab`] hands them to a task.
+pub struct Slab<'a> {
+    pub particles: &'a [u32],
+    index: SlabIndex,
+    slab: u32,
+}
+
+impl Slab<'_> {
+    /// Stops the pass unless cell `c` along the last axis (a run's, before the pass
+    /// writes its nodes) lies in this slab: the writes then stay within the slab's
+    /// reach, which no slab of its colour shares, whatever positions and cells the
+    /// pass was given.
+    #[inline]
+    pub fn check_cell(&self, c: i64) {
+        let s = self.index.slab(c);
+        assert!(
+            s == self.slab,
+            "a run in cell {c} along the last axis is in slab {s}, not in the slab {} that lists it",
+            self.slab
+        );
+    }
+}
+
 /// The particle order of the coloured scatter: particle indices grouped by slab.
 /// Its fields are private and only [`SlabOrder::finish`] fills them, after which the
 /// order lists every particle of the runs exactly once: the property that lets the
@@ -354,7 +377,7 @@ impl SlabOrder {
         self.start.len() - 1
     }
 
-    /// `f` over the particles of every slab, colour by colour: first the slabs
+    /// `f` over every slab ([`Slab`]), colour by colour: first the slabs
     /// `0, 2, 4, …`, then `1, 3, …`, the slabs of one colour in parallel (never
     /// sharing a node, [`slab_thickness`]). The slabs of a colour are halved where they
     /// hold half of their particles ([`SlabOrder::split`]), so the same slabs go
@@ -363,7 +386,7 @@ impl SlabOrder {
     pub fn for_each_slab<T: Send>(
         &self,
         zero: &(impl Fn() -> T + Sync),
-        f: &(impl Fn(&[u32]) -> T + Sync),
+        f: &(impl Fn(Slab<'_>) -> T + Sync),
         join: &(impl Fn(T, T) -> T + Sync),
     ) -> T {
         let ns = self.slabs();
@@ -381,11 +404,15 @@ impl SlabOrder {
         first: usize,
         count: usize,
         zero: &(impl Fn() -> T + Sync),
-        f: &(impl Fn(&[u32]) -> T + Sync),
+        f: &(impl Fn(Slab<'_>) -> T + Sync),
         join: &(impl Fn(T, T) -> T + Sync),
     ) -> T {
         if count == 1 {
-            return f(self.slab(first));
+            return f(Slab {
+                particles: self.slab(first),
+                index: self.index(),
+                slab: first as u32,
+            });
         }
         let Some(half) = self.split(first, count) else {
             return zero();
@@ -620,8 +647,9 @@ mod tests {
         let visited = pool.install(|| {
             o.for_each_slab(
                 &|| 0usize,
-                &|order| {
-                    for &p in order {
+                &|slab| {
+                    for &p in slab.particles {
+                        slab.check_cell(cell(p as usize));
                         let c = cell(p as usize) as usize + below;
                         // SAFETY: the slab's particles write rows within its reach,
                         // which no same-coloured slab shares (the property tested).
@@ -632,7 +660,7 @@ mod tests {
                         // SAFETY: the order lists particle p once.
                         unsafe { *rows.row(p as usize) += 1 };
                     }
-                    order.len()
+                    slab.particles.len()
                 },
                 &|a, b| a + b,
             )
@@ -730,5 +758,31 @@ mod tests {
         let mut o = SlabOrder::new();
         o.begin(0, 2, 1);
         o.finish(&Shifty(std::sync::atomic::AtomicUsize::new(0)));
+    }
+
+    /// A pass whose particles' cells disagree with the order (positions moved since
+    /// it was built) is stopped at the first run outside the slab that lists it.
+    #[test]
+    #[should_panic(expected = "is in slab 1, not in the slab 0 that lists it")]
+    fn a_run_outside_its_slab_is_refused() {
+        struct Two;
+        impl SlabRuns for Two {
+            fn count(&self) -> usize {
+                2
+            }
+            fn each(&self, _: usize, mut f: impl FnMut(u32, std::ops::Range<usize>)) {
+                f(0, 0..1);
+                f(1, 1..2);
+            }
+        }
+        let mut o = SlabOrder::new();
+        o.begin(0, 4, 1);
+        o.finish(&Two);
+        // Particle 0, listed in slab 0, now in cell 1.
+        o.for_each_slab(
+            &|| (),
+            &|slab| slab.check_cell(slab.particles[0] as i64 + 1),
+            &|(), ()| (),
+        );
     }
 }

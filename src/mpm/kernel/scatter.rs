@@ -78,15 +78,15 @@ pub fn scatter<const D: usize, const NA: usize, const N: usize>(
 ) {
     slabs.check_reach::<NA>();
     let grid = GridPtr::new(scat);
-    let slab = |order: &[u32]| scatter_slab::<D, NA, N>(ctx, parts, order, grid, m);
+    let slab = |slab: Slab<'_>| scatter_slab::<D, NA, N>(ctx, parts, slab, grid, m);
     slabs.for_each_slab(&|| (), &slab, &|(), ()| ());
 }
 
-/// The scatter of one slab's particles `order` into the records behind `grid`.
+/// The scatter of one slab's particles into the records behind `grid`.
 pub(super) fn scatter_slab<const D: usize, const NA: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
     parts: &ScatterParts<'_, D>,
-    order: &[u32],
+    slab: Slab<'_>,
     grid: GridPtr,
     m: ScatterMode,
 ) {
@@ -109,7 +109,7 @@ pub(super) fn scatter_slab<const D: usize, const NA: usize, const N: usize>(
         &parts.tile[..len],
         &parts.kind[..len],
     );
-    for &p in order {
+    for &p in slab.particles {
         let p = p as usize;
         assert!(p < len, "slab order names particle {p} of {len}");
         let at = kinds.get(kind[p]);
@@ -124,12 +124,14 @@ pub(super) fn scatter_slab<const D: usize, const NA: usize, const N: usize>(
         let half = if ctx.gimp { Some(&parts.half[p]) } else { None };
         // (ξ formed here, not before the stress: there, the 2D scatter's share
         // grew 1.13 against ξ kept by the tile pass, here 1.06.)
-        let xi = ctx.local(&xs[p], cell.of(ctx, tiles[p]));
+        let c = *cell.of(ctx, tiles[p]);
+        let xi = ctx.local(&xs[p], &c);
         let (k, below, _) = ctx.weights::<NA, N>(&xs[p], half, &xi);
         if run.is_new(tiles[p], below) {
             if run.started() {
                 acc.flush(ctx, grid, &run.idx, m);
             }
+            slab.check_cell(c[D - 1] as i64);
             run.enter(ctx, tiles[p], below);
             // The run's records are added into at its end, after its particles:
             // fetched meanwhile, not waited for then.
