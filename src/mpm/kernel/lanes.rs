@@ -393,10 +393,10 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
         l: usize,
         u: &mut [[f64; B]; D],
     ) {
-        let ends = &self.ends[l];
-        if !ends.iter().flatten().any(|&e| e) {
+        if !self.touches_wall(l) {
             return;
         }
+        let ends = &self.ends[l];
         let mut keep_fixed = 1.0;
         let mut keep = [1.0; D];
         for a in 0..D {
