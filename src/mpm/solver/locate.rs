@@ -192,12 +192,15 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
         if !inside {
             return false;
         }
-        // Truncation: every lane passed `lo[a] <= s < hi[a]` (a NaN fails it), so `s`
-        // is finite and in range, and `as` truncates.
+        // Truncation: every lane passed `lo[a] <= s < hi[a]` (a NaN fails it), so
+        // `t = trunc(s)` is an integer in `[0, 2³¹)`, `t + 2⁵²` is exact, and its bits
+        // are those of 2⁵² plus `t`. Unlike `as`, which saturates lane by lane in
+        // scalar code, this is three vector operations.
+        const TWO_52: f64 = 4_503_599_627_370_496.0;
         let mut c = [[0i64; L]; D];
         for a in 0..D {
             for l in 0..L {
-                c[a][l] = s[a][l] as i64;
+                c[a][l] = ((s[a][l].trunc() + TWO_52).to_bits() - TWO_52.to_bits()) as i64;
             }
         }
         // A run starts where a lane's cell differs from the one before it: a bit per
@@ -598,6 +601,12 @@ mod locate_tests {
             );
             assert!(runs_a.len() > 400, "{} runs", runs_a.len());
             assert_eq!(runs_a, runs_b);
+            // Each run's cell is `Geom::locate`'s (its floor and clamp) for its first.
+            for r in &runs_a {
+                let x = &xs[r.first as usize - LOCATE_CHUNK];
+                let (c, _) = geom.locate(&std::array::from_fn(|a| x[a]));
+                assert_eq!(r.cell(), c, "run from {}", r.first);
+            }
         }
         check::<2>([40, 25], [5, 3], [31, 22], 0x1a9e);
         check::<3>([9, 10, 11], [0, 2, 4], [9, 8, 11], 0x3d);
