@@ -277,6 +277,33 @@ fn remap_batch<const D: usize, const N: usize, const B: usize>(
             }
         }
     }
+    // The walls' test outside the particles' loop: away from walls (nearly every
+    // batch) the loop has no clip in it, and its lanes stay in registers.
+    let rows = &rows;
+    if w.at_wall() {
+        remap_each::<D, N, B, true>(ctx, parts, pp, ps, w, (&vn, &dv), rows, m, sum, t);
+    } else {
+        remap_each::<D, N, B, false>(ctx, parts, pp, ps, w, (&vn, &dv), rows, m, sum, t);
+    }
+}
+
+/// The particles' part of [`remap_batch`], with the slip walls' clip if `WALL`.
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+#[inline(always)]
+fn remap_each<const D: usize, const N: usize, const B: usize, const WALL: bool>(
+    ctx: &Ctx<'_, D>,
+    parts: &RemapParts<'_, D>,
+    pp: ParticlePtr<D>,
+    ps: &[u32; B],
+    w: &Weights<D, N, B>,
+    (vn, dv): (&[[f64; B]; D], &[[f64; B]; D]),
+    rows: &[[f64; N]; B],
+    m: RemapMode,
+    sum: &mut [[f64; N]; D],
+    t: &mut RemapTally,
+) {
+    let by_rows = N <= 4 && B > 1;
+    let sh = w.shape();
     for (l, &p) in ps.iter().enumerate() {
         let p = p as usize;
         // SAFETY: p is visited by this thread only (see `ParticlePtr`); no other
@@ -290,8 +317,8 @@ fn remap_batch<const D: usize, const N: usize, const B: usize>(
             new[a] = (old[a] + dv[a][l]) * m.flip + vn[a][l] * (1.0 - m.flip);
             vnl[a] = vn[a][l];
         }
-        if w.at_wall() {
-            t.work += w.clip(ctx, l, &mut new, &vn, mass);
+        if WALL {
+            t.work += w.clip(ctx, l, &mut new, &vnl, mass);
         }
         let a = ctx.accel_kept(parts.accel, parts.x0, p);
         t.work += m.dt * mass * a.dot(&(old + new)) * 0.5;

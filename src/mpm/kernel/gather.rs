@@ -297,7 +297,7 @@ fn gather_batch<const D: usize, const N: usize, const B: usize>(
         // legitimate subgrid motion; not at fixed walls, where the material is
         // clamped and clipping pressed a compressed root through the clamp.
         if w.at_wall() {
-            *work += w.clip(ctx, l, &mut new, &u, mass);
+            *work += w.clip(ctx, l, &mut new, &lanes::column(&u, l), mass);
         }
         let acc = ctx.accel_kept(s.accel, s.parts.x0, p);
         *work += m.dt * mass * acc.dot(&(old + new)) * 0.5;
@@ -355,7 +355,7 @@ fn stress_batch<const D: usize, const N: usize, const B: usize>(
                 if w.touches_wall(l) {
                     let mut v = s.parts.v[p];
                     let mass = particles::mass_of(ctx.kind_mass, s.parts.kind, p);
-                    *work += w.clip(ctx, l, &mut v, &u, mass);
+                    *work += w.clip(ctx, l, &mut v, &lanes::column(&u, l), mass);
                     s.parts.v[p] = v;
                 }
             }

@@ -443,22 +443,19 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
         self.ends[l].iter().flatten().any(|&e| e)
     }
 
-    /// Lane `l`'s velocity `v` clipped at the slip walls it touches to `u`'s
-    /// ([`clip_at_slip_walls`]); returns the wall's work, exactly 0 away from walls.
+    /// Lane `l`'s velocity `v` clipped at the slip walls it touches to `vm`, the
+    /// velocity it moves with ([`clip_at_slip_walls`]); returns the wall's work,
+    /// exactly 0 away from walls.
     #[inline(always)]
     pub fn clip(
         &self,
         ctx: &Ctx<'_, D>,
         l: usize,
         v: &mut Vector<D>,
-        u: &[[f64; B]; D],
+        vm: &Vector<D>,
         mass: f64,
     ) -> f64 {
-        let mut vm = Vector::<D>::zeros();
-        for a in 0..D {
-            vm[a] = u[a][l];
-        }
-        clip_at_slip_walls(ctx, &self.ends[l], v, &vm, mass)
+        clip_at_slip_walls(ctx, &self.ends[l], v, vm, mass)
     }
 
     /// Deform particles `r` of `s` by the velocity gradient `lg` over `dt`: the
@@ -485,46 +482,41 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
         }
         let j = det_lanes(&inc);
         let mut fnew = [[[0.0; B]; D]; D];
-        if s.parts.def_grad.is_empty() {
+        match s.parts.def_grad.get(r.clone()) {
             // Particles without `F` (a material that needs none) deform with F = I.
-            for (i, row) in fnew.iter_mut().enumerate() {
-                row[i] = [1.0; B];
-            }
-        } else {
-            // `F`, the widest array the pass streams (72 bytes a particle in 3D), asked
-            // for ahead: its loads here waited on memory (a sixth of the 3D stress pass).
-            // (Past the array's end only addresses are formed: a prefetch never faults.)
-            super::prefetch(s.parts.def_grad, r.end + AHEAD - B, B);
-            let fs: &mut [Mat<D>; B] = (&mut s.parts.def_grad[r.clone()])
-                .try_into()
-                .expect("a full batch");
-            let mut f = [[[0.0; B]; D]; D];
-            for l in 0..B {
-                for k in 0..D {
-                    for c in 0..D {
-                        f[k][c][l] = fs[l][(k, c)];
-                    }
+            None => {
+                for (i, row) in fnew.iter_mut().enumerate() {
+                    row[i] = [1.0; B];
                 }
             }
-            for i in 0..D {
-                for c in 0..D {
-                    // nalgebra's product: the sum over k in order.
-                    let mut x = [0.0; B];
-                    for l in 0..B {
-                        x[l] = inc[i][0][l] * f[0][c][l];
-                    }
-                    for k in 1..D {
-                        for l in 0..B {
-                            x[l] += inc[i][k][l] * f[k][c][l];
+            Some(fs) => {
+                // `F`, the widest array the pass streams (72 bytes a particle in 3D),
+                // asked for ahead: its loads here waited on memory (a sixth of the 3D
+                // stress pass). (Past the array's end only addresses are formed: a
+                // prefetch never faults.)
+                super::prefetch(s.parts.def_grad, r.end + AHEAD - B, B);
+                let fs: &[Mat<D>; B] = fs.try_into().expect("a full batch");
+                let mut f = [[[0.0; B]; D]; D];
+                for l in 0..B {
+                    for k in 0..D {
+                        for c in 0..D {
+                            f[k][c][l] = fs[l][(k, c)];
                         }
                     }
-                    fnew[i][c] = x;
                 }
-            }
-            for l in 0..B {
                 for i in 0..D {
                     for c in 0..D {
-                        fs[l][(i, c)] = fnew[i][c][l];
+                        // nalgebra's product: the sum over k in order.
+                        let mut x = [0.0; B];
+                        for l in 0..B {
+                            x[l] = inc[i][0][l] * f[0][c][l];
+                        }
+                        for k in 1..D {
+                            for l in 0..B {
+                                x[l] += inc[i][k][l] * f[k][c][l];
+                            }
+                        }
+                        fnew[i][c] = x;
                     }
                 }
             }
@@ -542,14 +534,26 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
             }
             *vs = vol;
         }
-        if s.parts.stress.is_empty() {
-            // The stress follows from F where it is used; for the materials that do
-            // this (neo-Hookean) it is finite where F is and J > 0.
-            return unphysical(&j, &vol, &fnew);
+        // The marks before `F` is stored: the new `F` is still in registers. (The
+        // stress, where a material stores it, follows F; for the materials that do
+        // not store it (neo-Hookean) it is finite where F is and J > 0.)
+        let stored = !s.parts.stress.is_empty();
+        let mut bad =
+            unphysical::<D, B>(&j, &vol, if stored { &[[[0.0; B]; D]; D] } else { &fnew });
+        if let Some(fs) = s.parts.def_grad.get_mut(r.clone()) {
+            let fs: &mut [Mat<D>; B] = fs.try_into().expect("a full batch");
+            for l in 0..B {
+                for i in 0..D {
+                    for c in 0..D {
+                        fs[l][(i, c)] = fnew[i][c][l];
+                    }
+                }
+            }
         }
-        let mut bad = unphysical::<D, B>(&j, &vol, &[[[0.0; B]; D]; D]);
-        for (l, p) in r.enumerate() {
-            bad[l] += update_stress(ctx, s, p, lane(lg, l), lane(&fnew, l), dt);
+        if stored {
+            for (l, p) in r.enumerate() {
+                bad[l] += update_stress(ctx, s, p, lane(lg, l), lane(&fnew, l), dt);
+            }
         }
         bad
     }
@@ -559,6 +563,12 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
 #[inline(always)]
 pub(crate) fn lane<const D: usize, const B: usize>(m: &[[[f64; B]; D]; D], l: usize) -> Mat<D> {
     Mat::<D>::from_fn(|i, k| m[i][k][l])
+}
+
+/// Lane `l` of a vector held lane by lane.
+#[inline(always)]
+pub(crate) fn column<const D: usize, const B: usize>(v: &[[f64; B]; D], l: usize) -> Vector<D> {
+    Vector::<D>::from_fn(|a, _| v[a][l])
 }
 
 /// The stress update of particle `p` of `s`, whose material stores its stress, by the
