@@ -16,6 +16,7 @@ pub mod local;
 pub mod migrate;
 pub mod splitmix;
 pub mod tiles;
+pub mod timed;
 pub mod traffic;
 
 pub use block::Block;
@@ -24,6 +25,7 @@ pub use layout::{Layout, GHOST};
 pub use local::LocalComm;
 pub use migrate::{Destination, Migrator, Records};
 pub use tiles::{Tiles, TILE};
+pub use timed::{CommStats, Timed};
 pub use traffic::Traffic;
 
 /// What a partition or a migration could not do.

@@ -805,7 +805,7 @@ fn balanced_cuts_share_the_cost() {
                 }
             })
             .collect();
-        let l = base.balanced(&[cost.clone()]);
+        let l = base.balanced(std::array::from_ref(&cost));
         let c = l.cuts(0);
         let min = if procs > 1 || periodic { GHOST } else { 1 };
         assert!(
