@@ -47,6 +47,11 @@ enum Command {
         /// --out says otherwise. Any rank count works.
         #[arg(long, value_name = "CHECKPOINT.h5")]
         restart: Option<PathBuf>,
+        /// At the end, print where the steps' time went: each part of the step,
+        /// min / mean / max over ranks, and the time blocked in communication
+        /// (`summary.json` has it under `profile` either way).
+        #[arg(long)]
+        profile: bool,
     },
     /// Validate a scene file and exit.
     Check {
@@ -187,11 +192,12 @@ pub fn main() -> ExitCode {
             quiet,
             progress_every,
             restart,
+            profile,
         } => {
             if progress_every.is_some_and(|s| !(s >= 0.0 && s.is_finite())) {
                 return early_error("--progress-every must be a number of seconds >= 0");
             }
-            run_main(scene, out, threads, quiet, progress_every, restart)
+            run_main(scene, out, threads, quiet, progress_every, restart, profile)
         }
     }
 }
@@ -255,6 +261,7 @@ fn run_main(
     quiet: bool,
     progress_every: Option<f64>,
     restart: Option<PathBuf>,
+    profile: bool,
 ) -> ExitCode {
     // A fresh run's scene is checked before MPI starts; a restart needs every rank
     // to agree on the checkpoint, so MPI comes first.
@@ -307,9 +314,10 @@ fn run_main(
         scene_text: Some(text),
         restart,
         progress_every,
+        profile,
     };
     let result = run::run(&sc, &comm, &opts);
-    report(result, root, &opts.out)
+    report(result, root, &opts)
 }
 
 /// The thread count per rank (`--threads`, else 1 under mpirun with several ranks and
@@ -356,10 +364,14 @@ fn default_out(restart: Option<&Path>, name: &str) -> PathBuf {
 }
 
 /// The last line of a run (rank 0) and its exit status.
-fn report(result: Result<run::Summary, RunError>, root: bool, out: &Path) -> ExitCode {
+fn report(result: Result<run::Summary, RunError>, root: bool, opts: &RunOptions) -> ExitCode {
+    let out = &opts.out;
     match result {
         // The last line says where the files are, with --quiet too.
         Ok(s) => {
+            if root && opts.profile {
+                say!("{}", run::profile_table(&s.profile, s.ranks));
+            }
             if root {
                 say!(
                     "{}: completed {} steps to t = {:.6e} in {:.2} s ({:.3e} particle updates/s); output in {}",

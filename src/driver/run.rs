@@ -6,7 +6,7 @@ use crate::driver::progress::Progress;
 use crate::input::scene::{Face, Scene};
 use crate::mpm::solver::{Failure, Solver};
 use crate::output::checkpoint::{self, RunState};
-use decomposition::{Communicator, Layout};
+use decomposition::{Communicator, Layout, Timed};
 use history::History;
 use rescue::Rescue;
 use schedules::{BalanceSchedule, CheckpointSchedule, HistorySchedule, SnapshotSchedule};
@@ -15,12 +15,14 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 mod history;
+mod profile;
 mod rescue;
 mod schedules;
 mod setup;
 mod steps;
 mod summary;
 
+pub use profile::{table as profile_table, Blocked, PartSeconds, ProfileSummary};
 pub use summary::{
     BalanceSummary, EnergySummary, ErrorSummary, GridSummary, HaloSummary, MassSummary,
     MomentumSummary, OutputSeconds, RankLoad, RestartSummary, Spread, Summary, TrafficSummary,
@@ -38,6 +40,8 @@ pub struct RunOptions {
     pub restart: Option<PathBuf>,
     /// Seconds between progress updates (`None`: 0.5 on a terminal, 10 in a log).
     pub progress_every: Option<f64>,
+    /// Print where the steps' time went at the end (`summary.json` has it anyway).
+    pub profile: bool,
 }
 
 /// How a run ended, for the exit status.
@@ -139,6 +143,9 @@ fn run_dim<const D: usize>(
     comm: &dyn Communicator,
     opts: &RunOptions,
 ) -> Result<Summary, RunError> {
+    // Every collective and exchange of the run counted and timed.
+    let timed = Timed::new(comm);
+    let comm: &dyn Communicator = &timed;
     let layout = layout_for::<D>(scene, comm.size())?;
     if opts.restart.is_none() {
         check_bodies(scene).map_err(RunError::Input)?;
@@ -153,8 +160,11 @@ fn run_dim<const D: usize>(
         Some(t) => t.clone(),
         None => toml::to_string(scene).unwrap_or_default(),
     };
+    let t0 = Instant::now();
     let set_up = set_up::<D>(scene, comm, &layout, opts)?;
-    let mut run = Run::start(scene, comm, opts, scene_text, set_up)?;
+    let setup_seconds = t0.elapsed().as_secs_f64();
+    let mut run = Run::start(scene, &timed, opts, scene_text, set_up)?;
+    run.timing.setup_seconds = setup_seconds;
     let ending = run.steps()?;
     run.finish(ending)
 }
@@ -172,6 +182,8 @@ enum Ending {
 struct Run<'a, const D: usize> {
     scene: &'a Scene,
     comm: &'a dyn Communicator,
+    /// `comm`, with its counts and times.
+    timed: &'a Timed<'a>,
     opts: &'a RunOptions,
     out: &'a Path,
     /// Stored verbatim in checkpoints.
@@ -188,6 +200,7 @@ struct Run<'a, const D: usize> {
     progress: Progress,
     start: Instant,
     output_seconds: OutputSeconds,
+    timing: profile::Timing,
     /// Total energy at t = 0.
     e0: f64,
     /// The step this run started from (0, or the checkpoint's).

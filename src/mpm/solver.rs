@@ -17,6 +17,7 @@ use crate::physics::tensor::{vector, Mat, Vector};
 use decomposition::tiles::TILE_LOG;
 use decomposition::{Block, Communicator, Layout, Migrator, Tiles, Traffic, TILE};
 use rayon::prelude::*;
+use std::time::Instant;
 
 /// The read-only context of the particle loops, borrowed field by field from a solver.
 macro_rules! ctx {
@@ -81,6 +82,7 @@ macro_rules! by_pad {
     };
 }
 
+mod clock;
 mod diagnostics;
 mod gather;
 mod grid;
@@ -91,6 +93,7 @@ mod scatter;
 mod setup;
 mod stencils;
 
+pub use clock::{Clock, Part};
 pub use diagnostics::cell_integral;
 pub use grid::FULL_FILL;
 use locate::*;
@@ -174,6 +177,8 @@ pub struct Solver<'c, const D: usize> {
     pub dt: f64,
     /// Times the block boundaries moved ([`Solver::relayout`]), restarts included.
     pub rebalances: u64,
+    /// Where this rank's steps spent their time.
+    pub clock: Clock,
     /// Halo and migration traffic of the blocks and migrators a rebalance replaced.
     traffic_before: (Traffic, Traffic),
     /// The particle imbalance [`Solver::rebalance`] found, or left if it moved the
@@ -404,14 +409,18 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// costs no extra message.
     pub fn advance_with(&mut self, flags: &mut [f64]) -> Result<(), Failure> {
         assert!(flags.len() <= 3, "at most three flags per step");
+        let t0 = Instant::now();
         let dt = self.choose_dt()?;
+        self.clock.add(Part::TimeStep, t0);
         self.dt = dt;
         if let Some(b) = &self.benchmark {
             self.scratch.memo.refresh(b, &self.parts.x0);
         }
         let mut ok = true;
         for k in 0..self.phases.len() {
+            let t0 = Instant::now();
             ok &= self.run_phase(self.phases[k], dt);
+            self.clock.add(Part::of(self.phases[k]), t0);
         }
         // Valid for this step only (and the particle count may change below).
         self.scratch.accel.clear();
@@ -420,7 +429,9 @@ impl<'c, const D: usize> Solver<'c, D> {
         let mut agree = [0.0; 4];
         agree[0] = if ok { 0.0 } else { 1.0 };
         agree[1..1 + flags.len()].copy_from_slice(flags);
+        let t0 = Instant::now();
         self.comm.max_f64(&mut agree[..1 + flags.len()]);
+        self.clock.add(Part::Check, t0);
         flags.copy_from_slice(&agree[1..1 + flags.len()]);
         if agree[0] > 0.0 {
             return Err(Failure::Unstable(format!(
@@ -428,9 +439,13 @@ impl<'c, const D: usize> Solver<'c, D> {
                 self.step, self.t
             )));
         }
+        let t0 = Instant::now();
         self.relocate()?;
+        self.clock.add(Part::Migrate, t0);
         if self.place.disorder as f64 > SORT_DISORDER * self.parts.len() as f64 {
+            let t0 = Instant::now();
             self.sort();
+            self.clock.add(Part::Sort, t0);
         }
         Ok(())
     }

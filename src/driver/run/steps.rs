@@ -13,7 +13,7 @@ use crate::driver::progress::Progress;
 use crate::driver::signals;
 use crate::input::scene::Scene;
 use crate::output::checkpoint;
-use decomposition::Communicator;
+use decomposition::{Communicator, Timed};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -22,11 +22,12 @@ impl<'a, const D: usize> Run<'a, D> {
     /// of the initial state, whose snapshot and history row are written.
     pub(super) fn start(
         scene: &'a Scene,
-        comm: &'a dyn Communicator,
+        timed: &'a Timed<'a>,
         opts: &'a RunOptions,
         scene_text: String,
         (solver, restored, restarted_from, stored): SetUp<'a, D>,
     ) -> Result<Self, RunError> {
+        let comm: &dyn Communicator = timed;
         let keep = scene.checkpoint.as_ref().map_or(2, |c| c.keep);
         let lineage = lineage(comm, &opts.out, stored, keep);
         let mut history = History::open(comm, &opts.out, &solver, restored.as_ref())?;
@@ -59,6 +60,7 @@ impl<'a, const D: usize> Run<'a, D> {
         Ok(Self {
             scene,
             comm,
+            timed,
             opts,
             out: &opts.out,
             scene_text,
@@ -76,6 +78,7 @@ impl<'a, const D: usize> Run<'a, D> {
             progress,
             start,
             output_seconds,
+            timing: Default::default(),
             threads: opts.threads,
             restarted_from,
         })
@@ -87,17 +90,36 @@ impl<'a, const D: usize> Run<'a, D> {
         let root = self.comm.rank() == 0;
         // The wall-clock interval counts from the first step, not from the set-up.
         self.checkpoints.clock = Instant::now();
+        let (start, comm0) = (Instant::now(), self.timed.stats());
+        let output0 = self.output_seconds.snapshots + self.output_seconds.checkpoints;
+        let ending = self.step_loop(root);
+        let t = &mut self.timing;
+        t.loop_seconds = start.elapsed().as_secs_f64();
+        t.loop_comm = self.timed.stats().since(&comm0);
+        t.output_seconds =
+            self.output_seconds.snapshots + self.output_seconds.checkpoints - output0;
+        ending
+    }
+
+    /// The steps of [`Run::steps`].
+    fn step_loop(&mut self, root: bool) -> Result<Ending, RunError> {
         while !self.solver.done() {
             let wall_due = root && self.checkpoints.wall_due();
             // Snapshots at exact output times: the step that would pass one is shortened.
             self.solver.stop_at = self.st.next_snapshot;
             let mut req = Requests::new(signals::pending(), wall_due, self.history.error.is_some());
-            if let Err(f) = self.solver.advance_with(&mut req.0) {
+            let comm0 = self.timed.stats();
+            let advanced = self.solver.advance_with(&mut req.0);
+            let c = self.timed.stats().since(&comm0);
+            self.timing.step_comm = self.timing.step_comm.plus(&c);
+            if let Err(f) = advanced {
                 return Ok(Ending::Unstable(f));
             }
             // Before anything is written, so that a checkpoint holds the layout the
             // run continues with.
+            let t0 = Instant::now();
             self.balance.check(&mut self.solver);
+            self.timing.balance_seconds += t0.elapsed().as_secs_f64();
             if req.history_failed() {
                 return Err(RunError::Io(self.history.error.take().unwrap_or_else(
                     || format!("{}: writing failed on rank 0", self.history.path.display()),

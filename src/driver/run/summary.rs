@@ -1,6 +1,7 @@
 //! What a run reports: the summary (`summary.json`) and how it is gathered from the
 //! ranks at the end of the run.
 
+use super::profile::ProfileSummary;
 use super::{Run, RunError};
 use crate::mpm::solver::Totals;
 use crate::output::io::{agree, Labels};
@@ -150,6 +151,8 @@ pub struct Summary {
     pub output_seconds: OutputSeconds,
     /// Bytes and messages sent between ranks per step.
     pub halo: HaloSummary,
+    /// Where the steps' time went, per rank.
+    pub profile: ProfileSummary,
 }
 
 /// Wall time (rank 0's clock) spent writing snapshots and checkpoints.
@@ -235,6 +238,7 @@ impl<'a, const D: usize> Run<'a, D> {
         let (particles_per_rank, grid) = self.loads(last.particles);
         let imbalance = self.solver.imbalance();
         let halo = self.traffic();
+        let profile = self.profile();
         self.history.flush();
         let (scene, solver, tot0) = (self.scene, &self.solver, &self.st.initial);
         Summary {
@@ -290,6 +294,7 @@ impl<'a, const D: usize> Run<'a, D> {
             restarted_from: self.restarted_from.clone(),
             output_seconds: self.output_seconds.clone(),
             halo,
+            profile,
         }
     }
 

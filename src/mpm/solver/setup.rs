@@ -64,6 +64,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             step: 0,
             dt: 0.0,
             rebalances: 0,
+            clock: Clock::default(),
             traffic_before: Default::default(),
             last_imbalance: 1.0,
             external_work: 0.0,
