@@ -62,8 +62,8 @@ def main():
                     100 * s[k] / total for k in ("mean", "min", "max"))
                 top = sorted(parts, key=lambda x: -x["mean"])[:2]
                 print(f"| {dim} | {ranks} | {1e3 * total:.2f} | {share(b['collectives'])} "
-                      f"| {share(b['exchanges'])} | {p['step_collectives']:g} / "
-                      f"{p['step_exchanges']:g} | "
+                      f"| {share(b['exchanges'])} | {p['step_collectives']:.2f} / "
+                      f"{p['step_exchanges']:.0f} | "
                       + ", ".join(f"{x['part']} {100 * x['mean'] / total:.0f} %" for x in top)
                       + " |")
 

@@ -186,8 +186,12 @@ pub struct Solver<'c, const D: usize> {
     pub last_imbalance: f64,
     /// Accumulated work of gravity, body forces and walls (this rank's particles).
     external_work: f64,
-    /// Maximum of wave speed + particle speed after the last update (this rank).
+    /// Maximum of wave speed + particle speed after the last update: this rank's, or
+    /// every rank's where `speed_agreed`.
     max_speed: f64,
+    /// Whether `max_speed` is already the maximum over ranks: the step's closing
+    /// reduction carries it, so that the next step size needs no reduction of its own.
+    speed_agreed: bool,
     /// Which tiles of the local node box are stored, and where.
     pub tiles: Tiles<D>,
     /// XPIC's order m, if the scene asks for it (else FLIP/PIC by `flip`).
@@ -359,7 +363,8 @@ impl<'c, const D: usize> Solver<'c, D> {
     }
 
     /// What a restart needs besides the particles: this rank's accumulated external
-    /// work and its fastest signal speed after the last step.
+    /// work and the fastest signal speed after the last step (over all ranks once a
+    /// step has run).
     pub fn local_state(&self) -> (f64, f64) {
         (self.external_work, self.max_speed)
     }
@@ -375,6 +380,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.dt = dt;
         self.external_work = external_work;
         self.max_speed = max_speed;
+        self.speed_agreed = false;
     }
 
     /// The mass of particle `p` ([`particles::mass_of`]).
@@ -426,13 +432,20 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.scratch.accel.clear();
         self.t += dt;
         self.step += 1;
-        let mut agree = [0.0; 4];
+        // One reduction: the verdict, the caller's flags and the signal speed the next
+        // step size follows from (migration and rebalancing move particles between
+        // ranks but do not change the fastest one).
+        let n = flags.len();
+        let mut agree = [0.0; 5];
         agree[0] = if ok { 0.0 } else { 1.0 };
-        agree[1..1 + flags.len()].copy_from_slice(flags);
+        agree[1..1 + n].copy_from_slice(flags);
+        agree[1 + n] = self.max_speed;
         let t0 = Instant::now();
-        self.comm.max_f64(&mut agree[..1 + flags.len()]);
+        self.comm.max_f64(&mut agree[..2 + n]);
         self.clock.add(Part::Check, t0);
-        flags.copy_from_slice(&agree[1..1 + flags.len()]);
+        flags.copy_from_slice(&agree[1..1 + n]);
+        self.max_speed = agree[1 + n];
+        self.speed_agreed = true;
         if agree[0] > 0.0 {
             return Err(Failure::Unstable(format!(
                 "non-finite or inverted (J <= 0) particle state at step {}, t = {:.6e}",

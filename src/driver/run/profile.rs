@@ -164,7 +164,7 @@ pub fn table(p: &ProfileSummary, ranks: usize) -> String {
     }
     let _ = writeln!(
         t,
-        "  per step: {} collectives and {} exchanges in the solver, {:.2} collectives between steps",
+        "  per step: {:.2} collectives and {:.2} exchanges in the solver, {:.2} collectives between steps",
         p.step_collectives, p.step_exchanges, p.driver_collectives
     );
     let s = &p.setup_seconds;

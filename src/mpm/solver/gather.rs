@@ -107,6 +107,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.external_work += t.work;
         if speed {
             self.max_speed = t.max_speed;
+            self.speed_agreed = false;
         }
         t.ok
     }
@@ -142,6 +143,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.external_work += t.work;
         if speed {
             self.max_speed = t.max_speed;
+            self.speed_agreed = false;
         }
         t.ok
     }

@@ -229,7 +229,9 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// Pick the step size: fixed, or the CFL number over the fastest signal anywhere.
     pub(super) fn choose_dt(&mut self) -> Result<f64, Failure> {
         let mut s = [self.max_speed];
-        self.comm.max_f64(&mut s);
+        if !self.speed_agreed {
+            self.comm.max_f64(&mut s);
+        }
         let dt = match (self.fixed_dt, self.cfl) {
             (Some(dt), _) => dt,
             (None, Some(c)) => c * self.geom.min_h() / s[0].max(1e-300),

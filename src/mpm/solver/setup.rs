@@ -69,6 +69,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             last_imbalance: 1.0,
             external_work: 0.0,
             max_speed: 0.0,
+            speed_agreed: false,
             tiles,
             xpic: scene.method.xpic.map(|m| m as usize),
             grid: GridFields::new(),
