@@ -101,6 +101,18 @@ fn slurm_script_adds_wall_clock_checkpoints_and_chains_from_the_newest() {
     assert!(t.contains("dry run: sbatch "), "{t}");
     assert!(t.contains("MPMCG_JOB=2"), "{t}");
 
+    // Ranks × threads: each rank's threads on the cores Slurm gives its task, and the
+    // next job asks for as many.
+    let o = sbatch_dry(&dir, &sc, &out, &[("SLURM_CPUS_PER_TASK", "8")]);
+    let t = text(&o);
+    let srun = format!(
+        "dry run: srun --cpus-per-task=8 --cpu-bind=cores {BIN} run {} --out {} --threads 8\n",
+        chain.display(),
+        out.display()
+    );
+    assert!(t.contains(&srun), "{t}");
+    assert!(t.contains("--cpus-per-task=8 "), "the next job: {t}");
+
     // Later jobs continue from the newest complete checkpoint (not one being written).
     for f in [
         "checkpoint_000040.h5",
