@@ -111,7 +111,11 @@ fn slurm_script_adds_wall_clock_checkpoints_and_chains_from_the_newest() {
         out.display()
     );
     assert!(t.contains(&srun), "{t}");
-    assert!(t.contains("--cpus-per-task=8 "), "the next job: {t}");
+    let next = t
+        .lines()
+        .find(|l| l.starts_with("dry run: sbatch "))
+        .unwrap_or_else(|| panic!("no next job: {t}"));
+    assert!(next.contains(" --cpus-per-task=8 "), "the next job: {next}");
 
     // Later jobs continue from the newest complete checkpoint (not one being written).
     for f in [

@@ -71,7 +71,7 @@ fn parts(p: &Value) -> Vec<String> {
 }
 
 /// The spreads are ordered, equal on one rank, and the parts do not add up to more
-/// than the run's wall time per step.
+/// than the run's wall time.
 fn check_spreads(s: &Value, ranks: usize) {
     let p = &s["profile"];
     let mut total = 0.0;
@@ -103,9 +103,12 @@ fn check_spreads(s: &Value, ranks: usize) {
         s["steps"].as_u64(),
         "a fresh run profiles all its steps"
     );
+    // Each rank's parts add up to its step loop, which lies within the run's wall time
+    // on rank 0's clock, up to how much later than rank 0 another rank reads its clock
+    // after the last synchronisation (a descheduled rank on a loaded machine: 0.1 s).
     let wall = s["wall_seconds"].as_f64().unwrap();
     assert!(
-        total * steps as f64 <= wall * (1.0 + 1e-9),
+        total * steps as f64 <= wall + 0.1,
         "{total} × {steps} > {wall}"
     );
 }

@@ -47,10 +47,10 @@ pub struct ProfileSummary {
     pub steps: u64,
     /// Seeding and the first balance, or reading the checkpoint.
     pub setup_seconds: Spread,
-    /// Per part, in the order a step meets them: the solver's phases and its time
-    /// step, check, migration and sort, then the driver's `balance`, `output` and
-    /// `other` (history, error norms, progress); the parts add up to the step loop's
-    /// wall time on each rank.
+    /// Per part: the solver's time step, its phases (a part sums its phase's repeats
+    /// within a step), check, migration and sort, then the driver's `balance`,
+    /// `output` and `other` (history, error norms, progress); the parts add up to the
+    /// step loop's wall time on each rank.
     pub seconds_per_step: Vec<PartSeconds>,
     /// Collectives (reductions, scans) in one solver step, the same on every rank.
     pub step_collectives: f64,

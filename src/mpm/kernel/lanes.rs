@@ -482,7 +482,8 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
         }
         let j = det_lanes(&inc);
         let mut fnew = [[[0.0; B]; D]; D];
-        match s.parts.def_grad.get(r.clone()) {
+        let carries_f = !s.parts.def_grad.is_empty();
+        match carries_f.then(|| &s.parts.def_grad[r.clone()]) {
             // Particles without `F` (a material that needs none) deform with F = I.
             None => {
                 for (i, row) in fnew.iter_mut().enumerate() {
@@ -540,8 +541,10 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
         let stored = !s.parts.stress.is_empty();
         let mut bad =
             unphysical::<D, B>(&j, &vol, if stored { &[[[0.0; B]; D]; D] } else { &fnew });
-        if let Some(fs) = s.parts.def_grad.get_mut(r.clone()) {
-            let fs: &mut [Mat<D>; B] = fs.try_into().expect("a full batch");
+        if carries_f {
+            let fs: &mut [Mat<D>; B] = (&mut s.parts.def_grad[r.clone()])
+                .try_into()
+                .expect("a full batch");
             for l in 0..B {
                 for i in 0..D {
                     for c in 0..D {

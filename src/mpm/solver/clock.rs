@@ -26,7 +26,8 @@ pub enum Part {
 }
 
 impl Part {
-    /// Every part, in the order a step meets them.
+    /// Every part: the time step, the phases (each part sums its phase's repeats in a
+    /// step, such as MUSL's two grid updates), then the step's end.
     pub const ALL: [Part; 12] = [
         Part::TimeStep,
         Part::Scatter,
