@@ -19,13 +19,15 @@ mod profile;
 mod rescue;
 mod schedules;
 mod setup;
+mod spread;
 mod steps;
 mod summary;
 
 pub use profile::{table as profile_table, Blocked, PartSeconds, ProfileSummary};
+pub use spread::Spread;
 pub use summary::{
     BalanceSummary, EnergySummary, ErrorSummary, GridSummary, HaloSummary, MassSummary,
-    MomentumSummary, OutputSeconds, RankLoad, RestartSummary, Spread, Summary, TrafficSummary,
+    MomentumSummary, OutputSeconds, RankLoad, RestartSummary, Summary, TrafficSummary,
 };
 
 #[derive(Clone, Debug, Default)]

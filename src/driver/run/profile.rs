@@ -2,7 +2,7 @@
 //! between steps, the set-up, and the time blocked in collectives and exchanges.
 //! `summary.json`'s `profile`, and the table `mpmcg run --profile` prints.
 
-use super::summary::Spread;
+use super::spread::Spread;
 use super::Run;
 use decomposition::CommStats;
 use serde::Serialize;
@@ -82,17 +82,13 @@ impl<const D: usize> Run<'_, D> {
             t.step_comm.collective_seconds,
             t.step_comm.exchange_seconds,
         ]);
-        let (mut lo, mut hi, mut sum) = (mine.clone(), mine.clone(), mine);
-        comm.min_f64(&mut lo);
-        comm.max_f64(&mut hi);
-        comm.sum_f64(&mut sum);
-        let n = comm.size() as f64;
-        let spread = |i: usize, scale: f64| Spread {
-            min: lo[i] * scale,
-            mean: sum[i] / n * scale,
-            max: hi[i] * scale,
-        };
         let per = 1.0 / steps.max(1) as f64;
+        let seconds = Spread::over_ranks(comm, &mine);
+        let spread = |i: usize, scale: f64| Spread {
+            min: seconds[i].min * scale,
+            mean: seconds[i].mean * scale,
+            max: seconds[i].max * scale,
+        };
         ProfileSummary {
             steps,
             setup_seconds: spread(k, 1.0),

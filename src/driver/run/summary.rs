@@ -2,6 +2,7 @@
 //! ranks at the end of the run.
 
 use super::profile::ProfileSummary;
+use super::spread::Spread;
 use super::{Run, RunError};
 use crate::mpm::solver::Totals;
 use crate::output::io::{agree, Labels};
@@ -188,14 +189,6 @@ pub struct TrafficSummary {
     pub messages_per_rank_per_step: Spread,
 }
 
-/// `min`, `mean` and `max` over ranks of a per-rank figure that need not be whole.
-#[derive(Serialize, Debug, Clone)]
-pub struct Spread {
-    pub min: f64,
-    pub mean: f64,
-    pub max: f64,
-}
-
 /// Collective: rank 0 writes `summary.json`, unless writing `history.csv` `failed`.
 /// No rank leaves before rank 0 has written everything: mpirun ends the whole job as
 /// soon as one rank exits with a non-zero status.
@@ -314,29 +307,20 @@ impl<'a, const D: usize> Run<'a, D> {
             per_step(mig.messages),
             peers as f64,
         ];
-        let (mut lo, mut hi, mut sum) = (mine, mine, mine);
-        comm.min_f64(&mut lo);
-        comm.max_f64(&mut hi);
-        comm.sum_f64(&mut sum);
-        let n = comm.size() as f64;
-        let spread = |k: usize| Spread {
-            min: lo[k],
-            mean: sum[k] / n,
-            max: hi[k],
-        };
+        let spread = Spread::over_ranks(comm, &mine);
         HaloSummary {
             steps,
             grid: TrafficSummary {
                 exchanges_per_step: per_step(halo.exchanges),
-                bytes_per_rank_per_step: spread(0),
-                messages_per_rank_per_step: spread(1),
+                bytes_per_rank_per_step: spread[0].clone(),
+                messages_per_rank_per_step: spread[1].clone(),
             },
             migration: TrafficSummary {
                 exchanges_per_step: per_step(mig.exchanges),
-                bytes_per_rank_per_step: spread(2),
-                messages_per_rank_per_step: spread(3),
+                bytes_per_rank_per_step: spread[2].clone(),
+                messages_per_rank_per_step: spread[3].clone(),
             },
-            peers_per_rank: spread(4),
+            peers_per_rank: spread[4].clone(),
         }
     }
 

@@ -151,6 +151,45 @@ pub(super) struct NodeView<'a, const D: usize> {
     pub(super) cell_md: &'a [[f64; D]; CORNERS],
 }
 
+/// One cell's sums for a row of nodes at its corner `q` ([`NodeView::gradient_tiles`]),
+/// the cell's lower corner at padded index `cell`: per component `a`,
+/// `Σ_r m_qr v_a(r)` from the padded velocities `vp`, and per `(a, b)`
+/// `Σ_r k_qr,b v_a(r)`, where `∫_c S_q ∂_b S_r` changes only its sign with `r_b`, so
+/// the corners r and r + e_b enter as the velocity's difference along b (`dvp`).
+#[inline(always)]
+fn cell_sums<const D: usize, const NP: usize>(
+    vp: &[[f64; NP]],
+    dvp: &[[[f64; NP]; D]; D],
+    (cell_m, cell_k): (&[f64; CORNERS], &[[f64; D]; CORNERS]),
+    cell: usize,
+) -> ([[f64; TILE]; D], [[f64; TILE]; 9]) {
+    let mut mc = [[0.0; TILE]; D];
+    for r in 0..(1 << D) {
+        let (m, at) = (cell_m[r], cell + pad_off::<D>(r));
+        for a in 0..D {
+            let v = &vp[a][at..at + TILE];
+            for x in 0..TILE {
+                mc[a][x] += m * v[x];
+            }
+        }
+    }
+    let mut lc = [[0.0; TILE]; 9];
+    for (b, dvp) in dvp.iter().enumerate() {
+        for i in 0..(1 << (D - 1)) {
+            let (r, r1) = kernel::pair(b, i);
+            let k = cell_k[r1][b];
+            let c0 = cell + pad_off::<D>(r);
+            for (a, dv) in dvp.iter().enumerate() {
+                let d = &dv[c0..c0 + TILE];
+                for x in 0..TILE {
+                    lc[a * D + b][x] += k * d[x];
+                }
+            }
+        }
+    }
+    (mc, lc)
+}
+
 impl<const D: usize> NodeView<'_, D> {
     /// `f(n, c, record)` for every owned node of the active tiles, with its record of
     /// `width` numbers in `out` (storage order), in parallel over tiles. For the passes
@@ -508,32 +547,7 @@ impl<const D: usize> NodeView<'_, D> {
                 let mut md = [[0.0; TILE]; D];
                 for q in 0..(1 << D) {
                     let (cell, w) = Self::row_cells(cw, low, p0, q);
-                    let mut mc = [[0.0; TILE]; D];
-                    for r in 0..(1 << D) {
-                        let (m, at) = (cell_m[q][r], cell + pad_off::<D>(r));
-                        for a in 0..D {
-                            let v = &vp[a][at..at + TILE];
-                            for x in 0..TILE {
-                                mc[a][x] += m * v[x];
-                            }
-                        }
-                    }
-                    // `∫_c S_q ∂_b S_r` changes only its sign with `r_b`: the corners
-                    // r and r + e_b enter as the velocity's difference along b.
-                    let mut lc = [[0.0; TILE]; 9];
-                    for (b, dvp) in dvp.iter().enumerate() {
-                        for i in 0..(1 << (D - 1)) {
-                            let (r, r1) = kernel::pair(b, i);
-                            let k = cell_k[q][r1][b];
-                            let c0 = cell + pad_off::<D>(r);
-                            for (a, dv) in dvp.iter().enumerate() {
-                                let d = &dv[c0..c0 + TILE];
-                                for x in 0..TILE {
-                                    lc[a * D + b][x] += k * d[x];
-                                }
-                            }
-                        }
-                    }
+                    let (mc, lc) = cell_sums(vp, dvp, (&cell_m[q], &cell_k[q]), cell);
                     let keep = keep_mask(&w);
                     for a in 0..D {
                         for x in 0..TILE {
