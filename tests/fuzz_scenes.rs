@@ -51,6 +51,10 @@ const NASTY: [&str; 16] = [
 /// inserted.
 fn mutate(text: &str, rng: &mut Rng) -> String {
     let mut lines: Vec<String> = text.lines().map(String::from).collect();
+    if lines.is_empty() {
+        // An earlier edit cut the text to nothing: edit one empty line.
+        lines.push(String::new());
+    }
     let k = rng.below(lines.len());
     match rng.below(6) {
         0 => {
