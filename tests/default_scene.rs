@@ -5,7 +5,7 @@
 #![forbid(unsafe_code)]
 
 mod common;
-use common::{files, history, temp_dir};
+use common::{files, history, run_text, temp_dir};
 use std::process::Command;
 
 #[test]
@@ -52,6 +52,47 @@ fn default_scene_runs_collides_and_rebounds() {
     let ke_end = h.last().unwrap()["kinetic"];
     assert!(ke_min < 0.1 * ke0, "no collision: min KE {ke_min} of {ke0}");
     assert!(ke_end > 0.8 * ke0, "no rebound: final KE {ke_end} of {ke0}");
-    // And the energy balance holds within the drift MPM's impact dissipates.
-    assert!(s["energy"]["max_relative_drift"].as_f64().unwrap() < 0.1);
+    // And the energy balance holds through the impact.
+    assert!(s["energy"]["max_relative_drift"].as_f64().unwrap() < 0.01);
+}
+
+/// A long run stays physical: the default disks, each also spinning at 1 rad/s (rim
+/// speed 0.2, twice their speed of approach), collide, rebound off each other and the
+/// walls for 10⁵ steps (t = 100), and the total energy stays within 0.5 % of its start
+/// throughout. (The rate form of the Cauchy stress without rotation drifted by 41 %
+/// here: the linear elastic model must be objective and conserve its energy.)
+#[test]
+fn spinning_disks_keep_their_energy_for_1e5_steps() {
+    let spin = |c: f64| {
+        format!("velocity_gradient = {{ value = [[0.0, -1.0], [1.0, 0.0]], about = [{c}, {c}] }}")
+    };
+    let text = include_str!("../inputs/default.toml")
+        .replacen("end = 3.0", "end = 100.0", 1)
+        .replacen(
+            "velocity = [0.1, 0.1]",
+            &format!("velocity = [0.1, 0.1]\n{}", spin(0.2)),
+            1,
+        )
+        .replacen(
+            "velocity = [-0.1, -0.1]",
+            &format!("velocity = [-0.1, -0.1]\n{}", spin(0.8)),
+            1,
+        );
+    let (s, out) = run_text(&text, "spinning-disks");
+    assert_eq!(s.steps, 100_000);
+    let h = history(&out);
+    let e0 = h[0]["total"];
+    // Spinning adds to the energy of the approach: ½ I ω² per disk.
+    assert!(e0 > 2.6 * 1.1, "no spin: {e0}");
+    let worst = h
+        .iter()
+        .map(|r| (r["total"] / e0 - 1.0).abs())
+        .fold(0.0, f64::max);
+    assert!(worst < 5e-3, "energy drifted by {worst:e}");
+    // The disks met: most of the kinetic energy went into strain at some time.
+    let strain_max = h.iter().map(|r| r["strain"]).fold(0.0, f64::max);
+    assert!(
+        strain_max > 0.3 * e0,
+        "no collision: strain at most {strain_max}"
+    );
 }

@@ -1002,6 +1002,22 @@ fn hard_case_keys() {
     .key("materials[0].yield_stress")
     .says("model = \"j2_plastic\" only");
     check(
+        "strain_on_brittle",
+        edit(
+            BRITTLE,
+            "tensile_strength = 27517.0",
+            "tensile_strength = 27517.0\nstrain = \"small\"",
+        ),
+    )
+    .key("materials[0].strain")
+    .says("model = \"linear_elastic\" only");
+    check(
+        "strain_unknown",
+        edit(BAR, "strain = \"small\"", "strain = \"large\""),
+    )
+    .key("materials[0].strain")
+    .says("`finite` or `small`");
+    check(
         "j2_without_yield",
         edit(TAYLOR, "yield_stress = 0.4e9\n", ""),
     )

@@ -63,6 +63,7 @@ boundary = {{ {} }}
 [[materials]]
 name = "m"
 model = "linear_elastic"
+strain = "small"
 density = 1.0
 youngs_modulus = 1000.0
 poisson_ratio = 0.3
@@ -265,8 +266,8 @@ struct Step<const D: usize> {
 
 impl<const D: usize> Step<D> {
     /// The largest relative difference between the solver's step of particle `p`
-    /// (`before` → `after`) and the reference: velocity, position, linear elastic
-    /// stress (E = 1000, ν = 0.3) and volume.
+    /// (`before` → `after`) and the reference: velocity, position, small-strain linear
+    /// elastic stress (E = 1000, ν = 0.3) and volume.
     #[allow(clippy::needless_range_loop)]
     fn error(&self, p: usize, before: &Particles<D>, after: &Particles<D>) -> f64 {
         let Step { dt, dv, moved, l } = self;

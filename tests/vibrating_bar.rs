@@ -55,6 +55,7 @@ boundary = {bd}
 [[materials]]
 name = "bar"
 model = "linear_elastic"
+strain = "small"
 density = 1.0
 youngs_modulus = 100.0
 poisson_ratio = 0.0

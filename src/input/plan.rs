@@ -7,7 +7,10 @@
 /// A material's constitutive law with its own parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Law {
-    LinearElastic,
+    /// `small`: the small-strain rate form ([`crate::input::scene::Strain::Small`]).
+    LinearElastic {
+        small: bool,
+    },
     NeoHookean,
     /// J2 plasticity at finite strain with linear isotropic hardening.
     J2Plastic {

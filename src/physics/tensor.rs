@@ -24,3 +24,45 @@ pub fn det<const D: usize>(m: &Mat<D>) -> f64 {
 pub fn vector<const D: usize>(v: &[f64]) -> Vector<D> {
     Vector::<D>::from_column_slice(v)
 }
+
+/// Inverse for D <= 3 (the adjugate over the determinant), written out as [`det`] is.
+/// The caller ensures `m` is invertible.
+#[inline]
+pub fn inverse<const D: usize>(m: &Mat<D>) -> Mat<D> {
+    adjugate(m) * (1.0 / det(m))
+}
+
+/// The adjugate (transposed cofactors) for D <= 3: `m · adj m = det m · I`.
+#[inline]
+pub fn adjugate<const D: usize>(m: &Mat<D>) -> Mat<D> {
+    match D {
+        1 => Mat::<D>::identity(),
+        2 => Mat::<D>::from_fn(|i, k| {
+            let s = if i == k { 1.0 } else { -1.0 };
+            s * m[(1 - k, 1 - i)]
+        }),
+        3 => Mat::<D>::from_fn(|i, k| {
+            // The cofactor of (k, i): rows and columns taken cyclically carry the sign.
+            let (r1, r2) = ((k + 1) % 3, (k + 2) % 3);
+            let (c1, c2) = ((i + 1) % 3, (i + 2) % 3);
+            m[(r1, c1)] * m[(r2, c2)] - m[(r1, c2)] * m[(r2, c1)]
+        }),
+        _ => unreachable!("dimension is 1, 2 or 3"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `m · m⁻¹ = I` for a few matrices in 1, 2 and 3 dimensions.
+    #[test]
+    fn inverse_times_matrix_is_identity() {
+        let a3 = Mat::<3>::new(2.0, -1.0, 0.5, 0.3, 1.7, -0.2, -0.4, 0.6, 1.1);
+        assert!((a3 * inverse(&a3) - Mat::<3>::identity()).norm() < 1e-14);
+        let a2 = Mat::<2>::new(2.0, -1.0, 0.3, 1.7);
+        assert!((a2 * inverse(&a2) - Mat::<2>::identity()).norm() < 1e-15);
+        let a1 = Mat::<1>::new(4.0);
+        assert_eq!(inverse(&a1)[(0, 0)], 0.25);
+    }
+}

@@ -267,6 +267,20 @@ pub struct MaterialSpec {
     pub hardening: Option<f64>,
     /// Largest principal stress before failure (`brittle`).
     pub tensile_strength: Option<f64>,
+    /// `linear_elastic`'s strain: `finite` (default) or `small`.
+    pub strain: Option<Strain>,
+}
+
+/// The strain of `linear_elastic`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Strain {
+    /// The Jaumann rate of the Kirchhoff stress: objective, and keeps its energy.
+    Finite,
+    /// `σ̇ = λ tr D I + 2μ D` on the Cauchy stress: the linear theory of the
+    /// verification problems (vibrating bar), neither objective nor energy-conserving
+    /// at finite strain.
+    Small,
 }
 
 #[derive(Debug, Clone, Deserialize, Serialize)]

@@ -19,7 +19,7 @@
 
 use super::{pair, Alpha, Ctx, Kern, NodeData, Run, Slices, FROM_MOMENTUM, UPDATED};
 use crate::input::scene::Face;
-use crate::physics::material::Internal;
+use crate::physics::material::{Internal, VolumeChange};
 use crate::physics::tensor::{det, Mat, Vector};
 use std::ops::Range;
 
@@ -555,7 +555,7 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
         }
         if stored {
             for (l, p) in r.enumerate() {
-                bad[l] += update_stress(ctx, s, p, lane(lg, l), lane(&fnew, l), dt);
+                bad[l] += update_stress(ctx, s, p, lane(lg, l), lane(&fnew, l), j[l], dt);
             }
         }
         bad
@@ -575,8 +575,9 @@ pub(crate) fn column<const D: usize, const B: usize>(v: &[[f64; B]; D], l: usize
 }
 
 /// The stress update of particle `p` of `s`, whose material stores its stress, by the
-/// velocity gradient `l` at the deformation gradient `f`, over `dt`: a mark that is ±0
-/// where the new stress is finite, else NaN ([`unphysical`]).
+/// velocity gradient `l` at the deformation gradient `f`, over `dt`, in which its
+/// volume changed by `j_step`: a mark that is ±0 where the new stress is finite, else
+/// NaN ([`unphysical`]).
 #[inline(always)]
 fn update_stress<const D: usize>(
     ctx: &Ctx<'_, D>,
@@ -584,6 +585,7 @@ fn update_stress<const D: usize>(
     p: usize,
     l: Mat<D>,
     f: Mat<D>,
+    j_step: f64,
     dt: f64,
 ) -> f64 {
     let internal = Internal {
@@ -591,8 +593,17 @@ fn update_stress<const D: usize>(
         damage: s.parts.damage.get_mut(p),
         stress_zz: s.parts.stress_zz.get_mut(p),
     };
-    let mat = &ctx.materials[s.parts.kind[p] as usize];
-    mat.update_stress(&mut s.parts.stress[p], &l, &f, dt, internal);
+    let kind = s.parts.kind[p] as usize;
+    // The volume is stored (already updated) unless the particles carry `F`.
+    let total = match s.parts.vol.get(p) {
+        Some(v) => v / ctx.kind_vol0[kind],
+        None => det(&f),
+    };
+    let j = VolumeChange {
+        step: j_step,
+        total,
+    };
+    ctx.materials[kind].update_stress(&mut s.parts.stress[p], &l, &f, dt, j, internal);
     s.parts.stress[p].iter().map(|x| x * 0.0).sum()
 }
 

@@ -93,7 +93,8 @@ impl<const D: usize> Particles<D> {
                     damage: None,
                     stress_zz: None,
                 };
-                mat.update_stress(&mut st, &Mat::<D>::zeros(), &f, 0.0, none);
+                let j = crate::physics::material::VolumeChange::NONE;
+                mat.update_stress(&mut st, &Mat::<D>::zeros(), &f, 0.0, j, none);
             }
             self.stress.push(st);
         }

@@ -1,16 +1,16 @@
 //! Linear elasticity with tensile failure: the simplest brittle solid.
 //!
-//! The stress follows [`LinearElastic`] in rate form, `σ += Δt (λ tr D I + 2μ D)`,
-//! `D = sym L`. Each particle carries `damage ∈ {0, 1}`. An intact particle whose
-//! largest principal stress exceeds the tensile strength, `max eig σ > σ_t`, fails:
-//! damage becomes 1 for good. A failed particle carries no tension: after every update
+//! The stress follows [`LinearElastic`] (the Jaumann rate of the Kirchhoff stress,
+//! `τ ← Q τ Qᵀ + λ tr Δε I + 2μ Δε`). Each particle carries `damage ∈ {0, 1}`. An
+//! intact particle whose largest principal stress exceeds the tensile strength,
+//! `max eig σ > σ_t`, fails: damage becomes 1 for good. A failed particle carries no tension: after every update
 //! its stress is replaced by its negative part `σ⁻ = Σ min(σ_i, 0) n_i⊗n_i`.
 //!
 //! Failure takes effect in the step that exceeded the strength (the stress is projected
 //! in that same step), so no particle ever hands the grid a principal tension above
 //! `σ_t`.
 //!
-//! Plane strain (D = 2): the particle carries `σ_zz` (`σ̇_zz = λ tr D`, as `D_zz = 0`),
+//! Plane strain (D = 2): the particle carries `σ_zz` (`Δτ_zz = λ tr Δε`, as `Δε_zz = 0`),
 //! since once a particle has failed its projection makes `σ_zz` depend on the history,
 //! not on the in-plane stress alone. `σ_zz` is a principal stress there, so the failure
 //! test takes the largest of `σ₁` and `σ_zz` (for ν ≥ 0 an intact particle has
@@ -18,7 +18,8 @@
 //! and the projection keeps `min(σ_zz, 0)`. In 1D the untracked lateral stresses `λε`
 //! never exceed `(λ+2μ)ε` when tensile, so the check on σ_xx misses no failure.
 
-use crate::physics::material::linear_elastic::LinearElastic;
+use crate::physics::material::linear_elastic::{increment, LinearElastic};
+use crate::physics::material::VolumeChange;
 use crate::physics::tensor::Mat;
 use nalgebra::{Matrix3, SymmetricEigen};
 
@@ -37,6 +38,7 @@ impl Brittle {
             lambda: self.lambda,
             mu: self.mu,
             density: self.density,
+            small: false,
         }
     }
 
@@ -51,11 +53,14 @@ impl Brittle {
         stress_zz: Option<&mut f64>,
         l: &Mat<D>,
         dt: f64,
+        j: VolumeChange,
     ) {
-        self.elastic().update_stress(stress, l, dt);
+        let (de, q) = increment(l, dt);
+        self.elastic().apply(stress, &de, &q, j);
         let mut szz = stress_zz;
         if let Some(z) = szz.as_deref_mut() {
-            *z += self.lambda * l.trace() * dt;
+            // `Δε_zz = 0`: the in-plane trace alone.
+            *z = *z / j.step + self.lambda * de.trace() / j.total;
         }
         let zz = szz.as_deref().copied().unwrap_or(f64::NEG_INFINITY);
         if *damage == 0.0 && max_principal(stress).max(zz) > self.tensile_strength {
@@ -137,6 +142,7 @@ fn negative_part<const D: usize>(s: &Mat<D>) -> Mat<D> {
 mod tests {
     use super::*;
     use crate::physics::material::lame;
+    use crate::physics::material::linear_elastic::strain_step;
     use nalgebra::{Rotation3, Unit, Vector3};
 
     fn model() -> Brittle {
@@ -151,9 +157,9 @@ mod tests {
 
     /// One step of uniaxial strain increment `de` in x (dt = 1).
     fn uniaxial<const D: usize>(m: &Brittle, s: &mut Mat<D>, d: &mut f64, de: f64) {
-        let mut l = Mat::<D>::zeros();
-        l[(0, 0)] = de;
-        m.update_stress(s, d, None, &l, 1.0);
+        let mut e = Mat::<D>::zeros();
+        e[(0, 0)] = de;
+        m.update_stress(s, d, None, &strain_step(&e), 1.0, VolumeChange::NONE);
     }
 
     fn check_uniaxial<const D: usize>() {
@@ -219,13 +225,15 @@ mod tests {
         let mut d = 0.0;
         let e = -0.01; // σ ≈ −0.5, far beyond the strength in magnitude
         for _ in 0..10 {
-            m.update_stress(&mut s, &mut d, None, &(Mat::<3>::identity() * e), 1.0);
+            let l = strain_step(&(Mat::<3>::identity() * e));
+            m.update_stress(&mut s, &mut d, None, &l, 1.0, VolumeChange::NONE);
         }
         assert_eq!(d, 0.0);
         let x = (3.0 * m.lambda + 2.0 * m.mu) * 10.0 * e;
         assert!((s - Mat::<3>::identity() * x).norm() < 1e-14 * x.abs());
         let mut s2 = Mat::<2>::zeros();
-        m.update_stress(&mut s2, &mut d, None, &(Mat::<2>::identity() * e), 1.0);
+        let l = strain_step(&(Mat::<2>::identity() * e));
+        m.update_stress(&mut s2, &mut d, None, &l, 1.0, VolumeChange::NONE);
         assert_eq!(d, 0.0);
         assert!((s2 - Mat::<2>::identity() * ((2.0 * m.lambda + 2.0 * m.mu) * e)).norm() < 1e-15);
     }
@@ -237,10 +245,18 @@ mod tests {
         let m = model();
         let gc = m.tensile_strength / m.mu;
         let shear = |g: f64| {
-            let mut l = Mat::<D>::zeros();
-            l[(0, 1)] = g;
+            let mut e = Mat::<D>::zeros();
+            e[(0, 1)] = 0.5 * g;
+            e[(1, 0)] = 0.5 * g;
             let (mut s, mut d) = (Mat::<D>::zeros(), 0.0);
-            m.update_stress(&mut s, &mut d, None, &l, 1.0);
+            m.update_stress(
+                &mut s,
+                &mut d,
+                None,
+                &strain_step(&e),
+                1.0,
+                VolumeChange::NONE,
+            );
             (s, d)
         };
         let g = 0.999 * gc;
@@ -278,8 +294,10 @@ mod tests {
         let m = model();
         let big = m.lambda + 2.0 * m.mu;
         let eps_t = m.tensile_strength / big;
-        let step = |s: &mut Mat<2>, d: &mut f64, z: &mut f64, l: Mat<2>| {
-            m.update_stress(s, d, Some(z), &l, 1.0);
+        // `e`, the step's midpoint gradient: its symmetric part the strain, its skew
+        // part the turn (a simple shear has both).
+        let step = |s: &mut Mat<2>, d: &mut f64, z: &mut f64, e: Mat<2>| {
+            m.update_stress(s, d, Some(z), &strain_step(&e), 1.0, VolumeChange::NONE);
         };
         let (mut s, mut d, mut z) = (Mat::<2>::zeros(), 0.0, 0.0);
         let e = 0.9 * eps_t;
@@ -317,8 +335,9 @@ mod tests {
             &mut s,
             &mut d,
             Some(&mut z),
-            &(Mat::<2>::identity() * e),
+            &strain_step(&(Mat::<2>::identity() * e)),
             1.0,
+            VolumeChange::NONE,
         );
         assert!(max_principal(&s) < 0.0);
         assert_eq!((d, z), (1.0, 0.0));
@@ -330,8 +349,9 @@ mod tests {
             &mut s,
             &mut d,
             Some(&mut z),
-            &(Mat::<2>::identity() * e),
+            &strain_step(&(Mat::<2>::identity() * e)),
             1.0,
+            VolumeChange::NONE,
         );
         assert_eq!(d, 0.0);
         assert!((z - 2.0 * lambda * e).abs() < 1e-15);

@@ -46,6 +46,23 @@ pub trait Hyperelastic {
     fn energy_density<const D: usize>(&self, f: &Mat<D>) -> f64;
 }
 
+/// How a particle's volume changed: over the step (`step = det(I + L Δt)`) and since
+/// its reference state (`total = V / V₀ = J`), for the rate forms of the Kirchhoff
+/// stress ([`linear_elastic`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VolumeChange {
+    pub step: f64,
+    pub total: f64,
+}
+
+impl VolumeChange {
+    /// No change: the reference state, or a step that keeps the volume.
+    pub const NONE: Self = VolumeChange {
+        step: 1.0,
+        total: 1.0,
+    };
+}
+
 /// Where a model's stress comes from; [`Material::stress_source`] decides it in one
 /// exhaustive match, so a new model must say which it is.
 pub enum StressSource<'a> {
@@ -111,11 +128,14 @@ impl Material {
         let (lambda, mu) = lame(p.youngs_modulus, p.poisson_ratio);
         let density = p.density;
         match p.law {
-            Law::LinearElastic => Material::LinearElastic(linear_elastic::LinearElastic {
-                lambda,
-                mu,
-                density,
-            }),
+            Law::LinearElastic { small } => {
+                Material::LinearElastic(linear_elastic::LinearElastic {
+                    lambda,
+                    mu,
+                    density,
+                    small,
+                })
+            }
             Law::NeoHookean => Material::NeoHookean(neo_hookean::NeoHookean {
                 lambda,
                 mu,
@@ -199,8 +219,9 @@ impl Material {
     }
 
     /// New Cauchy stress after a step with velocity gradient `l`, given the updated
-    /// deformation gradient `f` (meaningful only if [`Material::needs_def_grad`]) and
-    /// the particle's internal variables (present if the model has them).
+    /// deformation gradient `f` (meaningful only if [`Material::needs_def_grad`]), the
+    /// volume change `j` (used by the rate forms) and the particle's internal
+    /// variables (present if the model has them).
     #[inline]
     pub fn update_stress<const D: usize>(
         &self,
@@ -208,10 +229,11 @@ impl Material {
         l: &Mat<D>,
         f: &Mat<D>,
         dt: f64,
+        j: VolumeChange,
         internal: Internal<'_>,
     ) {
         match self {
-            Material::LinearElastic(m) => m.update_stress(stress, l, dt),
+            Material::LinearElastic(m) => m.update_stress(stress, l, dt, j),
             Material::NeoHookean(m) => *stress = Hyperelastic::stress(m, f),
             Material::J2Plastic(m) => {
                 let (be, eps_p) = internal.plastic.expect("j2_plastic particles carry be");
@@ -219,7 +241,7 @@ impl Material {
             }
             Material::Brittle(m) => {
                 let d = internal.damage.expect("brittle particles carry damage");
-                m.update_stress(stress, d, internal.stress_zz, l, dt);
+                m.update_stress(stress, d, internal.stress_zz, l, dt, j);
             }
         }
     }
@@ -338,8 +360,8 @@ impl Material {
 
     /// Stored energy of a particle with current volume `vol()` and reference volume
     /// `vol0`; `be` is its elastic left Cauchy–Green tensor where it carries one.
-    /// The current volume is asked for only by the materials whose energy density is
-    /// per current volume.
+    /// The current volume is asked for only by the materials whose stress is a rate
+    /// form ([`kirchhoff_energy`]).
     // Inline: a call per particle in the history's totals, with `vol` formed for every
     // material, was a quarter of their time.
     #[inline]
@@ -352,10 +374,11 @@ impl Material {
         vol0: f64,
     ) -> f64 {
         match self {
-            Material::LinearElastic(m) => vol() * m.energy_density(stress),
+            Material::LinearElastic(m) if m.small => vol() * m.energy_density(stress),
+            Material::LinearElastic(m) => kirchhoff_energy(vol(), vol0, m.energy_density(stress)),
             Material::NeoHookean(m) => vol0 * m.energy_density(f),
             Material::J2Plastic(m) => vol0 * m.energy_density(be.expect("j2_plastic carries be")),
-            Material::Brittle(m) => vol() * m.energy_density(stress),
+            Material::Brittle(m) => kirchhoff_energy(vol(), vol0, m.energy_density(stress)),
         }
     }
 
@@ -367,6 +390,13 @@ impl Material {
             Material::LinearElastic(_) | Material::NeoHookean(_) | Material::Brittle(_) => 0.0,
         }
     }
+}
+
+/// `V₀ w(J σ) = V J w(σ)` for an energy density `w` quadratic in the stress, given
+/// `w(σ)`: the stored energy of the Kirchhoff-stress rate forms.
+#[inline]
+fn kirchhoff_energy(vol: f64, vol0: f64, w_of_sigma: f64) -> f64 {
+    vol * vol / vol0 * w_of_sigma
 }
 
 #[cfg(test)]
@@ -503,7 +533,8 @@ mod tests {
     fn every_law_says_where_its_stress_comes_from() {
         use crate::input::plan::Law;
         let laws = [
-            Law::LinearElastic,
+            Law::LinearElastic { small: false },
+            Law::LinearElastic { small: true },
             Law::NeoHookean,
             Law::J2Plastic {
                 yield_stress: 1.0,
@@ -564,6 +595,7 @@ mod tests {
             lambda,
             mu,
             density: 1.0,
+            small: false,
         });
         let auxetic = Material::NeoHookean(neo_hookean::NeoHookean {
             lambda: neg_lambda,

@@ -3,6 +3,7 @@
 
 use super::super::schema::{
     variants, BenchmarkKind, BenchmarkSpec, BodySpec, Face, MaterialSpec, Model, Scene, Shape,
+    Strain,
 };
 use super::{finite, positive, vector, Invalid};
 use crate::input::plan::{BenchmarkPlan, KindPlan, Law, MaterialPlan, MAX_KINDS};
@@ -155,12 +156,20 @@ fn model_parameters(i: usize, m: &MaterialSpec) -> Result<Law, Invalid> {
             None => {}
         }
     }
+    if m.strain.is_some() && m.model != Model::LinearElastic {
+        return Err((
+            k("strain"),
+            "is a parameter of model = \"linear_elastic\" only".into(),
+        ));
+    }
     let required = |key: &str, v: Option<f64>| {
         let name = variants::<Model>()[m.model as usize];
         v.ok_or_else(|| (k(key), format!("is required by model = \"{name}\"")))
     };
     Ok(match m.model {
-        Model::LinearElastic => Law::LinearElastic,
+        Model::LinearElastic => Law::LinearElastic {
+            small: m.strain == Some(Strain::Small),
+        },
         Model::NeoHookean => Law::NeoHookean,
         Model::J2Plastic => Law::J2Plastic {
             yield_stress: required("yield_stress", m.yield_stress)?,
