@@ -25,14 +25,8 @@ pub fn vector<const D: usize>(v: &[f64]) -> Vector<D> {
     Vector::<D>::from_column_slice(v)
 }
 
-/// Inverse for D <= 3 (the adjugate over the determinant), written out as [`det`] is.
-/// The caller ensures `m` is invertible.
-#[inline]
-pub fn inverse<const D: usize>(m: &Mat<D>) -> Mat<D> {
-    adjugate(m) * (1.0 / det(m))
-}
-
-/// The adjugate (transposed cofactors) for D <= 3: `m · adj m = det m · I`.
+/// The adjugate (transposed cofactors) for D <= 3, written out as [`det`] is:
+/// `m · adj m = det m · I`, so `adj m / det m` is the inverse.
 #[inline]
 pub fn adjugate<const D: usize>(m: &Mat<D>) -> Mat<D> {
     match D {
@@ -55,14 +49,14 @@ pub fn adjugate<const D: usize>(m: &Mat<D>) -> Mat<D> {
 mod tests {
     use super::*;
 
-    /// `m · m⁻¹ = I` for a few matrices in 1, 2 and 3 dimensions.
+    /// `m · adj m = det m · I` for a few matrices in 1, 2 and 3 dimensions.
     #[test]
-    fn inverse_times_matrix_is_identity() {
+    fn matrix_times_adjugate_is_determinant() {
         let a3 = Mat::<3>::new(2.0, -1.0, 0.5, 0.3, 1.7, -0.2, -0.4, 0.6, 1.1);
-        assert!((a3 * inverse(&a3) - Mat::<3>::identity()).norm() < 1e-14);
+        assert!((a3 * adjugate(&a3) - Mat::<3>::identity() * det(&a3)).norm() < 1e-14);
         let a2 = Mat::<2>::new(2.0, -1.0, 0.3, 1.7);
-        assert!((a2 * inverse(&a2) - Mat::<2>::identity()).norm() < 1e-15);
+        assert!((a2 * adjugate(&a2) - Mat::<2>::identity() * det(&a2)).norm() < 1e-15);
         let a1 = Mat::<1>::new(4.0);
-        assert_eq!(inverse(&a1)[(0, 0)], 0.25);
+        assert_eq!(a1 * adjugate(&a1), Mat::<1>::new(4.0));
     }
 }

@@ -3,8 +3,9 @@
 //! The stress follows [`LinearElastic`] (the Jaumann rate of the Kirchhoff stress,
 //! `τ ← Q τ Qᵀ + λ tr Δε I + 2μ Δε`). Each particle carries `damage ∈ {0, 1}`. An
 //! intact particle whose largest principal stress exceeds the tensile strength,
-//! `max eig σ > σ_t`, fails: damage becomes 1 for good. A failed particle carries no tension: after every update
-//! its stress is replaced by its negative part `σ⁻ = Σ min(σ_i, 0) n_i⊗n_i`.
+//! `max eig σ > σ_t`, fails: damage becomes 1 for good. A failed particle carries no
+//! tension: after every update its stress is replaced by its negative part
+//! `σ⁻ = Σ min(σ_i, 0) n_i⊗n_i`.
 //!
 //! Failure takes effect in the step that exceeded the strength (the stress is projected
 //! in that same step), so no particle ever hands the grid a principal tension above
