@@ -5,7 +5,8 @@ use std::collections::BTreeMap;
 
 use crate::comm::Communicator;
 use crate::layout::{Layout, GHOST};
-use crate::tiles::{Tiles, TILE};
+use crate::region::{spans_owned_by, Region, Span};
+use crate::tiles::Tiles;
 use crate::traffic::Traffic;
 
 /// One rank's view of the grid.
@@ -27,199 +28,99 @@ pub struct Block<const D: usize> {
     pub own_lo: [usize; D],
     /// One past the last owned node in local indices.
     pub own_hi: [usize; D],
-    halo: Halo,
-    layout: Layout<D>,
+    halo: Halo<D>,
 }
 
-/// For each peer rank: which of my ghost nodes it owns, and which of my owned nodes are
-/// ghosts in its box, both in the order of the peer's (resp. my) local node numbering so
-/// that the two sides agree without talking.
+/// For each peer rank: the region of my ghost nodes it owns and the region of my owned
+/// nodes that are ghosts in its box ([`Region`]: a few spans per axis, whatever the
+/// faces' length), both in the holder's node order so that the two sides agree without
+/// talking.
 ///
 /// The halo operations exchange the nodes of `sum_send`/`sum_recv` and
-/// `copy_send`/`copy_recv`: the whole lists (dense local numbering) until
-/// [`Block::activate_halo`] and [`Block::map_active_halo`] restrict them to the chunks
-/// some rank uses this step, in the storage numbering of a [`Tiles`].
-#[derive(Clone, Debug, Default)]
-struct Halo {
+/// `copy_send`/`copy_recv`: the whole regions (dense local numbering) on first use
+/// unless [`Block::activate_halo`] and [`Block::map_active_halo`] restrict them to the
+/// chunks some rank uses this step, in the storage numbering of a [`Tiles`].
+#[derive(Clone, Debug)]
+struct Halo<const D: usize> {
     peers: Vec<usize>,
-    /// `ghosts[k]`: my local ghost nodes owned by `peers[k]`.
-    ghosts: Vec<Vec<usize>>,
-    /// `owned[k]`: my local owned nodes that are ghosts of `peers[k]`, in the order of
-    /// that peer's `ghosts` list for me.
-    owned: Vec<Vec<usize>>,
+    /// `ghosts[k]`: my ghost nodes owned by `peers[k]` (I am the holder).
+    ghosts: Vec<Region<D>>,
+    /// `owned[k]`: my owned nodes that are ghosts of `peers[k]` (it is the holder).
+    owned: Vec<Region<D>>,
     send: Vec<Vec<f64>>,
     recv: Vec<Vec<f64>>,
-    /// `ghosts` and `owned` cut into chunks (built on the first activation).
-    chunked: Option<(Vec<Chunked>, Vec<Chunked>)>,
+    /// Which lists the halo operations use.
+    lists: Lists,
     /// Active chunks of this step, per peer: my ghost chunks I touched (`g`), my owned
     /// chunks the peer touched (`r`), my owned chunks stored after that (`o`), my ghost
     /// chunks the peer stores (`q`).
-    g: Vec<Vec<u32>>,
-    r: Vec<Vec<u32>>,
-    o: Vec<Vec<u32>>,
-    q: Vec<Vec<u32>>,
+    g: Vec<Vec<u64>>,
+    r: Vec<Vec<u64>>,
+    o: Vec<Vec<u64>>,
+    q: Vec<Vec<u64>>,
     sum_send: Vec<Vec<usize>>,
     sum_recv: Vec<Vec<usize>>,
     copy_send: Vec<Vec<usize>>,
     copy_recv: Vec<Vec<usize>>,
-    /// Stored ghost nodes that no copy reaches this step (their owner stores nothing
-    /// there, so their value is zero); the ghost copy zeroes them, else they would
-    /// keep an earlier step's value.
-    stale: Vec<usize>,
+    /// Every stored ghost node: the ghost copy zeroes them before writing what their
+    /// owners send (a ghost node no copy reaches has no mass anywhere this step, and
+    /// would otherwise keep an earlier step's value).
+    ghost_stored: Vec<usize>,
+    /// The node ranges of the stored tiles near the owned box's faces (scratch).
+    edge: Vec<([usize; D], [usize; D])>,
+    /// Per axis scratch of [`Region::chunks_in`].
+    scratch: [Vec<(u64, bool)>; D],
     /// What `ghost_sum`, `ghost_copy` and `activate_halo` sent to other ranks so far.
     traffic: Traffic,
 }
 
-/// A halo list cut into chunks: the entries of one tile of the global node grid
-/// (wrapped global node / [`TILE`] per axis), made contiguous, chunks in the order of
-/// their first entry. The two ranks of a pair see the same list in the same order and
-/// the same global nodes, so they cut it alike and can name a chunk by its number.
-#[derive(Clone, Debug, Default)]
-struct Chunked {
-    /// Local dense node indices, grouped by chunk.
-    nodes: Vec<usize>,
-    /// Key of the local tile ([`Tiles::key_of`]) of each node.
-    keys: Vec<u64>,
-    /// Chunk `c` is `nodes[start[c]..start[c + 1]]`.
-    start: Vec<usize>,
-    /// Chunk `c`'s distinct local tile keys: `tiles[tile_start[c]..tile_start[c + 1]]`.
-    tiles: Vec<u64>,
-    tile_start: Vec<usize>,
+/// The node lists of the halo operations.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Lists {
+    /// None built yet.
+    Unset,
+    /// The whole regions, dense local numbering.
+    Dense,
+    /// The active chunks, storage numbering of the tiles.
+    Sparse,
 }
 
-impl Chunked {
-    fn new<const D: usize>(
-        list: &[usize],
-        block: &Block<D>,
-        layout: &Layout<D>,
-        t: &Tiles<D>,
-    ) -> Self {
-        let mut order: Vec<(usize, [usize; D])> = Vec::with_capacity(list.len());
-        let mut first: BTreeMap<[usize; D], usize> = BTreeMap::new();
-        for (i, &n) in list.iter().enumerate() {
-            let w = layout
-                .wrap_node(block.global(block.coords(n)))
-                .expect("halo nodes lie in the grid");
-            let tile: [usize; D] = std::array::from_fn(|a| w[a] / TILE);
-            let f = *first.entry(tile).or_insert(i);
-            order.push((f, [0; D]));
-            order[i].1 = tile;
-        }
-        // Stable: entries keep their list order within a chunk.
-        let mut idx: Vec<usize> = (0..list.len()).collect();
-        idx.sort_by_key(|&i| order[i].0);
-        let mut c = Chunked::default();
-        let mut prev = usize::MAX;
-        for &i in &idx {
-            if order[i].0 != prev {
-                prev = order[i].0;
-                c.start.push(c.nodes.len());
-                c.tile_start.push(c.tiles.len());
-            }
-            let n = list[i];
-            let k = t.key_of(block.coords(n));
-            c.nodes.push(n);
-            c.keys.push(k);
-            let from = *c.tile_start.last().expect("a chunk is open");
-            if !c.tiles[from..].contains(&k) {
-                c.tiles.push(k);
-            }
-        }
-        c.start.push(c.nodes.len());
-        c.tile_start.push(c.tiles.len());
-        c
-    }
-
-    fn chunks(&self) -> usize {
-        self.start.len() - 1
-    }
-
-    fn tiles_of(&self, c: usize) -> &[u64] {
-        &self.tiles[self.tile_start[c]..self.tile_start[c + 1]]
-    }
-
-    /// Append the storage indices of the stored nodes of the chunks not in `chunks`
-    /// (ascending).
-    fn stored_outside<const D: usize>(
-        &self,
-        chunks: &[u32],
-        block: &Block<D>,
-        t: &Tiles<D>,
-        out: &mut Vec<usize>,
-    ) {
-        let mut next = chunks.iter().peekable();
-        for c in 0..self.chunks() {
-            if next.peek().is_some_and(|&&x| x as usize == c) {
-                next.next();
-                continue;
-            }
-            for i in self.start[c]..self.start[c + 1] {
-                let slot = t.slot_of_key(self.keys[i]);
-                if slot != 0 {
-                    out.push(t.index_in(slot, block.coords(self.nodes[i])));
-                }
-            }
-        }
-    }
-
-    /// Replace `out` by the storage indices of the nodes of `chunks` (all stored).
-    fn storage<const D: usize>(
-        &self,
-        chunks: &[u32],
-        block: &Block<D>,
-        t: &Tiles<D>,
-        out: &mut Vec<usize>,
-    ) {
-        out.clear();
-        for &c in chunks {
-            let c = c as usize;
-            for i in self.start[c]..self.start[c + 1] {
-                let slot = t.slot_of_key(self.keys[i]);
-                debug_assert!(slot != 0, "an active chunk's tiles are stored");
-                out.push(t.index_in(slot, block.coords(self.nodes[i])));
-            }
-        }
-    }
-
-    /// Replace `out` by the chunks (as `f64`) with a tile for which `on` holds.
-    fn active(&self, on: impl Fn(u64) -> bool, out: &mut Vec<f64>) {
-        out.clear();
-        for c in 0..self.chunks() {
-            if self.tiles_of(c).iter().any(|&k| on(k)) {
-                out.push(c as f64);
-            }
-        }
-    }
-
-    /// Touch every tile of `chunks`.
-    fn touch<const D: usize>(&self, chunks: &[u32], t: &mut Tiles<D>) {
-        for &c in chunks {
-            for &k in self.tiles_of(c as usize) {
-                t.touch_key(k);
-            }
-        }
+/// Chunk keys as pairs of `f64` (each half below 2^32, so exact).
+fn put_keys(keys: &[u64], buf: &mut Vec<f64>) {
+    buf.clear();
+    for &k in keys {
+        buf.push((k >> 32) as f64);
+        buf.push((k & 0xffff_ffff) as f64);
     }
 }
 
-/// Chunk numbers received as `f64` (exact below 2^53), checked against the list.
-fn chunk_ids(buf: &[f64], list: &Chunked, out: &mut Vec<u32>) {
+/// Chunk keys received as pairs of `f64`, checked against the region.
+fn take_keys<const D: usize>(buf: &[f64], region: &Region<D>, out: &mut Vec<u64>) {
     out.clear();
-    for &x in buf {
-        let c = x as usize;
-        assert!(
-            c < list.chunks() && c as f64 == x,
-            "ranks disagree on the halo's chunks"
-        );
-        out.push(c as u32);
+    assert!(
+        buf.len().is_multiple_of(2),
+        "ranks disagree on the halo's chunks"
+    );
+    for pair in buf.chunks_exact(2) {
+        let half = |x: f64| {
+            assert!(
+                (0.0..4294967296.0).contains(&x) && x.fract() == 0.0,
+                "ranks disagree on the halo's chunks"
+            );
+            x as u64
+        };
+        let k = (half(pair[0]) << 32) | half(pair[1]);
+        assert!(region.has_key(k), "ranks disagree on the halo's chunks");
+        out.push(k);
     }
 }
 
 impl<const D: usize> Block<D> {
-    /// The block of `rank` in `layout`, with its halo exchange lists.
+    /// The block of `rank` in `layout`, with its halo regions.
     pub fn new(layout: &Layout<D>, rank: usize) -> Self {
         let (cell_lo, cell_hi) = layout.block_cells(rank);
         let (node_lo, node_dims, own_lo, own_hi) = node_box(layout, rank);
-        let mut b = Self {
+        Self {
             rank,
             cell_lo,
             cell_hi,
@@ -227,16 +128,8 @@ impl<const D: usize> Block<D> {
             node_dims,
             own_lo,
             own_hi,
-            halo: Halo::default(),
-            layout: layout.clone(),
-        };
-        b.halo = build_halo(layout, rank);
-        let h = &mut b.halo;
-        h.sum_send = h.ghosts.clone();
-        h.sum_recv = h.owned.clone();
-        h.copy_send = h.owned.clone();
-        h.copy_recv = h.ghosts.clone();
-        b
+            halo: build_halo(layout, rank),
+        }
     }
 
     /// Nodes in the local box, ghosts included.
@@ -287,8 +180,9 @@ impl<const D: usize> Block<D> {
 
     /// Collective: agree with the peers on the halo nodes in use this step, and touch
     /// their tiles. Call after touching the tiles of this rank's particles and before
-    /// [`Tiles::finish`]; then [`Block::map_active_halo`]. The halo lists are cut into
-    /// chunks (one global tile's nodes each); two exchanges of chunk numbers decide:
+    /// [`Tiles::finish`]; then [`Block::map_active_halo`]. The halo regions are cut into
+    /// chunks (a region's nodes in one tile of the global grid); two exchanges of chunk
+    /// keys decide:
     /// 1. each rank tells the owners which of its ghost chunks it touched; an owner
     ///    stores those chunks (a neighbour's particles put mass there);
     /// 2. each owner tells the ranks that hold its owned chunks as ghosts which of
@@ -296,48 +190,38 @@ impl<const D: usize> Block<D> {
     ///    they store them, so that every node with mass reaches every copy.
     ///
     /// The ghost sum then sends the chunks of step 1, the ghost copy those of step 2.
-    /// A halo chunk no rank's particles come near is neither stored nor sent, so the
-    /// halo's cost follows the material, not the block faces.
+    /// Only the stored tiles near the owned box's faces are looked at, so the halo's
+    /// cost follows the material, not the block faces.
     pub fn activate_halo(&mut self, comm: &dyn Communicator, tiles: &mut Tiles<D>) {
-        if self.halo.chunked.is_none() {
-            let chunk = |l: &Vec<Vec<usize>>| -> Vec<Chunked> {
-                l.iter()
-                    .map(|list| Chunked::new(list, self, &self.layout, tiles))
-                    .collect()
-            };
-            self.halo.chunked = Some((chunk(&self.halo.ghosts), chunk(&self.halo.owned)));
-        }
+        let (own_lo, own_hi) = (self.own_lo, self.own_hi);
         let h = &mut self.halo;
+        h.lists = Lists::Sparse;
         let n = h.peers.len();
-        for v in [&mut h.g, &mut h.r, &mut h.o, &mut h.q] {
-            v.resize_with(n, Vec::new);
-        }
-        let (ghosts, owned) = h.chunked.as_ref().expect("chunked above");
         // Step 1: my touched ghost chunks to their owners.
-        let touched = tiles.touched_sorted();
+        edge_tiles(tiles, own_lo, own_hi, &mut h.edge);
         for k in 0..n {
-            ghosts[k].active(|t| touched.binary_search(&t).is_ok(), &mut h.send[k]);
+            chunks_in_edge(&h.ghosts[k], &h.edge, &mut h.scratch, &mut h.g[k]);
+            put_keys(&h.g[k], &mut h.send[k]);
         }
         h.traffic.record(self.rank, &h.peers, &h.send);
         comm.exchange(&h.peers, &h.send, &mut h.recv);
         for k in 0..n {
-            chunk_ids(&h.send[k], &ghosts[k], &mut h.g[k]);
-            chunk_ids(&h.recv[k], &owned[k], &mut h.r[k]);
-            ghosts[k].touch(&h.g[k], tiles);
-            owned[k].touch(&h.r[k], tiles);
+            take_keys(&h.recv[k], &h.owned[k], &mut h.r[k]);
+            touch_chunks(&h.ghosts[k], &h.g[k], tiles);
+            touch_chunks(&h.owned[k], &h.r[k], tiles);
         }
         // Step 2: my stored owned chunks to the ranks that hold them as ghosts.
-        let stored = tiles.touched_sorted();
+        edge_tiles(tiles, own_lo, own_hi, &mut h.edge);
         for k in 0..n {
-            owned[k].active(|t| stored.binary_search(&t).is_ok(), &mut h.send[k]);
+            chunks_in_edge(&h.owned[k], &h.edge, &mut h.scratch, &mut h.o[k]);
+            put_keys(&h.o[k], &mut h.send[k]);
         }
         h.traffic.record(self.rank, &h.peers, &h.send);
         comm.exchange(&h.peers, &h.send, &mut h.recv);
         for k in 0..n {
-            chunk_ids(&h.send[k], &owned[k], &mut h.o[k]);
-            chunk_ids(&h.recv[k], &ghosts[k], &mut h.q[k]);
-            owned[k].touch(&h.o[k], tiles);
-            ghosts[k].touch(&h.q[k], tiles);
+            take_keys(&h.recv[k], &h.ghosts[k], &mut h.q[k]);
+            touch_chunks(&h.owned[k], &h.o[k], tiles);
+            touch_chunks(&h.ghosts[k], &h.q[k], tiles);
         }
     }
 
@@ -352,17 +236,51 @@ impl<const D: usize> Block<D> {
     /// After [`Block::activate_halo`] and [`Tiles::finish`]: the halo operations use
     /// the storage indices of the active chunks' nodes in `tiles`.
     pub fn map_active_halo(&mut self, tiles: &Tiles<D>) {
-        let mut h = std::mem::take(&mut self.halo);
-        let (ghosts, owned) = h.chunked.as_ref().expect("activate_halo first");
-        h.stale.clear();
+        let (own_lo, own_hi) = (self.own_lo, self.own_hi);
+        let h = &mut self.halo;
+        assert!(h.lists == Lists::Sparse, "activate_halo first");
         for k in 0..h.peers.len() {
-            ghosts[k].storage(&h.g[k], self, tiles, &mut h.sum_send[k]);
-            owned[k].storage(&h.r[k], self, tiles, &mut h.sum_recv[k]);
-            owned[k].storage(&h.o[k], self, tiles, &mut h.copy_send[k]);
-            ghosts[k].storage(&h.q[k], self, tiles, &mut h.copy_recv[k]);
-            ghosts[k].stored_outside(&h.q[k], self, tiles, &mut h.stale);
+            chunk_storage(&h.ghosts[k], &h.g[k], tiles, &mut h.sum_send[k]);
+            chunk_storage(&h.owned[k], &h.r[k], tiles, &mut h.sum_recv[k]);
+            chunk_storage(&h.owned[k], &h.o[k], tiles, &mut h.copy_send[k]);
+            chunk_storage(&h.ghosts[k], &h.q[k], tiles, &mut h.copy_recv[k]);
         }
-        self.halo = h;
+        h.ghost_stored.clear();
+        for slot in 1..tiles.slots() {
+            let (lo, hi) = tiles.slot_range(slot);
+            if (0..D).all(|a| lo[a] >= own_lo[a] && hi[a] <= own_hi[a]) {
+                continue;
+            }
+            for o in 0..tiles.tile_nodes() {
+                if let Some(l) = tiles.local(slot, o) {
+                    if !(0..D).all(|a| l[a] >= own_lo[a] && l[a] < own_hi[a]) {
+                        h.ghost_stored.push(slot * tiles.tile_nodes() + o);
+                    }
+                }
+            }
+        }
+    }
+
+    /// The whole regions as node lists in the dense local numbering, for halo
+    /// operations on a field over the whole box (before any [`Block::activate_halo`]).
+    fn dense_lists(&mut self) {
+        if self.halo.lists != Lists::Unset {
+            return;
+        }
+        let dims = self.node_dims;
+        let h = &mut self.halo;
+        for k in 0..h.peers.len() {
+            let dense = |r: &Region<D>| {
+                let mut v = Vec::new();
+                r.for_each(|m| v.push(linear(dims, m)));
+                v
+            };
+            h.sum_send[k] = dense(&h.ghosts[k]);
+            h.sum_recv[k] = dense(&h.owned[k]);
+            h.copy_send[k] = h.sum_recv[k].clone();
+            h.copy_recv[k] = h.sum_send[k].clone();
+        }
+        h.lists = Lists::Dense;
     }
 
     /// Add every ghost node's value into its owner's node, then leave ghosts as they were
@@ -382,6 +300,7 @@ impl<const D: usize> Block<D> {
         slots: std::ops::Range<usize>,
     ) {
         debug_assert!(slots.end <= width);
+        self.dense_lists();
         let (lo, hi) = (slots.start, slots.end);
         let ncomp = hi - lo;
         let h = &mut self.halo;
@@ -407,6 +326,7 @@ impl<const D: usize> Block<D> {
 
     /// Copy every owned node's value to all its ghost copies on all ranks.
     pub fn ghost_copy(&mut self, comm: &dyn Communicator, field: &mut [f64], ncomp: usize) {
+        self.dense_lists();
         let h = &mut self.halo;
         for (k, nodes) in h.copy_send.iter().enumerate() {
             let buf = &mut h.send[k];
@@ -417,7 +337,7 @@ impl<const D: usize> Block<D> {
         }
         h.traffic.record(self.rank, &h.peers, &h.send);
         comm.exchange(&h.peers, &h.send, &mut h.recv);
-        for &n in &h.stale {
+        for &n in &h.ghost_stored {
             field[n * ncomp..(n + 1) * ncomp].fill(0.0);
         }
         for (k, nodes) in h.copy_recv.iter().enumerate() {
@@ -427,6 +347,70 @@ impl<const D: usize> Block<D> {
                 field[n * ncomp..(n + 1) * ncomp].copy_from_slice(&buf[j * ncomp..(j + 1) * ncomp]);
             }
         }
+    }
+}
+
+/// The node ranges of the touched tiles that reach within [`GHOST`] nodes of the owned
+/// box's faces or past them: the only places a halo region's nodes can be (a node of
+/// mine in another box lies within its ghost layer, so within `GHOST` of my faces).
+fn edge_tiles<const D: usize>(
+    tiles: &mut Tiles<D>,
+    own_lo: [usize; D],
+    own_hi: [usize; D],
+    out: &mut Vec<([usize; D], [usize; D])>,
+) {
+    out.clear();
+    tiles.sort_touched();
+    for &k in tiles.touched() {
+        let (lo, hi) = tiles.key_range(k);
+        let inner = (0..D).all(|a| lo[a] > own_lo[a] + GHOST && hi[a] + GHOST <= own_hi[a]);
+        if !inner {
+            out.push((lo, hi));
+        }
+    }
+}
+
+/// Into `out`, ascending without repeats: the chunks of `region` with a node in one
+/// of the `edge` tiles.
+fn chunks_in_edge<const D: usize>(
+    region: &Region<D>,
+    edge: &[([usize; D], [usize; D])],
+    scratch: &mut [Vec<(u64, bool)>; D],
+    out: &mut Vec<u64>,
+) {
+    out.clear();
+    if region.is_empty() {
+        return;
+    }
+    for &(lo, hi) in edge {
+        region.chunks_in(lo, hi, scratch, out);
+    }
+    out.sort_unstable();
+    out.dedup();
+}
+
+/// Touch the tiles of every node of `chunks`.
+fn touch_chunks<const D: usize>(region: &Region<D>, chunks: &[u64], tiles: &mut Tiles<D>) {
+    for &c in chunks {
+        region.for_each_in_chunk(c, |m| {
+            let k = tiles.key_of(m);
+            tiles.touch_key(k);
+        });
+    }
+}
+
+/// Replace `out` by the storage indices of the nodes of `chunks` (all stored).
+fn chunk_storage<const D: usize>(
+    region: &Region<D>,
+    chunks: &[u64],
+    tiles: &Tiles<D>,
+    out: &mut Vec<usize>,
+) {
+    out.clear();
+    for &c in chunks {
+        region.for_each_in_chunk(c, |m| {
+            out.push(tiles.index(m).expect("an active chunk's tiles are stored"));
+        });
     }
 }
 
@@ -457,10 +441,6 @@ impl AxisBox {
             own_hi: below + hi - lo + usize::from(!per && hi == n),
         }
     }
-
-    fn owns(&self, l: usize) -> bool {
-        l >= self.own_lo && l < self.own_hi
-    }
 }
 
 type NodeBox<const D: usize> = ([i64; D], [usize; D], [usize; D], [usize; D]);
@@ -478,22 +458,9 @@ fn node_box<const D: usize>(layout: &Layout<D>, rank: usize) -> NodeBox<D> {
     out
 }
 
-/// Block coordinate along axis `a` of the owner of global (unwrapped) node `g`. Node
-/// ownership is a product over axes too: the owner of a node is the block whose
-/// per-axis coordinates own the node's per-axis indices.
-fn axis_owner<const D: usize>(layout: &Layout<D>, a: usize, g: i64) -> usize {
-    let w = if layout.periodic[a] {
-        g.rem_euclid(layout.nodes(a) as i64) as usize
-    } else {
-        debug_assert!(g >= 0 && (g as usize) < layout.nodes(a));
-        g as usize
-    };
-    layout.block_along(a, w.min(layout.cells[a] - 1))
-}
-
 /// Call `f` for every index tuple `i` with `i[a] < lens[a]`, axis 0 fastest (so local
 /// node boxes are walked in increasing linear index).
-fn odometer<const D: usize>(lens: [usize; D], mut f: impl FnMut([usize; D])) {
+pub(crate) fn odometer<const D: usize>(lens: [usize; D], mut f: impl FnMut([usize; D])) {
     if lens.contains(&0) {
         return;
     }
@@ -520,7 +487,7 @@ fn odometer<const D: usize>(lens: [usize; D], mut f: impl FnMut([usize; D])) {
 /// proportional to the tuples visited plus the inner tuples' projections, not to the
 /// product of the lengths: a node box's ghost layer is walked without its interior, so
 /// a huge box with a small body costs its surface, not its volume.
-fn odometer_outside<const D: usize>(
+pub(crate) fn odometer_outside<const D: usize>(
     lens: [usize; D],
     inner: impl Fn(usize, usize) -> bool,
     mut f: impl FnMut([usize; D]),
@@ -586,123 +553,81 @@ fn linear<const D: usize>(dims: [usize; D], c: [usize; D]) -> usize {
 /// block-steps, wrapped and deduplicated on periodic axes (with one or two blocks along
 /// a periodic axis the same neighbour is met in both directions). Work is proportional
 /// to the box, not to the rank count.
-fn build_halo<const D: usize>(layout: &Layout<D>, rank: usize) -> Halo {
+fn build_halo<const D: usize>(layout: &Layout<D>, rank: usize) -> Halo<D> {
     let me = layout.block_coords(rank);
     let mine: [AxisBox; D] = std::array::from_fn(|a| AxisBox::new(layout, a, me[a]));
+    let my_lo: [i64; D] = std::array::from_fn(|a| mine[a].node_lo);
+    let my_own: [(usize, usize); D] = std::array::from_fn(|a| (mine[a].own_lo, mine[a].own_hi));
     // Per peer: (my ghosts it owns, my owned nodes that are its ghosts).
-    let mut lists: BTreeMap<usize, (Vec<usize>, Vec<usize>)> = BTreeMap::new();
-    for (p, ghosts) in ghosts_by_owner(layout, &mine) {
-        lists.entry(p).or_default().0 = ghosts;
-    }
-    for (p, owned) in owned_by_peer(layout, me, &mine) {
-        lists.entry(p).or_default().1 = owned;
-    }
-    let mut h = Halo::default();
-    for (p, (ghosts, owned)) in lists {
+    let mut regions: BTreeMap<usize, (Option<Region<D>>, Option<Region<D>>)> = BTreeMap::new();
+    // Ghost side: per axis, the block coordinates owning positions of my box.
+    let owners: [Vec<(usize, Vec<Span>)>; D] = std::array::from_fn(|a| {
+        near_coords(layout, a, me[a])
+            .into_iter()
+            .filter_map(|k| {
+                let b = (mine[a].node_lo, mine[a].dims);
+                let spans = spans_owned_by(layout, a, b, k, |g| g - my_lo[a]);
+                (!spans.is_empty()).then_some((k, spans))
+            })
+            .collect()
+    });
+    odometer::<D>(std::array::from_fn(|a| owners[a].len()), |j| {
+        let spans = std::array::from_fn(|a| owners[a][j[a]].1.clone());
+        let r = Region::new(my_lo, my_own, spans);
+        if !r.is_empty() {
+            let q = std::array::from_fn(|a| owners[a][j[a]].0);
+            regions.entry(layout.rank_of_block(q)).or_default().0 = Some(r);
+        }
+    });
+    // Owner side: the boxes near mine with positions I own.
+    let near: [Vec<(AxisBox, Vec<Span>, usize)>; D] =
+        std::array::from_fn(|a| near_blocks(layout, a, me[a], my_lo[a]));
+    odometer::<D>(std::array::from_fn(|a| near[a].len()), |j| {
+        let other: [&(AxisBox, Vec<Span>, usize); D] = std::array::from_fn(|a| &near[a][j[a]]);
+        let r = Region::new(
+            std::array::from_fn(|a| other[a].0.node_lo),
+            std::array::from_fn(|a| (other[a].0.own_lo, other[a].0.own_hi)),
+            std::array::from_fn(|a| other[a].1.clone()),
+        );
+        if !r.is_empty() {
+            let q = std::array::from_fn(|a| other[a].2);
+            regions.entry(layout.rank_of_block(q)).or_default().1 = Some(r);
+        }
+    });
+    let n = regions.len();
+    let none = || Region::new([0; D], [(0, 0); D], std::array::from_fn(|_| Vec::new()));
+    let mut h = Halo {
+        peers: Vec::with_capacity(n),
+        ghosts: Vec::with_capacity(n),
+        owned: Vec::with_capacity(n),
+        send: vec![Vec::new(); n],
+        recv: vec![Vec::new(); n],
+        lists: Lists::Unset,
+        g: vec![Vec::new(); n],
+        r: vec![Vec::new(); n],
+        o: vec![Vec::new(); n],
+        q: vec![Vec::new(); n],
+        sum_send: vec![Vec::new(); n],
+        sum_recv: vec![Vec::new(); n],
+        copy_send: vec![Vec::new(); n],
+        copy_recv: vec![Vec::new(); n],
+        ghost_stored: Vec::new(),
+        edge: Vec::new(),
+        scratch: std::array::from_fn(|_| Vec::new()),
+        traffic: Traffic::default(),
+    };
+    for (p, (ghosts, owned)) in regions {
         h.peers.push(p);
-        h.ghosts.push(ghosts);
-        h.owned.push(owned);
+        h.ghosts.push(ghosts.unwrap_or_else(none));
+        h.owned.push(owned.unwrap_or_else(none));
     }
-    h.send = vec![Vec::new(); h.peers.len()];
-    h.recv = vec![Vec::new(); h.peers.len()];
     h
 }
 
-/// My ghost nodes (local linear indices in my box `mine`), grouped by the rank that
-/// owns them.
-fn ghosts_by_owner<const D: usize>(
-    layout: &Layout<D>,
-    mine: &[AxisBox; D],
-) -> Vec<(usize, Vec<usize>)> {
-    let my_dims: [usize; D] = std::array::from_fn(|a| mine[a].dims);
-    let is_mine_owned = |l: [usize; D]| (0..D).all(|a| mine[a].owns(l[a]));
-    let mut lists = Vec::new();
-    let owner_along: [Vec<usize>; D] = std::array::from_fn(|a| {
-        (0..mine[a].dims)
-            .map(|l| axis_owner(layout, a, mine[a].node_lo + l as i64))
-            .collect()
-    });
-    let owners: [Vec<usize>; D] = std::array::from_fn(|a| {
-        let mut v = owner_along[a].clone();
-        v.sort_unstable();
-        v.dedup();
-        v
-    });
-    odometer::<D>(std::array::from_fn(|a| owners[a].len()), |j| {
-        let q: [usize; D] = std::array::from_fn(|a| owners[a][j[a]]);
-        let pos: [Vec<usize>; D] = std::array::from_fn(|a| {
-            (0..mine[a].dims)
-                .filter(|&l| owner_along[a][l] == q[a])
-                .collect()
-        });
-        let mut ghosts = Vec::new();
-        odometer_outside::<D>(
-            std::array::from_fn(|a| pos[a].len()),
-            |a, v| mine[a].owns(pos[a][v]),
-            |i| {
-                let l: [usize; D] = std::array::from_fn(|a| pos[a][i[a]]);
-                debug_assert!(!is_mine_owned(l));
-                ghosts.push(linear(my_dims, l));
-            },
-        );
-        if !ghosts.is_empty() {
-            lists.push((layout.rank_of_block(q), ghosts));
-        }
-    });
-    lists
-}
-
-/// My owned nodes (local linear indices in my box `mine`, at block coordinates `me`)
-/// that are ghosts in other boxes, grouped by the rank whose box it is.
-fn owned_by_peer<const D: usize>(
-    layout: &Layout<D>,
-    me: [usize; D],
-    mine: &[AxisBox; D],
-) -> Vec<(usize, Vec<usize>)> {
-    let my_dims: [usize; D] = std::array::from_fn(|a| mine[a].dims);
-    let near: [Vec<(AxisBox, Vec<usize>, usize)>; D] =
-        std::array::from_fn(|a| near_blocks(layout, a, me[a]));
-    let mut lists = Vec::new();
-    odometer::<D>(std::array::from_fn(|a| near[a].len()), |j| {
-        let other: [&(AxisBox, Vec<usize>, usize); D] = std::array::from_fn(|a| &near[a][j[a]]);
-        let mut owned = Vec::new();
-        // Nodes owned there are that block's nodes, i.e. mine: not ghosts.
-        odometer_outside::<D>(
-            std::array::from_fn(|a| other[a].1.len()),
-            |a, v| other[a].0.owns(other[a].1[v]),
-            |i| {
-                let l: [usize; D] = std::array::from_fn(|a| other[a].1[i[a]]);
-                // Wrapped global index of the node, which lies in my owned range, hence
-                // equals its unwrapped index there.
-                let local: [usize; D] = std::array::from_fn(|a| {
-                    let g = other[a].0.node_lo + l[a] as i64;
-                    let w = if layout.periodic[a] {
-                        g.rem_euclid(layout.nodes(a) as i64)
-                    } else {
-                        g
-                    };
-                    let m = (w - mine[a].node_lo) as usize;
-                    debug_assert!(mine[a].owns(m));
-                    m
-                });
-                owned.push(linear(my_dims, local));
-            },
-        );
-        if !owned.is_empty() {
-            let q: [usize; D] = std::array::from_fn(|a| other[a].2);
-            lists.push((layout.rank_of_block(q), owned));
-        }
-    });
-    lists
-}
-
-/// Along axis `a`, the blocks near mine (coordinate `me`) whose box has positions I
-/// own: each box, those positions and the block's coordinate.
-fn near_blocks<const D: usize>(
-    layout: &Layout<D>,
-    a: usize,
-    me: usize,
-) -> Vec<(AxisBox, Vec<usize>, usize)> {
+/// Along axis `a`, the block coordinates within two of `me` (wrapped on a periodic
+/// axis, without repeats): the only ones whose boxes can share nodes with mine (see
+/// [`build_halo`]).
+fn near_coords<const D: usize>(layout: &Layout<D>, a: usize, me: usize) -> Vec<usize> {
     let p = layout.procs[a] as i64;
     let mut ks: Vec<usize> = (-2..=2)
         .map(|d| me as i64 + d)
@@ -716,21 +641,45 @@ fn near_blocks<const D: usize>(
         .collect();
     ks.sort_unstable();
     ks.dedup();
-    ks.into_iter()
+    ks
+}
+
+/// Along axis `a`, the blocks near mine (coordinate `me`, first node `my_lo`) whose box
+/// has positions I own: each box, those positions as spans to my local positions, and
+/// the block's coordinate.
+fn near_blocks<const D: usize>(
+    layout: &Layout<D>,
+    a: usize,
+    me: usize,
+    my_lo: i64,
+) -> Vec<(AxisBox, Vec<Span>, usize)> {
+    let n = layout.nodes(a) as i64;
+    // My owned nodes are wrapped nodes; in my box they sit at their unwrapped index.
+    let to_mine = |g: i64| {
+        if layout.periodic[a] {
+            g.rem_euclid(n) - my_lo
+        } else {
+            g - my_lo
+        }
+    };
+    near_coords(layout, a, me)
+        .into_iter()
         .filter_map(|k| {
             let b = AxisBox::new(layout, a, k);
-            let pos: Vec<usize> = (0..b.dims)
-                .filter(|&l| axis_owner(layout, a, b.node_lo + l as i64) == me)
-                .collect();
-            (!pos.is_empty()).then_some((b, pos, k))
+            let spans = spans_owned_by(layout, a, (b.node_lo, b.dims), me, to_mine);
+            (!spans.is_empty()).then_some((b, spans, k))
         })
         .collect()
 }
 
-/// The straightforward plan, scanning every rank's ghost nodes: the reference that
-/// [`build_halo`] is tested against.
+/// The straightforward plan, scanning every rank's ghost nodes: per peer, my ghost
+/// nodes it owns (in my order) and my owned nodes that are its ghosts (in its order),
+/// as local linear indices: the reference that [`build_halo`] is tested against.
 #[cfg(test)]
-fn build_halo_brute<const D: usize>(layout: &Layout<D>, rank: usize) -> Halo {
+type Lists3 = (Vec<usize>, Vec<Vec<usize>>, Vec<Vec<usize>>);
+
+#[cfg(test)]
+fn build_halo_brute<const D: usize>(layout: &Layout<D>, rank: usize) -> Lists3 {
     let nranks = layout.ranks();
     let (my_lo, dims, _, _) = node_box(layout, rank);
     let local_of_owned = |w: [usize; D]| -> usize {
@@ -752,15 +701,15 @@ fn build_halo_brute<const D: usize>(layout: &Layout<D>, rank: usize) -> Halo {
             }
         }
     }
-    let mut h = Halo::default();
+    let mut out: Lists3 = Default::default();
     for p in 0..nranks {
         if !ghosts_by[p].is_empty() || !owned_by[p].is_empty() {
-            h.peers.push(p);
-            h.ghosts.push(std::mem::take(&mut ghosts_by[p]));
-            h.owned.push(std::mem::take(&mut owned_by[p]));
+            out.0.push(p);
+            out.1.push(std::mem::take(&mut ghosts_by[p]));
+            out.2.push(std::mem::take(&mut owned_by[p]));
         }
     }
-    h
+    out
 }
 
 /// Ghost nodes of `rank`'s box, as (local index, wrapped global node), in local order.
@@ -787,11 +736,13 @@ mod tests {
 
     fn check_against_brute<const D: usize>(layout: &Layout<D>) {
         for rank in 0..layout.ranks() {
-            let fast = build_halo(layout, rank);
-            let brute = build_halo_brute(layout, rank);
-            assert_eq!(fast.peers, brute.peers, "{layout:?} rank {rank}: peers");
-            assert_eq!(fast.ghosts, brute.ghosts, "{layout:?} rank {rank}: ghosts");
-            assert_eq!(fast.owned, brute.owned, "{layout:?} rank {rank}: owned");
+            let mut b = Block::new(layout, rank);
+            b.dense_lists();
+            let (peers, ghosts, owned) = build_halo_brute(layout, rank);
+            let h = &b.halo;
+            assert_eq!(h.peers, peers, "{layout:?} rank {rank}: peers");
+            assert_eq!(h.sum_send, ghosts, "{layout:?} rank {rank}: ghosts");
+            assert_eq!(h.sum_recv, owned, "{layout:?} rank {rank}: owned");
         }
     }
 

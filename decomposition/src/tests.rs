@@ -934,7 +934,17 @@ fn corners<const D: usize>(x: [f64; D]) -> Vec<([i64; D], f64)> {
 /// the cluster moved by up to two cells per axis.
 fn cluster_rounds<const D: usize>(layout: &Layout<D>, seed: u64) -> Vec<Vec<([f64; D], f64)>> {
     let mut rng = Rng::new(seed);
-    let lo: [f64; D] = std::array::from_fn(|a| rng.below(layout.cells[a]) as f64);
+    let lo: [usize; D] = std::array::from_fn(|a| rng.below(layout.cells[a]));
+    cluster_rounds_at(layout, lo, &mut rng)
+}
+
+/// [`cluster_rounds`] with the cluster's lower corner at cell `lo`.
+fn cluster_rounds_at<const D: usize>(
+    layout: &Layout<D>,
+    lo: [usize; D],
+    rng: &mut Rng,
+) -> Vec<Vec<([f64; D], f64)>> {
+    let lo: [f64; D] = lo.map(|c| c as f64);
     let shift: [f64; D] = std::array::from_fn(|_| rng.int(-2, 2) as f64);
     let pts: Vec<([f64; D], f64)> = (0..30)
         .map(|_| {
@@ -995,7 +1005,11 @@ fn serial_sums<const D: usize>(
 /// earlier round), every node with a nonzero sum is stored on its owner, and a small
 /// cluster stores a few tiles, not the block faces.
 fn check_sparse_halo<const D: usize>(layout: &Layout<D>, seed: u64) {
-    let rounds = cluster_rounds(layout, seed);
+    check_sparse_halo_of(layout, &cluster_rounds(layout, seed));
+}
+
+/// [`check_sparse_halo`] for the given rounds of points.
+fn check_sparse_halo_of<const D: usize>(layout: &Layout<D>, rounds: &[Vec<([f64; D], f64)>]) {
     let serial: Vec<HashMap<[usize; D], f64>> =
         rounds.iter().map(|pts| serial_sums(layout, pts)).collect();
     LocalComm::run(layout.ranks(), |comm| {
@@ -1020,8 +1034,10 @@ fn check_sparse_halo<const D: usize>(layout: &Layout<D>, seed: u64) {
             };
             tiles.begin();
             for (x, _) in &mine {
+                // A stencil a node wider than the cell on each side, as the solver's
+                // are: a rank then needs ghost nodes below its owned range too.
                 let c: [i64; D] = std::array::from_fn(|a| x[a].floor() as i64 - b.node_lo[a]);
-                tiles.touch(c, c.map(|v| v + 1));
+                tiles.touch(c.map(|v| v - 1), c.map(|v| v + 2));
             }
             b.activate_halo(comm, &mut tiles);
             if tiles.finish() || round == 0 {
@@ -1116,5 +1132,26 @@ fn sparse_halo_delivers_every_sum_and_stores_little() {
         for _ in 0..4 {
             check_sparse_halo(&l, next());
         }
+    }
+}
+
+/// A cluster at the corner of four (2D) or eight (3D) blocks of a box 2^30 (2D) or
+/// 2^20 (3D) cells per axis: the halo's plan and its work follow the cluster, so the
+/// faces' length costs nothing (a list per face node would take gigabytes here).
+#[test]
+fn sparse_halo_of_a_huge_box_costs_the_cluster() {
+    fn at_corner<const D: usize>(cells: usize, periodic: [bool; D], seed: u64) {
+        let base = Layout::new([cells; D], periodic, [2; D]).unwrap();
+        // The corner at cell 1000 on every axis, so that blocks differ in size.
+        let layout = base
+            .with_cuts(std::array::from_fn(|_| vec![0, 1000, cells]))
+            .unwrap();
+        let mut rng = Rng::new(seed);
+        let lo: [usize; D] = std::array::from_fn(|_| 997 + rng.below(3));
+        check_sparse_halo_of(&layout, &cluster_rounds_at(&layout, lo, &mut rng));
+    }
+    for seed in 0..4 {
+        at_corner::<2>(1 << 30, [false, true], seed);
+        at_corner::<3>(1 << 20, [true, false, true], seed);
     }
 }

@@ -226,12 +226,33 @@ impl<const D: usize> Tiles<D> {
         }
     }
 
-    /// The keys touched since [`Tiles::begin`], ascending without repeats (the
-    /// [`Tiles::finish`] makes them the active set).
-    pub fn touched_sorted(&mut self) -> &[u64] {
+    /// Sort the keys touched since [`Tiles::begin`] and drop repeats.
+    pub fn sort_touched(&mut self) {
         self.touched.sort_unstable();
         self.touched.dedup();
+    }
+
+    /// The keys touched since [`Tiles::begin`] (ascending without repeats after
+    /// [`Tiles::sort_touched`]).
+    pub fn touched(&self) -> &[u64] {
         &self.touched
+    }
+
+    /// The local nodes `[lo, hi)` per axis of the tile with key `k`, clipped to the box.
+    pub fn key_range(&self, k: u64) -> ([usize; D], [usize; D]) {
+        self.tile_range(self.coords_of_key(k))
+    }
+
+    /// The local nodes `[lo, hi)` per axis of `slot`'s tile, clipped to the box.
+    pub fn slot_range(&self, slot: usize) -> ([usize; D], [usize; D]) {
+        self.tile_range(self.origin[slot].map(|o| o >> TILE_LOG))
+    }
+
+    fn tile_range(&self, t: [usize; D]) -> ([usize; D], [usize; D]) {
+        let lo = std::array::from_fn(|a| ((t[a] << TILE_LOG).max(self.shift[a])) - self.shift[a]);
+        let hi =
+            std::array::from_fn(|a| (((t[a] + 1) << TILE_LOG) - self.shift[a]).min(self.dims[a]));
+        (lo, hi)
     }
 
     /// Make the touched tiles the active set. Returns whether
@@ -544,11 +565,9 @@ mod tests {
                 for &k in &keys[..n] {
                     by_keys.touch_key(k);
                 }
-                assert_eq!(
-                    by_touch.touched_sorted(),
-                    by_keys.touched_sorted(),
-                    "{l:?}..={h:?}"
-                );
+                by_touch.sort_touched();
+                by_keys.sort_touched();
+                assert_eq!(by_touch.touched(), by_keys.touched(), "{l:?}..={h:?}");
             }
         }
     }
