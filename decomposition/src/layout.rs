@@ -98,17 +98,20 @@ impl<const D: usize> Layout<D> {
     }
 
     /// The same process grid with cuts that give every block along each axis an equal
-    /// share of `cost`, where `cost[a][i]` is the cost of the slab of cells with index
-    /// `i` along axis `a` (summed over the other axes). Blocks keep the minimum width
-    /// of [`Layout::with_cuts`]. The shares are equal per axis: for a cost that is a
+    /// share of `cost`, where `cost[a]` gives the cost of the slabs of cells along axis
+    /// `a` (summed over the other axes). Blocks keep the minimum width of
+    /// [`Layout::with_cuts`]. The shares are equal per axis: for a cost that is a
     /// product of per-axis profiles (a box-shaped body) every block gets an equal
     /// share; for others the cuts balance the slabs, not necessarily the blocks. A
     /// zero profile gives equal widths. Deterministic: every rank given the same
     /// costs computes the same cuts.
-    pub fn balanced(&self, cost: &[Vec<f64>; D]) -> Self {
+    pub fn balanced(&self, cost: &[Profile; D]) -> Self {
         let cuts = std::array::from_fn(|a| {
-            assert_eq!(cost[a].len(), self.cells[a], "one cost per cell slab");
-            balanced_cuts(&cost[a], self.procs[a], self.min_width(a))
+            assert!(
+                cost[a].start + cost[a].cost.len() <= self.cells[a],
+                "a cost profile within the axis"
+            );
+            balanced_cuts(&cost[a], self.cells[a], self.procs[a], self.min_width(a))
         });
         self.with_cuts(cuts)
             .expect("balanced cuts respect the minimum block width")
@@ -274,30 +277,43 @@ impl<const D: usize> Layout<D> {
     }
 }
 
-/// Cuts of `n = cost.len()` cells into `blocks` ranges of about equal cost, each at
-/// least `min` cells wide (`blocks * min <= n`).
-fn balanced_cuts(cost: &[f64], blocks: usize, min: usize) -> Vec<usize> {
-    let n = cost.len();
+/// The cost of the cell slabs along one axis: `cost[i]` is that of slab `start + i`,
+/// and the slabs outside are free (the empty space around a body costs nothing to
+/// describe).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Profile {
+    /// The first slab with a cost.
+    pub start: usize,
+    /// The cost of the slabs from `start` on.
+    pub cost: Vec<f64>,
+}
+
+/// Cuts of `n` cells into `blocks` ranges of about equal cost, each at least `min`
+/// cells wide (`blocks * min <= n`).
+fn balanced_cuts(profile: &Profile, n: usize, blocks: usize, min: usize) -> Vec<usize> {
     debug_assert!(blocks * min <= n);
-    // prefix[i]: cost of cells below i.
-    let mut prefix = Vec::with_capacity(n + 1);
+    let Profile { start, cost } = profile;
+    // prefix[i]: cost of cells below start + i (0 below start, the total past the end).
+    let mut prefix = Vec::with_capacity(cost.len() + 1);
     prefix.push(0.0);
     for &c in cost {
         prefix.push(prefix.last().copied().unwrap_or(0.0) + c.max(0.0));
     }
-    let total = prefix[n];
+    let total = prefix[cost.len()];
     let mut cuts: Vec<usize> = (0..=blocks).map(|k| k * n / blocks).collect();
     if total > 0.0 && total.is_finite() {
         for k in 1..blocks {
             let target = total * k as f64 / blocks as f64;
-            // The cell boundary whose prefix is nearest the target.
-            let hi = prefix.partition_point(|&p| p < target).min(n);
+            // The cell boundary whose prefix is nearest the target: one inside the
+            // profile, as 0 < target < total.
+            let hi = prefix.partition_point(|&p| p < target).min(cost.len());
             let lo = hi.saturating_sub(1);
-            cuts[k] = if target - prefix[lo] <= prefix[hi] - target {
-                lo
-            } else {
-                hi
-            };
+            cuts[k] = start
+                + if target - prefix[lo] <= prefix[hi] - target {
+                    lo
+                } else {
+                    hi
+                };
         }
     }
     // The minimum width: push cuts up from the bottom, then down from the top.

@@ -22,7 +22,7 @@ pub mod traffic;
 
 pub use block::Block;
 pub use comm::{Communicator, MpiComm, SerialComm};
-pub use layout::{Layout, GHOST};
+pub use layout::{Layout, Profile, GHOST};
 pub use local::LocalComm;
 pub use migrate::{Destination, Migrator, Records};
 pub use tiles::{Tiles, TILE};

@@ -6,7 +6,7 @@ use std::collections::HashMap;
 
 use crate::block::Block;
 use crate::comm::{Communicator, SerialComm};
-use crate::layout::{Layout, GHOST};
+use crate::layout::{Layout, Profile, GHOST};
 use crate::local::LocalComm;
 use crate::migrate::Migrator;
 use crate::splitmix::Rng;
@@ -41,8 +41,9 @@ fn uneven<const D: usize>(
 ) -> Option<Layout<D>> {
     let base = Layout::new(cells, periodic, procs).ok()?;
     let mut rng = Rng::new(seed);
-    let cost: [Vec<f64>; D] = std::array::from_fn(|a| {
-        (0..cells[a])
+    let cost: [Profile; D] = std::array::from_fn(|a| Profile {
+        start: 0,
+        cost: (0..cells[a])
             .map(|_| {
                 if rng.below(3) == 0 {
                     0.0
@@ -50,7 +51,7 @@ fn uneven<const D: usize>(
                     rng.below(100) as f64
                 }
             })
-            .collect()
+            .collect(),
     });
     Some(base.balanced(&cost))
 }
@@ -805,7 +806,17 @@ fn balanced_cuts_share_the_cost() {
                 }
             })
             .collect();
-        let l = base.balanced(std::array::from_ref(&cost));
+        let whole = Profile {
+            start: 0,
+            cost: cost.clone(),
+        };
+        let l = base.balanced(std::array::from_ref(&whole));
+        // The body's slabs alone, the empty ones left out, give the same cuts.
+        let body = Profile {
+            start: lo,
+            cost: cost[lo..hi].to_vec(),
+        };
+        assert_eq!(base.balanced(&[body]), l, "case {case}");
         let c = l.cuts(0);
         let min = if procs > 1 || periodic { GHOST } else { 1 };
         assert!(

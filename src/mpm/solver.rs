@@ -15,7 +15,7 @@ use crate::physics::material::Material;
 use crate::physics::shape::{Alpha, Geom, GradientScheme};
 use crate::physics::tensor::{vector, Mat, Vector};
 use decomposition::tiles::TILE_LOG;
-use decomposition::{Block, Communicator, Layout, Migrator, Tiles, Traffic, TILE};
+use decomposition::{Block, Communicator, Layout, Migrator, Profile, Tiles, Traffic, TILE};
 use rayon::prelude::*;
 use std::time::Instant;
 

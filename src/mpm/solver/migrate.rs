@@ -173,9 +173,26 @@ impl<'c, const D: usize> Solver<'c, D> {
         if now <= threshold {
             return false;
         }
+        // The slabs the particles occupy along every axis, over all ranks: the cost
+        // profiles cover those alone, so the empty space around a body costs nothing.
+        let mut reach = [f64::NEG_INFINITY; 6];
+        for p in 0..self.parts.len() {
+            let c = self.cell_of(p);
+            for a in 0..D {
+                reach[2 * a] = reach[2 * a].max(-(c[a] as f64));
+                reach[2 * a + 1] = reach[2 * a + 1].max(c[a] as f64);
+            }
+        }
+        self.comm.max_f64(&mut reach[..2 * D]);
+        if reach[1] == f64::NEG_INFINITY {
+            return false; // no particles anywhere
+        }
+        // reach[2a] is minus the first slab along axis a, reach[2a + 1] the last.
+        let first: [usize; D] = std::array::from_fn(|a| (-reach[2 * a]) as usize);
+        let len: [usize; D] =
+            std::array::from_fn(|a| (reach[2 * a + 1] + reach[2 * a]) as usize + 1);
         // Particles per cell slab along every axis, summed over ranks.
-        let cells = self.geom.cells;
-        let total: usize = cells.iter().sum();
+        let total: usize = len.iter().sum();
         let mut slab = std::mem::take(&mut self.scratch.buf);
         slab.clear();
         slab.resize(total + ranks, 0.0);
@@ -183,16 +200,19 @@ impl<'c, const D: usize> Solver<'c, D> {
             let c = self.cell_of(p);
             let mut at = 0;
             for a in 0..D {
-                slab[at + c[a]] += 1.0;
-                at += cells[a];
+                slab[at + c[a] - first[a]] += 1.0;
+                at += len[a];
             }
         }
         self.comm.sum_f64(&mut slab[..total]);
         let mut at = 0;
-        let cost: [Vec<f64>; D] = std::array::from_fn(|a| {
-            let v = slab[at..at + cells[a]].to_vec();
-            at += cells[a];
-            v
+        let cost: [Profile; D] = std::array::from_fn(|a| {
+            let cost = slab[at..at + len[a]].to_vec();
+            at += len[a];
+            Profile {
+                start: first[a],
+                cost,
+            }
         });
         let next = self.layout.balanced(&cost);
         // Particles per rank under the new cuts.
