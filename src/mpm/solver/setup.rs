@@ -93,6 +93,31 @@ impl<'c, const D: usize> Solver<'c, D> {
         s
     }
 
+    /// The cells `[lo, hi)` along the last axis that the slab order spans: the block's,
+    /// trimmed to the particles' runs in whole pairs of slabs (a slab's colour is its
+    /// parity, so the order and the sums are those over the whole block), so that a
+    /// huge box around a small body costs the body's slabs. Trimmed within the block:
+    /// a run outside it still fails the slab order's check.
+    fn occupied_slabs(&self, thick: usize) -> (usize, usize) {
+        let last = D - 1;
+        let (lo, hi) = (self.block.cell_lo[last], self.block.cell_hi[last]);
+        let (mut first, mut end) = (i64::MAX, i64::MIN);
+        for run in self.place.cell_runs.iter().flatten() {
+            let c = i64::from(run.cell[last]);
+            first = first.min(c);
+            end = end.max(c + 1);
+        }
+        if first > end {
+            return (lo, lo + 1); // no particles: one empty slab
+        }
+        if first < lo as i64 || end > hi as i64 {
+            return (lo, hi); // a run outside the block, which the order's check stops
+        }
+        let pair = 2 * thick;
+        let from = lo + (first as usize - lo) / pair * pair;
+        (from, end as usize)
+    }
+
     /// This rank's block and the tile storage of its grid. Which halo nodes are stored
     /// and exchanged is agreed with the peers every time the tiles are activated
     /// ([`Block::activate_halo`]).
@@ -190,9 +215,8 @@ impl<'c, const D: usize> Solver<'c, D> {
             );
         }
         // The slab order first: it checks that every run's cell is in the block.
-        let last = D - 1;
-        let (lo, hi) = (self.block.cell_lo[last], self.block.cell_hi[last]);
         let thick = kernel::slab_thickness_for(self.scheme.gimp);
+        let (lo, hi) = self.occupied_slabs(thick);
         let index = self.place.slabs.begin(lo, hi, thick);
         self.place.slabs.finish(&RunSlabs {
             runs: &self.place.cell_runs,
