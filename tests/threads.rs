@@ -198,3 +198,48 @@ fn threads_within_ranks_change_no_bit() {
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
+
+/// Without `--threads`, a rank among several takes its share of the cores it may run
+/// on: two unbound ranks on this machine's cores share them, so each takes
+/// `cores / 2` threads (1 on two cores), not all of them (the node would run twice
+/// its cores' threads).
+#[test]
+fn ranks_share_the_cores_they_may_run_on() {
+    let dir = temp_dir("ranks-share-cores");
+    let sc = dir.join("scene.toml");
+    std::fs::write(&sc, scene(2, "mpmcg", "musl")).unwrap();
+    let out = dir.join("r2");
+    let o = common::mpirun(2)
+        .args(["--bind-to", "none"])
+        .arg(env!("CARGO_BIN_EXE_mpmcg"))
+        .arg("run")
+        .arg(&sc)
+        .arg("--out")
+        .arg(&out)
+        .arg("--quiet")
+        .output()
+        .expect("mpirun runs");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    // The CPUs this process may run on, which mpirun's unbound ranks inherit.
+    let status = std::fs::read_to_string("/proc/self/status").unwrap();
+    let list = status
+        .lines()
+        .find_map(|l| l.strip_prefix("Cpus_allowed_list:"))
+        .expect("Linux says which CPUs a process may run on");
+    let cores: usize = list
+        .trim()
+        .split(',')
+        .map(|r| match r.split_once('-') {
+            Some((a, b)) => b.parse::<usize>().unwrap() - a.parse::<usize>().unwrap() + 1,
+            None => 1,
+        })
+        .sum();
+    assert_eq!(
+        summary["threads"].as_u64(),
+        Some((cores / 2).max(1) as u64),
+        "{summary}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

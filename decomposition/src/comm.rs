@@ -113,6 +113,12 @@ impl MpiComm {
     pub fn abort(&self, code: i32) -> ! {
         self.world.abort(code)
     }
+    /// Collective: the ranks that share this rank's node (its memory), as a
+    /// communicator of their own.
+    pub fn node(&self) -> Self {
+        use mpi::topology::Communicator as _;
+        Self::new(self.world.split_shared(self.world.rank()))
+    }
 }
 
 impl Communicator for MpiComm {

@@ -31,7 +31,8 @@ enum Command {
         /// Output folder [default: out/<scene name>].
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Threads per rank [default: 1 under mpirun with several ranks, else all cores].
+        /// Threads per rank [default: under mpirun with several ranks, each rank's share
+        /// of the cores it may run on; else all cores].
         #[arg(long)]
         threads: Option<usize>,
         /// No progress line (the last line, which names the output folder, stays).
@@ -81,7 +82,7 @@ struct SweepArgs {
     /// Output folder [default: out/<scene name>_sweep].
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Threads per rank [default: all cores in-process, 1 under mpirun].
+    /// Threads per rank [default: all cores in-process; under mpirun, the run's own].
     #[arg(long)]
     threads: Option<usize>,
     /// No line per run.
@@ -320,8 +321,9 @@ fn run_main(
     report(result, root, &opts)
 }
 
-/// The thread count per rank (`--threads`, else 1 under mpirun with several ranks and
-/// every core alone) and rayon's pool of them; the exit status if that fails.
+/// The thread count per rank (`--threads`, else under mpirun with several ranks the
+/// rank's share of the cores it may run on ([`super::affinity`]), and every core alone)
+/// and rayon's pool of them; the exit status if that fails.
 ///
 /// The main thread is one of the pool's threads: a parallel loop it starts runs on
 /// it, rather than being handed to a sleeping worker while it waits. On one thread
@@ -329,10 +331,12 @@ fn run_main(
 /// hand-over is two context switches). MPI and HDF5 stay on the main thread: rayon
 /// only ever runs the loops' own closures on the other threads.
 fn start_threads(comm: &MpiComm, threads: Option<usize>) -> Result<usize, ExitCode> {
-    let threads = threads.unwrap_or(if comm.size() > 1 {
-        1
-    } else {
-        std::thread::available_parallelism().map_or(1, |n| n.get())
+    let threads = threads.unwrap_or_else(|| {
+        if comm.size() > 1 {
+            super::affinity::node_share(comm).min(MAX_THREADS)
+        } else {
+            std::thread::available_parallelism().map_or(1, |n| n.get())
+        }
     });
     if threads == 0 || threads > MAX_THREADS {
         if comm.rank() == 0 {

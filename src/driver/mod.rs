@@ -15,6 +15,7 @@ macro_rules! say {
     }};
 }
 
+pub mod affinity;
 #[allow(unsafe_code)] // `_exit` after a failed write of the help text.
 pub mod cli;
 #[allow(unsafe_code)] // `xgetbv`: the OS's saved vector registers.

@@ -171,7 +171,8 @@ pub struct Options {
     pub ppc: Option<usize>,
     pub ranks: usize,
     /// Threads per rank; `None`: all of the pool's threads in-process, the `run`
-    /// default (1) under mpirun.
+    /// default under mpirun (each rank's share of its node's cores; a row reads what
+    /// the run's summary says).
     pub threads: Option<usize>,
     pub out: PathBuf,
     /// The executable `mpirun` starts when `ranks > 1` (normally this program).
