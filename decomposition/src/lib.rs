@@ -14,6 +14,7 @@ pub mod comm;
 pub mod layout;
 pub mod local;
 pub mod migrate;
+mod odometer;
 mod region;
 pub mod splitmix;
 pub mod tiles;

@@ -125,7 +125,7 @@ impl<const D: usize> Region<D> {
             per.truncate(w);
         }
         let lens: [usize; D] = std::array::from_fn(|a| scratch[a].len());
-        crate::block::odometer(lens, |i| {
+        crate::odometer::odometer(lens, |i| {
             // A node of the chunk outside the holder's owned box exists iff one axis
             // has a position outside its owned range.
             if (0..D).any(|a| scratch[a][i[a]].1) {
@@ -161,7 +161,7 @@ impl<const D: usize> Region<D> {
                 }
             }
         }
-        crate::block::odometer(lens, |i| {
+        crate::odometer::odometer(lens, |i| {
             if !(0..D).all(|a| self.owned(a, pos[a][i[a]].0)) {
                 f(std::array::from_fn(|a| pos[a][i[a]].1));
             }
@@ -177,7 +177,7 @@ impl<const D: usize> Region<D> {
                 .flat_map(|s| (s.lo..s.hi).map(move |p| (p, (p as i64 + s.to_mine) as usize)))
                 .collect()
         });
-        crate::block::odometer_outside::<D>(
+        crate::odometer::odometer_outside::<D>(
             std::array::from_fn(|a| pos[a].len()),
             |a, v| self.owned(a, pos[a][v].0),
             |i| f(std::array::from_fn(|a| pos[a][i[a]].1)),
