@@ -191,8 +191,9 @@ impl<const D: usize> Block<D> {
     ///    they store them, so that every node with mass reaches every copy.
     ///
     /// The ghost sum then sends the chunks of step 1, the ghost copy those of step 2.
-    /// Only the stored tiles near the owned box's faces are looked at, so the halo's
-    /// cost follows the material, not the block faces.
+    /// Only the touched tiles near the owned box's faces are cut into chunks (the
+    /// others are passed over by one test each), so the halo's cost follows the
+    /// material, not the block faces.
     pub fn activate_halo(&mut self, comm: &dyn Communicator, tiles: &mut Tiles<D>) {
         let (own_lo, own_hi) = (self.own_lo, self.own_hi);
         let h = &mut self.halo;

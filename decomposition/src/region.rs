@@ -51,7 +51,7 @@ impl<const D: usize> Region<D> {
             }
         }
         tn.iter().try_fold(1u64, |p, &n| p.checked_mul(n)).expect(
-            "a halo region's chunks fit a 64-bit key (grids are at most 2^31 cells per axis)",
+            "a halo region's chunks fit a 64-bit key (scenes have at most 2^40 grid nodes)",
         );
         Self {
             node_lo,

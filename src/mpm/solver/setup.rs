@@ -95,9 +95,12 @@ impl<'c, const D: usize> Solver<'c, D> {
 
     /// The cells `[lo, hi)` along the last axis that the slab order spans: the block's,
     /// trimmed to the particles' runs in whole pairs of slabs (a slab's colour is its
-    /// parity, so the order and the sums are those over the whole block), so that a
-    /// huge box around a small body costs the body's slabs. Trimmed within the block:
-    /// a run outside it still fails the slab order's check.
+    /// parity, so every slab keeps its colour and its particles' order, and the nodal
+    /// sums are unchanged), so that a huge box around a small body costs the body's
+    /// slabs. The parallel split's tie-break counts slabs, so where two splits are
+    /// equally good a pass's reductions may group differently than over the whole
+    /// block (deterministic either way). Trimmed within the block: a run outside it
+    /// still fails the slab order's check.
     fn occupied_slabs(&self, thick: usize) -> (usize, usize) {
         let last = D - 1;
         let (lo, hi) = (self.block.cell_lo[last], self.block.cell_hi[last]);
