@@ -831,14 +831,15 @@ fn other_validation() {
     .key("name")
     .at("\"../bar\"")
     .says("output folder");
-    // A grid whose node count overflows (or that no machine holds) is named, not a
-    // crash: 2^32 cells per axis in 3D used to panic with a capacity overflow.
+    // A grid whose node count overflows (or passes the 2^40 nodes that the index
+    // products allow) is named, not a crash: 2^32 cells per axis in 3D used to panic
+    // with a capacity overflow.
     check(
         "huge_grid",
         edit(BAR, "cells = [16]", "cells = [18446744073709551615]"),
     )
     .key("grid.cells")
-    .says("beyond what a run can hold");
+    .says("more than mpmcg numbers");
     // A 1D grid of 2^31 cells holds few enough nodes, but its cells are numbered in 32
     // bits (the tile pass's runs).
     check(

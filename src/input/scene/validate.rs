@@ -43,12 +43,11 @@ fn vector(key: &str, v: &[f64], dim: usize) -> Result<(), Invalid> {
     Ok(())
 }
 
-/// The largest grid a scene may ask for, in nodes: 2^40, about 10^12, which at
-/// [`BYTES_PER_NODE`] is a few hundred terabytes of dense grid fields.
+/// The largest grid a scene may ask for, in nodes: 2^40, about 10^12. Only the tiles
+/// near the bodies are stored, so the bound is not memory: node and cell numbers are
+/// formed as products of per-axis counts (the particles' sort keys, tile keys, halo
+/// chunk keys), which it keeps within 64 bits with room to spare.
 const MAX_GRID_NODES: u64 = 1 << 40;
-/// Grid field bytes per node of a 3D MPMCG run (scatter record, velocities, σ̄/L̄,
-/// fill, weight and volume), for the message above.
-const BYTES_PER_NODE: u64 = 8 * (1 + 6 + 9 + 1 + 6 + 9 + 3);
 
 /// The most cells a grid axis may have: the tile pass keeps a cell per run of
 /// particles as 32-bit numbers.
@@ -97,10 +96,10 @@ fn plain_name(name: &str) -> Result<(), Invalid> {
     Ok(())
 }
 
-/// The grid is small enough to hold.
+/// The grid is small enough to number.
 fn grid_size(cells: &[usize]) -> Result<(), Invalid> {
-    // The grid is stored dense per rank: a node count whose product overflows, or that
-    // no machine could hold, is an input error, not a crash in the allocator.
+    // A node count whose product overflows, or passes the bound the index products
+    // need, is an input error, not a crash or a wrapped index.
     let nodes = cells.iter().try_fold(1u64, |n, &c| {
         (c as u64).checked_add(1).and_then(|c1| n.checked_mul(c1))
     });
@@ -109,8 +108,7 @@ fn grid_size(cells: &[usize]) -> Result<(), Invalid> {
         return Err((
             "grid.cells".into(),
             format!(
-                "{approx:.3e} grid nodes (about {:.1e} bytes of grid fields) is beyond what a run can hold; at most {MAX_GRID_NODES:.0e} nodes",
-                approx * BYTES_PER_NODE as f64
+                "{approx:.3e} grid nodes is more than mpmcg numbers: at most 2^40 (about {MAX_GRID_NODES:.1e}) nodes in all; use fewer cells or a smaller box"
             ),
         ));
     }
