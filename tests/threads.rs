@@ -156,6 +156,28 @@ fn thread_count_changes_no_bit_of_the_error_norms() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `mpmcg run scene --out out` on two ranks free to run on any core, with `threads`
+/// per rank or the default; stops the test unless it succeeds.
+fn run_two_unbound_ranks(scene: &Path, out: &Path, threads: Option<usize>) {
+    let mut cmd = common::mpirun(2);
+    cmd.args(["--bind-to", "none"])
+        .arg(env!("CARGO_BIN_EXE_mpmcg"))
+        .arg("run")
+        .arg(scene)
+        .arg("--out")
+        .arg(out)
+        .arg("--quiet");
+    if let Some(t) = threads {
+        cmd.args(["--threads", &t.to_string()]);
+    }
+    let o = cmd.output().expect("mpirun runs");
+    assert!(
+        o.status.success(),
+        "2 ranks × {threads:?} threads: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
 /// Ranks × threads: two ranks with two threads each (more threads than this machine's
 /// cores, unbound) give the bits of two ranks with one thread, MPMCG/MUSL in 2D and 3D,
 /// the block crossing the cut between the ranks.
@@ -167,21 +189,7 @@ fn threads_within_ranks_change_no_bit() {
         std::fs::write(&sc, scene(dim, "mpmcg", "musl")).unwrap();
         let run = |threads: usize| {
             let out = dir.join(format!("r2t{threads}"));
-            let o = common::mpirun(2)
-                .args(["--bind-to", "none"])
-                .arg(env!("CARGO_BIN_EXE_mpmcg"))
-                .arg("run")
-                .arg(&sc)
-                .arg("--out")
-                .arg(&out)
-                .args(["--quiet", "--threads", &threads.to_string()])
-                .output()
-                .expect("mpirun runs");
-            assert!(
-                o.status.success(),
-                "{dim}D, 2 ranks × {threads}: {}",
-                String::from_utf8_lossy(&o.stderr)
-            );
+            run_two_unbound_ranks(&sc, &out, Some(threads));
             let summary = std::fs::read_to_string(out.join("summary.json")).unwrap();
             assert!(
                 summary.contains(&format!("\"threads\": {threads},")),
@@ -209,17 +217,7 @@ fn ranks_share_the_cores_they_may_run_on() {
     let sc = dir.join("scene.toml");
     std::fs::write(&sc, scene(2, "mpmcg", "musl")).unwrap();
     let out = dir.join("r2");
-    let o = common::mpirun(2)
-        .args(["--bind-to", "none"])
-        .arg(env!("CARGO_BIN_EXE_mpmcg"))
-        .arg("run")
-        .arg(&sc)
-        .arg("--out")
-        .arg(&out)
-        .arg("--quiet")
-        .output()
-        .expect("mpirun runs");
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    run_two_unbound_ranks(&sc, &out, None);
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     // The CPUs this process may run on, which mpirun's unbound ranks inherit.
