@@ -215,7 +215,7 @@ shape = {{ sphere = {{ center = [0.75, 0.7], radius = 0.15 }} }}
 velocity = [0.3, 0.35]
 [output]
 every = {end}
-fields = ["velocity", "stress", "displacement"]
+fields = ["velocity", "stress", "displacement", "null_velocity"]
 [checkpoint]
 {checkpoint}
 "#
@@ -223,8 +223,9 @@ fields = ["velocity", "stress", "displacement"]
 }
 
 /// (a) Restart from the half-way checkpoint: 1→1 and 2→2 bit-identical to the
-/// uninterrupted run, 2→1 and 1→3 within 1e-12; for the MMS, the crossing disks, and
-/// the same disks brittle (failing, so their stored σ_zz matters).
+/// uninterrupted run, 2→1 and 1→3 within 1e-12; for the MMS, the crossing disks (with
+/// the null-space diagnostic's history column), and the same disks brittle (failing,
+/// so their stored σ_zz matters).
 #[test]
 fn restart_continues_the_run() {
     // The brittle crossing fails particles where the disks meet: their stored

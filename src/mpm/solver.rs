@@ -88,6 +88,7 @@ mod gather;
 mod grid;
 mod locate;
 mod migrate;
+mod null_space;
 mod phases;
 mod scatter;
 mod setup;
@@ -97,6 +98,7 @@ pub use clock::{Clock, Part};
 pub use diagnostics::cell_integral;
 pub use grid::FULL_FILL;
 use locate::*;
+pub use null_space::NullSpace;
 use phases::*;
 use scatter::*;
 use stencils::*;
@@ -196,6 +198,8 @@ pub struct Solver<'c, const D: usize> {
     pub tiles: Tiles<D>,
     /// XPIC's order m, if the scene asks for it (else FLIP/PIC by `flip`).
     xpic: Option<usize>,
+    /// The null-space diagnostic's state, if the scene asks for its field.
+    pub null_space: Option<NullSpace<D>>,
     grid: GridFields<D>,
     place: Placement<D>,
     migrator: Migrator<D>,
@@ -215,7 +219,9 @@ struct GridFields<const D: usize> {
     /// update, two-step schemes' σ̄ ([`Solver::averaged_force`]).
     vel: Vec<f64>,
     /// Per node (D), XPIC only: the field `(m − 1) v − m v*` the gather adds to the
-    /// updated grid velocity ([`Solver::xpic_field`]), and the recursion's current term.
+    /// updated grid velocity ([`Solver::xpic_field`]), and the recursion's current term
+    /// (the field a scatter `from_grid` interpolates, which the null-space diagnostic
+    /// also uses between steps).
     xpic_add: Vec<f64>,
     xpic_term: Vec<f64>,
     /// Per node: its fill fraction `φ_k` (see [`Solver::domain_weights`]), copied to

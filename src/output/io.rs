@@ -188,8 +188,8 @@ impl Snapshots {
         comm: &dyn Communicator,
         parts: &Particles<D>,
         (kinds, materials): (&Kinds, &[Material]),
-        step: u64,
-        t: f64,
+        null: &[nalgebra::SVector<f64, D>],
+        (step, t): (u64, f64),
     ) -> Result<(), IoError> {
         let path = self.out.join(snapshot_name(step));
         let n = parts.len() as u64;
@@ -202,7 +202,7 @@ impl Snapshots {
             comm,
             &file,
             &path,
-            parts,
+            (parts, null),
             (kinds, materials),
             (step, t),
             offset,
@@ -237,7 +237,7 @@ impl Snapshots {
         comm: &dyn Communicator,
         file: &hdf5::File,
         path: &Path,
-        parts: &Particles<D>,
+        (parts, null): (&Particles<D>, &[nalgebra::SVector<f64, D>]),
         (kinds, materials): (&Kinds, &[Material]),
         (step, t): (u64, f64),
         offset: u64,
@@ -291,6 +291,9 @@ impl Snapshots {
             match f {
                 Field::Velocity => w.blocks(name, cols, buf, |r, b| {
                     pad3(b, parts.v[r].iter().map(|x| x.as_slice()), D)
+                })?,
+                Field::NullVelocity => w.blocks(name, cols, buf, |r, b| {
+                    pad3(b, null[r].iter().map(|x| x.as_slice()), D)
                 })?,
                 Field::Displacement => w.blocks(name, cols, buf, |r, b| {
                     for p in r {
@@ -895,6 +898,7 @@ pub fn agree(comm: &dyn Communicator, mine: Option<String>) -> Option<String> {
 fn field_layout(f: Field) -> (&'static str, &'static str, usize) {
     match f {
         Field::Velocity => ("velocity", "Vector", 3),
+        Field::NullVelocity => ("null_velocity", "Vector", 3),
         Field::Displacement => ("displacement", "Vector", 3),
         Field::Stress => ("stress", "Tensor", 9),
         Field::PlasticStrain => ("plastic_strain", "Scalar", 0),

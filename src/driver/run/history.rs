@@ -69,6 +69,9 @@ impl History {
         if solver.carries().plastic {
             head += ",plastic_work";
         }
+        if solver.null_space.is_some() {
+            head += ",null_kinetic";
+        }
         head + "\n"
     }
 
@@ -91,11 +94,14 @@ impl History {
         }
     }
 
+    /// The row of the totals `tot`, the error norms `err` (benchmarks) and the
+    /// kinetic energy the grid cannot see `null` (scenes that ask for it).
     pub(super) fn row<const D: usize>(
         &mut self,
         s: &Solver<D>,
         tot: &Totals,
         err: Option<(f64, f64)>,
+        null: Option<f64>,
     ) {
         if self.file.is_none() {
             return;
@@ -124,6 +130,9 @@ impl History {
         }
         if s.carries().plastic {
             let _ = write!(l, ",{:.17e}", tot.plastic_work);
+        }
+        if let Some(e) = null {
+            let _ = write!(l, ",{e:.17e}");
         }
         l.push('\n');
         self.write(&l);

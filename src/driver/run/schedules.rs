@@ -98,17 +98,22 @@ impl SnapshotSchedule {
     pub(super) fn write<const D: usize>(
         &mut self,
         comm: &dyn Communicator,
-        solver: &Solver<D>,
+        solver: &mut Solver<D>,
         seconds: &mut f64,
     ) -> Result<(), RunError> {
         let t0 = Instant::now();
+        solver.null_kinetic();
+        let null = solver
+            .null_space
+            .as_ref()
+            .map_or(&[][..], |n| &n.velocity[..]);
         self.writer
             .write(
                 comm,
                 &solver.parts,
                 (&solver.kinds, &solver.materials),
-                solver.step,
-                solver.t,
+                null,
+                (solver.step, solver.t),
             )
             .map_err(|e| RunError::Io(e.to_string()))?;
         *seconds += t0.elapsed().as_secs_f64();

@@ -25,7 +25,7 @@ impl<'a, const D: usize> Run<'a, D> {
         timed: &'a Timed<'a>,
         opts: &'a RunOptions,
         scene_text: String,
-        (solver, restored, restarted_from, stored): SetUp<'a, D>,
+        (mut solver, restored, restarted_from, stored): SetUp<'a, D>,
     ) -> Result<Self, RunError> {
         let comm: &dyn Communicator = timed;
         let keep = scene.checkpoint.as_ref().map_or(2, |c| c.keep);
@@ -40,7 +40,7 @@ impl<'a, const D: usize> Run<'a, D> {
             Some(st) => resumed(comm, &opts.out, st, snaps.as_mut()),
             None => {
                 if let Some(sn) = &mut snaps {
-                    sn.write(comm, &solver, &mut output_seconds.snapshots)?;
+                    sn.write(comm, &mut solver, &mut output_seconds.snapshots)?;
                 }
                 let next_snapshot = snaps.as_ref().map_or(f64::INFINITY, |sn| sn.every);
                 let st = initial(
@@ -49,7 +49,8 @@ impl<'a, const D: usize> Run<'a, D> {
                     sampling.every,
                     checkpoints.first_time(),
                 );
-                history.row(&solver, &st.initial, st.last_err);
+                let null = solver.null_kinetic();
+                history.row(&solver, &st.initial, st.last_err, null);
                 st
             }
         };
@@ -131,7 +132,11 @@ impl<'a, const D: usize> Run<'a, D> {
             }
             if let Some(sn) = &mut self.snaps {
                 if sn.due(&self.solver, self.st.next_snapshot) {
-                    sn.write(self.comm, &self.solver, &mut self.output_seconds.snapshots)?;
+                    sn.write(
+                        self.comm,
+                        &mut self.solver,
+                        &mut self.output_seconds.snapshots,
+                    )?;
                     let s = &self.solver;
                     self.st.next_snapshot = sn.after(self.st.next_snapshot, s.t, s.dt);
                 }
@@ -172,6 +177,7 @@ impl<'a, const D: usize> Run<'a, D> {
 
     /// Collective: the totals now, into the energy bounds and a row of `history.csv`.
     fn sample_history(&mut self) {
+        let null = self.solver.null_kinetic();
         let (s, st) = (&self.solver, &mut self.st);
         st.next_history = s.t + self.sampling.every;
         st.last_history_step = s.step;
@@ -180,7 +186,7 @@ impl<'a, const D: usize> Run<'a, D> {
         st.max_energy_dev = st
             .max_energy_dev
             .max((st.last.total_energy() - self.e0).abs());
-        self.history.row(s, &st.last, st.last_err);
+        self.history.row(s, &st.last, st.last_err, null);
     }
 
     /// Collective: a regular checkpoint of the state after this step.

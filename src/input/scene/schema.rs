@@ -368,6 +368,10 @@ pub enum Field {
     PlasticStrain,
     /// Damage (scenes with a `brittle` material).
     Damage,
+    /// The part of each particle's velocity the grid cannot see (what is left after
+    /// projecting the velocities onto the grid with the consistent mass); asking for
+    /// it also adds its kinetic energy to `history.csv` as `null_kinetic`.
+    NullVelocity,
 }
 
 #[derive(Debug, Clone, Deserialize, Serialize)]

@@ -99,6 +99,38 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
     })
 }
 
+/// A grid field of `D` numbers per node interpolated at every particle with the
+/// scatter's weights, `out[p] = Σ_i S_i(x_p) src_i` (ghosts included in `src`), in
+/// fixed chunks on threads.
+pub fn interpolate<const D: usize, const NA: usize, const N: usize>(
+    ctx: &Ctx<'_, D>,
+    (x, half, tile): (&[Vector<D>], &[[f64; D]], &[u32]),
+    src: &[f64],
+    out: &mut [Vector<D>],
+) {
+    assert!(x.len() == out.len() && tile.len() == out.len());
+    out.par_chunks_mut(GRAIN).enumerate().for_each(|(k, out)| {
+        let mut run = Run::<D, NA, N>::new();
+        let mut cell = CellAt::<D>::new();
+        for (i, o) in out.iter_mut().enumerate() {
+            let p = k * GRAIN + i;
+            let half = if ctx.gimp { Some(&half[p]) } else { None };
+            let c = *cell.of(ctx, tile[p]);
+            let xi = ctx.local(&x[p], &c);
+            let (w, below, _) = ctx.weights::<NA, N>(&x[p], half, &xi);
+            run.enter_if_new(ctx, tile[p], below);
+            let mut u = Vector::<D>::zeros();
+            for (n, &s) in w.s.iter().enumerate() {
+                let at = run.idx[n] * D;
+                for a in 0..D {
+                    u[a] += s * src[at + a];
+                }
+            }
+            *o = u;
+        }
+    });
+}
+
 /// Stress update from velocity slot `slot` at the current positions.
 pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
     ctx: &Ctx<'_, D>,

@@ -131,7 +131,7 @@ impl<'c, const D: usize> Solver<'c, D> {
 }
 
 #[cfg(test)]
-mod xpic_tests {
+pub(super) mod xpic_tests {
     //! XPIC(m)'s velocity update against its definition, written here with dense
     //! interpolation weights, and the conservation of momentum it inherits from the
     //! mass-weighted projection.
@@ -143,7 +143,11 @@ mod xpic_tests {
 
     /// A free 2 m × 1 m block under gravity, 2 × 2 particles per cell jittered by up to
     /// 0.9 cells, random velocities, zero stress (so the grid's force is gravity alone).
-    pub(super) fn block(gradient: &str, xpic: &str, rng: &mut Rng) -> Solver<'static, 2> {
+    pub(in crate::mpm::solver) fn block(
+        gradient: &str,
+        xpic: &str,
+        rng: &mut Rng,
+    ) -> Solver<'static, 2> {
         let text = format!(
             r#"
 name = "xpic"
@@ -184,7 +188,7 @@ particles_per_cell = 2
     }
 
     /// Interpolation weights `S_ip` of the linear hats, by node index.
-    pub(super) fn weights(s: &Solver<'_, 2>) -> Vec<Vec<(usize, f64)>> {
+    pub(in crate::mpm::solver) fn weights(s: &Solver<'_, 2>) -> Vec<Vec<(usize, f64)>> {
         let mut nodes = HashMap::new();
         let h = s.geom.h;
         s.parts

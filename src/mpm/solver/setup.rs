@@ -72,6 +72,10 @@ impl<'c, const D: usize> Solver<'c, D> {
             speed_agreed: false,
             tiles,
             xpic: scene.method.xpic.map(|m| m as usize),
+            null_space: scene
+                .snapshot_plan()
+                .filter(|o| o.fields.contains(&crate::input::scene::Field::NullVelocity))
+                .map(|_| NullSpace::new()),
             grid: GridFields::new(),
             place: Placement::new(),
             migrator,
