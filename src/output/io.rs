@@ -182,7 +182,8 @@ impl Snapshots {
 
     /// Collective: write the particles of every rank at `step`, time `t`, then (rank 0)
     /// rewrite the XDMF index. `materials` (per kind of `kinds`) derive the stress
-    /// components the particles do not store (plane strain σ_zz).
+    /// components the particles do not store (plane strain σ_zz); `null` is each
+    /// particle's `null_velocity` (empty unless the fields list it).
     pub fn write<const D: usize>(
         &mut self,
         comm: &dyn Communicator,

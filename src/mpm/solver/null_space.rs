@@ -408,7 +408,7 @@ fields = ["null_velocity"]
 
     /// The energy of the velocities the grid cannot see with the particles put at `x`
     /// (their order unchanged), left there.
-    pub(super) fn null_at(s: &mut Solver<'_, 2>, x: &[Vector<2>]) -> f64 {
+    fn null_at(s: &mut Solver<'_, 2>, x: &[Vector<2>]) -> f64 {
         s.parts.x.copy_from_slice(x);
         s.place.located = false;
         s.null_space.as_mut().expect("asked for").step = None;
