@@ -415,6 +415,25 @@ fields = ["null_velocity"]
         s.null_kinetic().expect("asked for")
     }
 
+    /// One step, and the energy the grid cannot see after it with the particles at
+    /// their old positions (what the velocity update left) and at their new ones:
+    /// `(kept, now)`. The particles end at their new positions.
+    fn step_split(s: &mut Solver<'_, 2>) -> (f64, f64) {
+        let before: HashMap<u64, Vector<2>> = s
+            .parts
+            .id
+            .iter()
+            .copied()
+            .zip(s.parts.x.iter().copied())
+            .collect();
+        s.advance().unwrap();
+        // In the step's order (a sort may have reordered the particles).
+        let x0: Vec<Vector<2>> = s.parts.id.iter().map(|i| before[i]).collect();
+        let x1 = s.parts.x.clone();
+        let kept = null_at(s, &x0);
+        (kept, null_at(s, &x1))
+    }
+
     /// The velocity update of every scheme and update order keeps, at the positions
     /// it was made at, the part of the velocities the grid cannot see, to round-off:
     /// FLIP adds `S Δv`, which the grid carries, and the forces, the remap and the
@@ -431,25 +450,14 @@ fields = ["null_velocity"]
                 let mut e0 = s.null_kinetic().unwrap();
                 let mut moved = 0.0;
                 for _ in 0..5 {
-                    let before: HashMap<u64, Vector<2>> = s
-                        .parts
-                        .id
-                        .iter()
-                        .copied()
-                        .zip(s.parts.x.iter().copied())
-                        .collect();
-                    s.advance().unwrap();
-                    // In the step's order (a sort may have reordered the particles).
-                    let x0: Vec<Vector<2>> = s.parts.id.iter().map(|i| before[i]).collect();
-                    let x1 = s.parts.x.clone();
+                    let (kept, now) = step_split(&mut s);
                     let ke = kinetic(&s);
-                    let kept = null_at(&mut s, &x0);
                     assert!(
                         (kept - e0).abs() <= 1e-12 * ke,
                         "{g} {u}: {kept:e} against {e0:e} of {ke:e}"
                     );
-                    e0 = null_at(&mut s, &x1);
-                    moved += (e0 - kept).abs() / ke;
+                    moved += (now - kept).abs() / ke;
+                    e0 = now;
                 }
                 assert!(
                     moved > 1e-6,
@@ -464,7 +472,7 @@ fields = ["null_velocity"]
     /// splits into what the velocity update did at the old positions and what the
     /// move did. The velocity update adds nothing: the clamp (a fixed face), the
     /// forces' quadrature and MUSL's remap only shape `Δv`. A measurement (45 s in
-    /// release; docs/numerics.md): `cargo test --release --lib null_space::tests::
+    /// release; docs/hard-cases.md): `cargo test --release --lib null_space::tests::
     /// the_cantilevers_noise_comes_from_the_move -- --ignored --nocapture`.
     #[test]
     #[ignore]
@@ -488,18 +496,7 @@ fields = ["null_velocity"]
             let mut e = s.null_kinetic().unwrap();
             assert_eq!(e, 0.0, "{g} {u}: at rest");
             while !s.done() {
-                let before: HashMap<u64, Vector<2>> = s
-                    .parts
-                    .id
-                    .iter()
-                    .copied()
-                    .zip(s.parts.x.iter().copied())
-                    .collect();
-                s.advance().unwrap();
-                let x0: Vec<Vector<2>> = s.parts.id.iter().map(|i| before[i]).collect();
-                let x1 = s.parts.x.clone();
-                let kept = null_at(&mut s, &x0);
-                let now = null_at(&mut s, &x1);
+                let (kept, now) = step_split(&mut s);
                 by_update += kept - e;
                 by_move += now - kept;
                 e = now;
