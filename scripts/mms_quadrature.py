@@ -107,6 +107,9 @@ class Grid:
         self.moment1 = np.zeros(m)
         self.moment1[0], self.moment1[-1] = -h * h / 6, h * h / 6
         self.node_vol = self.outer([self.vol1] * d)
+        # ∫ S_j (x_j − y)_c dy per axis c, for the smoothed velocity v̄.
+        self.moment = [self.outer([self.moment1 if e == c else self.vol1 for e in range(d)])
+                       for c in range(d)]
 
     def outer(self, vecs):
         out = vecs[0]
@@ -128,12 +131,7 @@ class Grid:
         """Add values (N × K) at each particle's 2^D nodes with hat weights: (K,) + nodes."""
         d, m = self.d, self.n + 1
         out = np.zeros((values.shape[1], m**d))
-        for corner in itertools.product((0, 1), repeat=d):
-            w = np.ones(len(xi))
-            idx = np.zeros(len(xi), dtype=int)
-            for a, o in enumerate(corner):
-                w = w * (xi[:, a] if o else 1 - xi[:, a])
-                idx = idx * m + cell[:, a] + o
+        for idx, w, _ in self.corners(cell, xi):
             for k in range(values.shape[1]):
                 out[k] += np.bincount(idx, w * values[:, k], m**d)
         return out.reshape((values.shape[1],) + (m,) * d)
@@ -225,8 +223,7 @@ def run(d, n, ppc, quadrature, kick):
         vbar = np.array([g.apply(vn[a], mass_all) for a in range(d)])
         for a in range(d):
             for c in range(d):
-                mom_c = g.outer([g.moment1 if e == c else g.vol1 for e in range(d)])
-                vbar[a] += lbar[a, c] * mom_c
+                vbar[a] += lbar[a, c] * g.moment[c]
         vbar /= g.node_vol
         walls(vbar)
         # Gather: velocity gradient over the same points; FLIP; the move.
