@@ -52,7 +52,10 @@ pub struct Ctx<'a, const D: usize> {
     pub node_lo: [i64; D],
     /// Where the nodes of the local box are stored.
     pub tiles: &'a Tiles<D>,
-    pub gimp: bool,
+    /// A particle touches 3 nodes per axis (GIMP, the domain rule), not 2.
+    pub wide: bool,
+    /// MPMCG's domain rule ([`shape::domain`]).
+    pub domain: bool,
     pub alpha: Alpha,
     /// Per kind of particle ([`particles::Kinds`]): its material, the mass and the
     /// reference volume of each of its particles.
@@ -155,13 +158,22 @@ impl<const D: usize> VelRecord<D> {
 
 /// Interpolation data of one particle over its `N` nodes.
 pub struct Kern<const D: usize, const N: usize> {
+    /// The weights of mass, momentum and the velocity interpolation: the shape
+    /// functions, under the domain rule their averages over the particle's domain.
     pub s: [f64; N],
+    /// The hat functions at the particle, which the two-step schemes' move blends
+    /// (`s` but under the domain rule).
+    pub at_point: [f64; N],
     /// Shape-function gradients, `g[d][n]` along axis `d` at node `n` (nodes innermost,
     /// so that a loop over the nodes runs over adjacent numbers).
     pub g: [[f64; N]; D],
     pub alpha: f64,
-    /// Local cell coordinate ξ per axis (linear shapes only: the offset of node `n`
-    /// from the particle is `(ξ_a − o_a) h_a`, `o_a` its corner bit).
+    /// The weight of node `n`'s averages σ̄ and L̄ at the particle: `(1 − α) S_n`, or
+    /// under the domain rule its average over the particle's domain.
+    pub avg_w: [f64; N],
+    /// Local cell coordinate ξ per axis (hat functions and the domain rule: the offset
+    /// of node `n` from the particle is `(ξ_a + below_a − o_a) h_a`, `o_a` its place in
+    /// the window, `below_a` where the window starts below the cell).
     pub frac: [f64; D],
     /// Per axis: the particle gives weight to a node on the lower / upper grid face.
     pub ends: [[bool; 2]; D],
@@ -199,9 +211,12 @@ impl<const D: usize> Ctx<'_, D> {
         half: Option<&[f64; D]>,
         xi: &[f64; D],
     ) -> (Kern<D, N>, [usize; D], [[f64; 3]; D]) {
-        // Three nodes per axis is GIMP, two hat functions (`by_nodes!`): decided at
-        // compile time, so a hat loop carries no GIMP code.
-        debug_assert_eq!(NA == 3, self.gimp);
+        // Three nodes per axis is GIMP or the domain rule, two hat functions
+        // (`by_nodes!`): decided at compile time, so a hat loop carries neither.
+        debug_assert_eq!(NA == 3, self.wide);
+        if NA == 3 && self.domain {
+            return self.domain_weights(x, half, xi);
+        }
         let w = match half {
             Some(lp) if NA == 3 => {
                 let xa: [f64; D] = std::array::from_fn(|a| x[a]);
@@ -217,6 +232,8 @@ impl<const D: usize> Ctx<'_, D> {
                 Alpha::ProductOfShapes => w.bubble,
                 Alpha::Constant(c) => c,
             },
+            at_point: [0.0; N],
+            avg_w: [0.0; N],
             frac: [0.0; D],
             ends: [[false; 2]; D],
         };
@@ -246,8 +263,68 @@ impl<const D: usize> Ctx<'_, D> {
                 k.g[d][n] = p;
             }
             k.s[n] = s;
+            k.at_point[n] = s;
+            k.avg_w[n] = (1.0 - k.alpha) * s;
         }
         (k, below, w.w)
+    }
+
+    /// [`Ctx::weights`] under the domain rule, over the 3 nodes per axis of
+    /// [`shape::domain`]'s window: the averages over the particle's domain of the
+    /// shape functions in `s`, of the gradient's α-part in `g` (so `alpha` is 1) and
+    /// of the averages' weights in `avg_w`; the hat functions at the particle in
+    /// `at_point`. `half` is the domain's half-widths ([`Ctx::half_width`]).
+    #[inline(always)]
+    fn domain_weights<const N: usize>(
+        &self,
+        x: &Vector<D>,
+        half: Option<&[f64; D]>,
+        xi: &[f64; D],
+    ) -> (Kern<D, N>, [usize; D], [[f64; 3]; D]) {
+        let xa: [f64; D] = std::array::from_fn(|a| x[a]);
+        let d = shape::domain(self.geom, &xa, half.expect("the domain's half-widths"));
+        let below: [usize; D] = std::array::from_fn(|a| (d.cell[a] - d.base[a]) as usize);
+        let mut k = Kern {
+            s: [0.0; N],
+            at_point: [0.0; N],
+            g: [[0.0; N]; D],
+            alpha: 1.0,
+            avg_w: [0.0; N],
+            frac: *xi,
+            ends: [[false; 2]; D],
+        };
+        for n in 0..N {
+            let mut r = n;
+            let o: [usize; D] = std::array::from_fn(|_| {
+                let o = r % 3;
+                r /= 3;
+                o
+            });
+            let (s, at_point, g, c) = d.node(&o);
+            k.s[n] = s;
+            k.at_point[n] = at_point;
+            for b in 0..D {
+                k.g[b][n] = g[b];
+            }
+            k.avg_w[n] = c;
+        }
+        (k, below, d.w)
+    }
+
+    /// The half-widths of particle `p`'s domain where its shape functions have one:
+    /// GIMP's fixed ones, or the domain rule's current `l0 |F e_a|` from the reference
+    /// ones `half` and the deformation gradients `f` (the reference ones where the
+    /// particles carry no `F`).
+    #[inline(always)]
+    pub fn half_width(&self, half: &[[f64; D]], f: &[Mat<D>], p: usize) -> Option<[f64; D]> {
+        if !self.wide {
+            return None;
+        }
+        let l0 = half[p];
+        Some(match f.get(p) {
+            Some(f) if self.domain => std::array::from_fn(|a| l0[a] * f.column(a).norm()),
+            _ => l0,
+        })
     }
 
     /// The local coordinate ξ in `cell` (its lower corner's grid coordinates) of a

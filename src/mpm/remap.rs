@@ -23,6 +23,8 @@ pub struct RemapParts<'a, const D: usize> {
     pub mass: crate::mpm::particles::Masses<'a>,
     pub x0: &'a [Vector<D>],
     pub half: &'a [[f64; D]],
+    /// Deformation gradients (the domain rule's domains), or empty.
+    pub def_grad: &'a [crate::physics::tensor::Mat<D>],
     /// Storage index of each particle's cell's lower corner node.
     pub tile: &'a [u32],
     /// The external force per unit mass the step's scatter kept, or empty.
@@ -182,10 +184,11 @@ fn remap_slab<const D: usize, const NA: usize, const N: usize>(
             i += b;
         } else {
             let xi = ctx.local(&parts.x[p], &c);
-            let (mut k, below, w) = ctx.weights::<NA, N>(&parts.x[p], Some(&parts.half[p]), &xi);
+            let half = ctx.half_width(parts.half, parts.def_grad, p);
+            let (mut k, below, w) = ctx.weights::<NA, N>(&parts.x[p], half.as_ref(), &xi);
             enter(&mut run, below);
             k.ends = run.ends(ctx, &w);
-            room.one.one(&k, run.at_wall());
+            room.one.one(&k, run.at_wall(), below);
             remap_batch(
                 ctx,
                 parts,
@@ -399,7 +402,8 @@ mod tests {
                 geom: &geom,
                 node_lo: [-1; D],
                 tiles: &tiles,
-                gimp: false,
+                wide: false,
+                domain: false,
                 alpha: Alpha::ProductOfShapes,
                 materials: &materials,
                 kind_mass: &[1.0],
@@ -448,6 +452,7 @@ mod tests {
                             },
                             x0: &x,
                             half: &[],
+                            def_grad: &[],
                             tile: &tile,
                             accel: &accel,
                         };

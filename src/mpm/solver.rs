@@ -26,7 +26,8 @@ macro_rules! ctx {
             geom: &$s.geom,
             node_lo: $s.block.node_lo,
             tiles: &$s.tiles,
-            gimp: $s.scheme.gimp,
+            wide: $s.scheme.wide(),
+            domain: $s.scheme.domain,
             alpha: $s.scheme.alpha,
             materials: &$s.materials,
             kind_mass: &$s.kinds.mass,
@@ -56,10 +57,10 @@ macro_rules! slices {
 }
 
 /// Call a particle loop monomorphised for the nodes a particle touches: 2 per axis for
-/// hat functions, 3 for GIMP.
+/// hat functions, 3 for GIMP and the domain rule (`wide`).
 macro_rules! by_nodes {
-    ($gimp:expr, $f:ident, $($arg:expr),*) => {
-        match ($gimp, D) {
+    ($wide:expr, $f:ident, $($arg:expr),*) => {
+        match ($wide, D) {
             (false, 1) => kernel::$f::<D, 2, 2>($($arg),*),
             (false, 2) => kernel::$f::<D, 2, 4>($($arg),*),
             (false, _) => kernel::$f::<D, 2, 8>($($arg),*),

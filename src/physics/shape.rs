@@ -5,7 +5,7 @@
 //! node* if it lies on the grid boundary, where the integrals over the grid domain are
 //! halved. On a periodic axis there are no end nodes.
 
-use crate::input::scene::Gradient;
+use crate::input::scene::{Gradient, Quadrature};
 
 /// `floor` as an integer without a libm call (x86-64's baseline has no SSE4.1 round):
 /// truncate, then step down for negative non-integers.
@@ -173,19 +173,22 @@ pub fn grid_integral<const D: usize>(geom: &Geom<D>, gi: [i64; D], dj: [i64; D])
     w
 }
 
-/// A gradient scheme as the solver runs it, resolved once from the scene's name: the
-/// shape functions of the particle loops (hat functions or GIMP's) and the weight α of
-/// the standard gradient against the grid-averaged one. Whether a step has the node →
-/// node steps follows from α.
+/// A gradient scheme as the solver runs it, resolved once from the scene's names: the
+/// shape functions of the particle loops (hat functions or GIMP's), the weight α of
+/// the standard gradient against the grid-averaged one and where the particle
+/// integrates them. Whether a step has the node → node steps follows from α.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GradientScheme {
     /// GIMP's shape functions (3 nodes per axis) instead of hat functions (2).
     pub gimp: bool,
+    /// MPMCG's domain rule ([`domain`]): the force and the velocity gradient
+    /// integrated over each particle's current domain, which reaches 3 nodes per axis.
+    pub domain: bool,
     pub alpha: Alpha,
 }
 
 impl GradientScheme {
-    pub fn of(g: Gradient) -> Self {
+    pub fn of(g: Gradient, q: Quadrature) -> Self {
         let alpha = match g {
             Gradient::Mpm | Gradient::Gimp => Alpha::Constant(1.0),
             Gradient::Averaged => Alpha::Constant(0.0),
@@ -193,8 +196,14 @@ impl GradientScheme {
         };
         Self {
             gimp: g == Gradient::Gimp,
+            domain: g == Gradient::Mpmcg && q == Quadrature::Domain,
             alpha,
         }
+    }
+
+    /// A particle touches 3 nodes per axis (GIMP, the domain rule), not 2.
+    pub fn wide(self) -> bool {
+        self.gimp || self.domain
     }
 
     /// The gradient goes through grid averages (σ̄, L̄): the step has MPMCG's node →
@@ -367,6 +376,146 @@ pub fn gimp<const D: usize>(geom: &Geom<D>, x: &[f64; D], lp: &[f64; D]) -> Weig
     }
 }
 
+/// The domain rule's per-axis data of one particle over the 3 nodes from `base`: the
+/// hat functions at the particle (its move) and the averages over its domain
+/// `[x − l, x + l]` of `N_k`, `a N_k` and `a N_k'`, with `a(ξ) = 4ξ(1 − ξ)` in the cell
+/// of each point. MPMCG's α is `Π_a a(ξ_a)`, so over a box every integral the particle
+/// needs is a product of these: its mass, momentum and velocity weight `avg(S_k) =
+/// Π avg(N_k)`, the force's and the velocity gradient's
+/// `avg(α ∂_b S_k) = avg(a N_k')_b Π_{a≠b} avg(a N_k)_a` and
+/// `avg((1 − α) S_k) = avg(S_k) − Π avg(a N_k)` ([`DomainWeights1::node`]).
+#[derive(Clone, Copy, Debug)]
+pub struct DomainWeights1<const D: usize> {
+    /// Global index of the first of the 3 nodes per axis.
+    pub base: [i64; D],
+    /// The cell the particle is in (`Geom::locate`).
+    pub cell: [i64; D],
+    /// Hat functions at the particle, on the slots of its cell's nodes.
+    pub w: [[f64; 3]; D],
+    pub avg_n: [[f64; 3]; D],
+    pub avg_an: [[f64; 3]; D],
+    pub avg_adn: [[f64; 3]; D],
+}
+
+/// Two-point Gauss–Legendre abscissa on [−1, 1]: exact for the cubics the domain rule
+/// integrates (`a N_k` per cell), with no difference of primitives to lose digits on a
+/// short piece.
+const GAUSS2: f64 = 0.577_350_269_189_625_8;
+
+/// The domain rule's per-axis data ([`DomainWeights1`]) of a particle at `x` with
+/// half-widths `lp` (each taken at most half a cell, so that the domain meets at most
+/// two cells and 3 nodes). The domain is the particle's current one (the caller scales
+/// the reference half-width by the stretch `|F e_a|`). On a bounded axis it is cut at
+/// the grid's faces: there are no nodes outside, and an average over the part inside
+/// keeps `Σ_k avg N_k = 1` and `Σ_k avg N_k' = 0`, so the gradient's identities hold.
+/// The window of 3 nodes starts one below the cell where `ξ < ½` (the domain may reach
+/// the cell below), else at the cell, and at a bounded end is shifted inside the grid
+/// as GIMP's is.
+#[inline]
+pub fn domain<const D: usize>(geom: &Geom<D>, x: &[f64; D], lp: &[f64; D]) -> DomainWeights1<D> {
+    let (c, xi) = geom.locate(x);
+    let mut d = DomainWeights1 {
+        base: c,
+        cell: c,
+        w: [[0.0; 3]; D],
+        avg_n: [[0.0; 3]; D],
+        avg_an: [[0.0; 3]; D],
+        avg_adn: [[0.0; 3]; D],
+    };
+    for a in 0..D {
+        let t = xi[a];
+        let below = usize::from(t < 0.5);
+        d.base[a] = c[a] - below as i64;
+        d.w[a][below] = 1.0 - t;
+        d.w[a][below + 1] = t;
+        // The domain in the cell's coordinates, cut at the grid's faces.
+        let r = (lp[a] * geom.inv_h[a]).min(0.5);
+        let (mut lo, mut hi) = (t - r, t + r);
+        if !geom.periodic[a] {
+            lo = lo.max(-(c[a] as f64));
+            hi = hi.min((geom.cells[a] as i64 - c[a]) as f64);
+        }
+        let len = hi - lo;
+        // Pieces per cell: the cell below, the particle's, the cell above (at most two
+        // are not empty).
+        for k in -1i64..=1 {
+            let (p0, p1) = (lo.max(k as f64), hi.min(k as f64 + 1.0));
+            // (A domain of zero width is its point, in the particle's cell.)
+            let empty = if len > 0.0 { p1 <= p0 } else { k != 0 };
+            if empty {
+                continue;
+            }
+            // The slot of the piece's lower node.
+            let s = (k + below as i64) as usize;
+            let (mid, rad) = (0.5 * (p0 + p1) - k as f64, 0.5 * (p1 - p0));
+            let (points, wt) = if len > 0.0 {
+                (
+                    [mid - GAUSS2 * rad, mid + GAUSS2 * rad],
+                    0.5 * (p1 - p0) / len,
+                )
+            } else {
+                ([mid, mid], 0.5)
+            };
+            for u in points {
+                let au = 4.0 * u * (1.0 - u);
+                d.avg_n[a][s] += wt * (1.0 - u);
+                d.avg_n[a][s + 1] += wt * u;
+                d.avg_an[a][s] += wt * au * (1.0 - u);
+                d.avg_an[a][s + 1] += wt * au * u;
+                d.avg_adn[a][s] -= wt * au * geom.inv_h[a];
+                d.avg_adn[a][s + 1] += wt * au * geom.inv_h[a];
+            }
+        }
+        if !geom.periodic[a] {
+            let shift = |v: &mut [f64; 3], down: bool| {
+                *v = if down {
+                    [v[1], v[2], 0.0]
+                } else {
+                    [0.0, v[0], v[1]]
+                }
+            };
+            let down = d.base[a] < 0;
+            if down || d.base[a] + 2 > geom.cells[a] as i64 {
+                d.base[a] += if down { 1 } else { -1 };
+                for v in [
+                    &mut d.w[a],
+                    &mut d.avg_n[a],
+                    &mut d.avg_an[a],
+                    &mut d.avg_adn[a],
+                ] {
+                    shift(v, down);
+                }
+            }
+        }
+    }
+    d
+}
+
+impl<const D: usize> DomainWeights1<D> {
+    /// Node `o` (its slot per axis): `avg(S)`, the hat function at the particle, the
+    /// α-part of the gradient `avg(α ∇S)` and the weight `avg((1 − α) S)` of the
+    /// node's averages σ̄ and L̄.
+    #[inline(always)]
+    pub fn node(&self, o: &[usize; D]) -> (f64, f64, [f64; D], f64) {
+        let (mut s, mut n, mut an) = (1.0, 1.0, 1.0);
+        for a in 0..D {
+            s *= self.w[a][o[a]];
+            n *= self.avg_n[a][o[a]];
+            an *= self.avg_an[a][o[a]];
+        }
+        let g = std::array::from_fn(|b| {
+            let mut p = self.avg_adn[b][o[b]];
+            for a in 0..D {
+                if a != b {
+                    p *= self.avg_an[a][o[a]];
+                }
+            }
+            p
+        });
+        (n, s, g, n - an)
+    }
+}
+
 /// Node weights and gradients of one particle, tensor products of [`Weights1`].
 #[derive(Clone, Copy, Debug)]
 pub struct Stencil<const D: usize> {
@@ -490,6 +639,90 @@ mod tests {
                             (mom[a][b] - id).abs() < 1e-13,
                             "Σ x ⊗ ∇S = {mom:?} at {p:?}"
                         );
+                    }
+                }
+            }
+        }
+    }
+
+    /// The domain rule's per-axis averages against a fine midpoint sum over the
+    /// domain cut at the grid's faces, at points inside, next to and on bounded faces,
+    /// on a periodic axis across its seam, with short and clamped half-widths; and the
+    /// sums its identities rest on: `Σ avg N = 1`, `Σ avg N x_k` the domain's centre,
+    /// `Σ avg(a N') = 0`.
+    #[test]
+    fn domain_averages_are_the_integrals_over_the_domain() {
+        let geom = Geom::<2>::new([-0.5, 0.0], [1.5, 1.0], [8, 5], [false, true]);
+        let xs = [-0.5, -0.49, -0.45, -0.3, 0.0, 0.37, 1.45, 1.5 - 1e-12, 1.5];
+        let ys = [0.0, 0.01, 0.5, 0.99, 0.3];
+        let lps = [[0.0, 0.0], [0.01, 0.02], [0.0625, 0.05], [0.3, 0.4]];
+        let a_of = |u: f64| 4.0 * u * (1.0 - u);
+        for &x in &xs {
+            for &y in &ys {
+                for lp in &lps {
+                    let p = [x, y];
+                    let d = domain(&geom, &p, lp);
+                    for ax in 0..2 {
+                        let h = geom.h[ax];
+                        let r = lp[ax].min(0.5 * h);
+                        let (mut lo, mut hi) = (p[ax] - r, p[ax] + r);
+                        if !geom.periodic[ax] {
+                            lo = lo.max(geom.lower[ax]);
+                            hi = hi.min(geom.upper[ax]);
+                        }
+                        let (mut n, mut an, mut adn) = ([0.0; 3], [0.0; 3], [0.0; 3]);
+                        let m = 20_000;
+                        for i in 0..m {
+                            let xq = if hi > lo {
+                                lo + (i as f64 + 0.5) / m as f64 * (hi - lo)
+                            } else {
+                                lo
+                            };
+                            let s = (xq - geom.lower[ax]) / h;
+                            for k in 0..3 {
+                                // Hat of node base + k at xq, its slope, and a in its cell.
+                                let t = s - (d.base[ax] + k as i64) as f64;
+                                if t.abs() >= 1.0 {
+                                    continue;
+                                }
+                                let cell_t = s - s.floor();
+                                let au = a_of(cell_t);
+                                n[k] += (1.0 - t.abs()) / m as f64;
+                                an[k] += au * (1.0 - t.abs()) / m as f64;
+                                adn[k] -= au * t.signum() / h / m as f64;
+                            }
+                        }
+                        for k in 0..3 {
+                            let tol = 1e-6;
+                            let at = format!("{p:?} lp {lp:?} axis {ax} node {k}");
+                            assert!(
+                                (d.avg_n[ax][k] - n[k]).abs() < tol,
+                                "N {at}: {:?} vs {n:?}",
+                                d.avg_n[ax]
+                            );
+                            assert!(
+                                (d.avg_an[ax][k] - an[k]).abs() < tol,
+                                "aN {at}: {:?} vs {an:?}",
+                                d.avg_an[ax]
+                            );
+                            assert!(
+                                (d.avg_adn[ax][k] - adn[k]).abs() * h < tol,
+                                "aN' {at}: {:?} vs {adn:?}",
+                                d.avg_adn[ax]
+                            );
+                        }
+                        let sum = |v: &[f64; 3]| v.iter().sum::<f64>();
+                        let centre = (0..3)
+                            .map(|k| d.avg_n[ax][k] * (d.base[ax] + k as i64) as f64 * h)
+                            .sum::<f64>()
+                            + geom.lower[ax];
+                        assert!((sum(&d.avg_n[ax]) - 1.0).abs() < 1e-14);
+                        assert!((sum(&d.w[ax]) - 1.0).abs() < 1e-14);
+                        assert!(
+                            (centre - 0.5 * (lo + hi)).abs() < 1e-14,
+                            "{centre} at {p:?}"
+                        );
+                        assert!(sum(&d.avg_adn[ax]).abs() * h < 1e-14);
                     }
                 }
             }

@@ -112,6 +112,9 @@ pub struct Summary {
     pub scene: String,
     pub dim: usize,
     pub gradient: String,
+    /// MPMCG's quadrature (`point` or `domain`), for MPMCG only.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub quadrature: Option<String>,
     pub update: String,
     pub flip: f64,
     /// The XPIC order, when XPIC replaced the FLIP/PIC blend.
@@ -238,6 +241,8 @@ impl<'a, const D: usize> Run<'a, D> {
             scene: scene.name.clone(),
             dim: D,
             gradient: scene.method.gradient.name().into(),
+            quadrature: (scene.method.gradient == crate::input::scene::Gradient::Mpmcg)
+                .then(|| scene.method.quadrature.name().into()),
             update: scene.method.update.name().into(),
             flip: scene.method.flip,
             xpic: scene.method.xpic,

@@ -2,7 +2,7 @@
 //! it is in the text, what was given and what the key expects.
 
 use super::schema::{
-    variants, BenchmarkKind, Boundary, Face, Field, Gradient, Model, Shape, Update,
+    variants, BenchmarkKind, Boundary, Face, Field, Gradient, Model, Quadrature, Shape, Update,
 };
 
 /// The most bytes of a message's key or text (which quote the input) printed.
@@ -123,6 +123,7 @@ fn choices(key: &str) -> Option<&'static [&'static str]> {
     Some(match key {
         "method.gradient" => variants::<Gradient>(),
         "method.update" => variants::<Update>(),
+        "method.quadrature" => variants::<Quadrature>(),
         "materials[].model" => variants::<Model>(),
         "bodies[].shape" => variants::<Shape>(),
         "benchmark.kind" => variants::<BenchmarkKind>(),

@@ -117,6 +117,27 @@ impl Gradient {
     }
 }
 
+/// Where MPMCG integrates its internal force and velocity gradient over a particle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Quadrature {
+    /// At the particle's position.
+    #[default]
+    Point,
+    /// Exactly over the particle's current domain, the box of half-widths
+    /// `l0 |F e_a|` (at most half a cell): docs/schemes.md, "The domain rule".
+    Domain,
+}
+
+impl Quadrature {
+    pub fn name(self) -> &'static str {
+        match self {
+            Quadrature::Point => "point",
+            Quadrature::Domain => "domain",
+        }
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Update {
@@ -150,6 +171,13 @@ pub struct Method {
     /// cost of m − 1 more particle → grid passes per step. Off when absent.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub xpic: Option<u32>,
+    /// MPMCG's quadrature of the internal force and the velocity gradient.
+    #[serde(default, skip_serializing_if = "is_point")]
+    pub quadrature: Quadrature,
+}
+
+fn is_point(q: &Quadrature) -> bool {
+    *q == Quadrature::Point
 }
 
 fn default_gradient() -> Gradient {
@@ -172,6 +200,7 @@ impl Default for Method {
             update: default_update(),
             flip: default_flip(),
             xpic: None,
+            quadrature: Quadrature::Point,
         }
     }
 }

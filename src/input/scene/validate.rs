@@ -3,7 +3,7 @@
 
 mod bodies;
 
-use super::schema::{variants, Boundary, Face, Field, Model, Scene};
+use super::schema::{variants, Boundary, Face, Field, Gradient, Model, Quadrature, Scene};
 use crate::input::plan::{CheckpointEvery, Plan};
 use bodies::{kinds_of, validate_benchmark_table, validate_bodies, validate_materials};
 
@@ -201,8 +201,17 @@ fn validate_time(s: &Scene) -> Result<(), Invalid> {
     Ok(())
 }
 
-/// `[method]`: the FLIP fraction and the XPIC order.
+/// `[method]`: the FLIP fraction, the XPIC order and the quadrature.
 fn validate_method(s: &Scene) -> Result<(), Invalid> {
+    if s.method.quadrature == Quadrature::Domain && s.method.gradient != Gradient::Mpmcg {
+        return Err((
+            "method.quadrature".into(),
+            format!(
+                "the domain rule is MPMCG's quadrature: use it with gradient = \"mpmcg\" (got \"{}\")",
+                s.method.gradient.name()
+            ),
+        ));
+    }
     finite("method.flip", s.method.flip)?;
     if !(0.0..=1.0).contains(&s.method.flip) {
         return Err((

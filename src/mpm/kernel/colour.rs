@@ -12,11 +12,11 @@ pub const fn slab_thickness<const NA: usize>() -> usize {
     below + above
 }
 
-/// [`slab_thickness`] for the stencil a run uses: hats (`NA = 2`) or GIMP (`NA = 3`).
+/// [`slab_thickness`] for the stencil a run uses: hats (`NA = 2`) or 3 nodes per axis.
 /// The passes that write through the order check it against their own `NA`
 /// ([`SlabOrder::check_reach`]), so a mismatch stops the run instead of racing.
-pub fn slab_thickness_for(gimp: bool) -> usize {
-    if gimp {
+pub fn slab_thickness_for(wide: bool) -> usize {
+    if wide {
         slab_thickness::<3>()
     } else {
         slab_thickness::<2>()

@@ -99,25 +99,40 @@ pub fn gather<const D: usize, const NA: usize, const N: usize>(
     })
 }
 
+/// What [`interpolate`] reads of the particles: where they are, their half-widths and
+/// deformation gradients (for shape functions that have a domain) and cells.
+pub struct Placed<'a, const D: usize> {
+    pub x: &'a [Vector<D>],
+    pub half: &'a [[f64; D]],
+    pub def_grad: &'a [Mat<D>],
+    pub tile: &'a [u32],
+}
+
 /// A grid field of `D` numbers per node interpolated at every particle with the
 /// scatter's weights, `out[p] = Σ_i S_i(x_p) src_i` (ghosts included in `src`), in
 /// fixed chunks on threads.
 pub fn interpolate<const D: usize, const NA: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
-    (x, half, tile): (&[Vector<D>], &[[f64; D]], &[u32]),
+    at: Placed<'_, D>,
     src: &[f64],
     out: &mut [Vector<D>],
 ) {
+    let Placed {
+        x,
+        half,
+        def_grad,
+        tile,
+    } = at;
     assert!(x.len() == out.len() && tile.len() == out.len());
     out.par_chunks_mut(GRAIN).enumerate().for_each(|(k, out)| {
         let mut run = Run::<D, NA, N>::new();
         let mut cell = CellAt::<D>::new();
         for (i, o) in out.iter_mut().enumerate() {
             let p = k * GRAIN + i;
-            let half = if ctx.gimp { Some(&half[p]) } else { None };
+            let half = ctx.half_width(half, def_grad, p);
             let c = *cell.of(ctx, tile[p]);
             let xi = ctx.local(&x[p], &c);
-            let (w, below, _) = ctx.weights::<NA, N>(&x[p], half, &xi);
+            let (w, below, _) = ctx.weights::<NA, N>(&x[p], half.as_ref(), &xi);
             run.enter_if_new(ctx, tile[p], below);
             let mut u = Vector::<D>::zeros();
             for (n, &s) in w.s.iter().enumerate() {
@@ -163,7 +178,7 @@ pub(super) fn by_runs<const D: usize, const NA: usize, const N: usize>(
     load: impl Fn(&mut NodeData<D, N>, &[usize; N]),
 ) -> Tally {
     let mut t = Tally::ZERO;
-    let batches = lanes::batches::<D>(ctx.gimp);
+    let batches = lanes::batches::<D>(ctx.wide);
     let mut nd = NodeData::<D, N>::new();
     let mut run = Run::<D, NA, N>::new();
     let mut cell = CellAt::<D>::new();
@@ -187,13 +202,13 @@ pub(super) fn by_runs<const D: usize, const NA: usize, const N: usize>(
             p += b;
         } else {
             let xi = ctx.local(&s.parts.x[p], &c);
-            let (mut k, below, w) =
-                ctx.weights::<NA, N>(&s.parts.x[p], Some(&s.parts.half[p]), &xi);
+            let half = ctx.half_width(s.parts.half, s.parts.def_grad, p);
+            let (mut k, below, w) = ctx.weights::<NA, N>(&s.parts.x[p], half.as_ref(), &xi);
             if run.enter_if_new(ctx, s.tile[p], below) {
                 load(&mut nd, &run.idx);
             }
             k.ends = run.ends(ctx, &w);
-            room.one.one(&k, run.at_wall());
+            room.one.one(&k, run.at_wall(), below);
             if pass.lbar() {
                 room.one.lbar(&nd);
             }

@@ -36,15 +36,16 @@ const AHEAD: usize = 16;
 pub const QUARTER: usize = 2;
 
 /// Whether the stress pass and the gather take a run's particles several at a time:
-/// with hat functions (with GIMP's, particles of one cell need not share their nodes),
+/// with hat functions (with 3 nodes per axis, particles of one cell need not share their
+/// nodes),
 /// and not in 3D where the build has AVX-512. In 3D a batch's numbers do not fit the
 /// registers (24 shape-gradient terms and nine-entry matrices per lane) and part of
 /// them live on the stack, L1: the 3D block drop's stress pass took 0.56× the time of
 /// one particle at a time; with AVX-512, LLVM vectorises the three-long loops over the
 /// axes with gathers and scatters, and the 3D lanes ran 1.3× slower.
 #[inline(always)]
-pub fn batches<const D: usize>(gimp: bool) -> bool {
-    !(gimp || D == 3 && cfg!(target_feature = "avx512f"))
+pub fn batches<const D: usize>(wide: bool) -> bool {
+    !(wide || D == 3 && cfg!(target_feature = "avx512f"))
 }
 
 /// Whether the lanes' marks ([`unphysical`], summed over any number of batches) say
@@ -58,9 +59,17 @@ pub fn physical<const B: usize>(marks: &[f64; B]) -> bool {
 /// two-step scheme their interpolated nodal `L̄` ([`Weights::lbar`]).
 pub(crate) struct Weights<const D: usize, const N: usize, const B: usize> {
     /// Per axis the particle's place in its cell towards the upper node (hat
-    /// functions: ξ; GIMP: 0, as [`Kern::frac`]).
+    /// functions and the domain rule: ξ; GIMP: 0, as [`Kern::frac`]).
     frac: [[f64; B]; D],
+    /// With 3 nodes per axis, where the window starts below the cell ([`Kern::frac`]).
+    below: [usize; D],
     sh: [[f64; B]; N],
+    /// With 3 nodes per axis, the weights of the nodes' averages ([`Kern::avg_w`]);
+    /// with hat functions they are `(1 − α) S` and not stored.
+    cw: [[f64; B]; N],
+    /// With 3 nodes per axis, the hat functions at the particle ([`Kern::at_point`]);
+    /// with hat functions they are `sh`.
+    sp: [[f64; B]; N],
     /// With hat functions `g[d][n]` is written and read only where node `n` is the
     /// upper one of its pair along `d` ([`pair`]): a hat's derivative at the lower
     /// node is minus the upper one's, and the pair enters the gradient as the
@@ -71,8 +80,14 @@ pub(crate) struct Weights<const D: usize, const N: usize, const B: usize> {
     ends: [[[bool; 2]; D]; B],
     /// Whether the run's nodes touch a wall: else `ends` are all false.
     at_wall: bool,
+    /// `Σ_n S_n L̄_n` with the hat functions at the particle, and per column `c`
+    /// `Σ_n S_n o_c(n) L̄_n` (`o_c` the node's offset from the particle's cell corner in
+    /// cells), for the reconstruction ([`Weights::moving_velocity`]).
     all: [[[f64; B]; D]; D],
     upper: [[[f64; B]; D]; D],
+    /// The averages' part of the particle's velocity gradient, `Σ_n c_n L̄_n` with the
+    /// weights `c_n` of [`Kern::avg_w`].
+    lgrad: [[[f64; B]; D]; D],
 }
 
 /// A set of weights of each width, zeroed once for a task's particles and filled again
@@ -144,13 +159,17 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
     fn zeroed() -> Self {
         Weights {
             frac: [[0.0; B]; D],
+            below: [0; D],
             sh: [[0.0; B]; N],
+            cw: [[0.0; B]; N],
+            sp: [[0.0; B]; N],
             g: [[[0.0; B]; N]; D],
             alpha: [0.0; B],
             ends: [[[false; 2]; D]; B],
             at_wall: false,
             all: [[[0.0; B]; D]; D],
             upper: [[[0.0; B]; D]; D],
+            lgrad: [[[0.0; B]; D]; D],
         }
     }
 
@@ -230,9 +249,13 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
 
     /// The interpolated nodal `L̄` of a two-step scheme ([`super::NodeData::lb`]) at
     /// the particles, over all nodes and over the upper side per column, each summed
-    /// in node order.
+    /// in node order, and the averages' part of the velocity gradient (hat functions:
+    /// `(1 − α) Σ_n S_n L̄_n`, none where α = 1).
     #[inline(always)]
     pub fn lbar(&mut self, nd: &NodeData<D, N>) {
+        if !super::hats::<D, N>() {
+            return self.lbar_wide(nd);
+        }
         for a in 0..D {
             for c in 0..D {
                 let mut lo = [0.0; B];
@@ -251,8 +274,34 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
                 }
                 for l in 0..B {
                     self.all[a][c][l] = lo[l] + hi[l];
+                    let blended = (1.0 - self.alpha[l]) * self.all[a][c][l];
+                    self.lgrad[a][c][l] = if self.alpha[l] != 1.0 { blended } else { 0.0 };
                 }
                 self.upper[a][c] = hi;
+            }
+        }
+    }
+
+    /// [`Weights::lbar`] with 3 nodes per axis (the domain rule), nodes numbered in
+    /// base 3 from the window's first, `below` cells under the particle's cell corner.
+    #[inline(always)]
+    fn lbar_wide(&mut self, nd: &NodeData<D, N>) {
+        for a in 0..D {
+            for c in 0..D {
+                let (mut all, mut up, mut lg) = ([0.0; B], [0.0; B], [0.0; B]);
+                let step = 3usize.pow(c as u32);
+                for n in 0..N {
+                    let v = nd.lb[a][c][n];
+                    let o = ((n / step) % 3) as f64 - self.below[c] as f64;
+                    for l in 0..B {
+                        all[l] += self.sp[n][l] * v;
+                        up[l] += self.sp[n][l] * o * v;
+                        lg[l] += self.cw[n][l] * v;
+                    }
+                }
+                self.all[a][c] = all;
+                self.upper[a][c] = up;
+                self.lgrad[a][c] = lg;
             }
         }
     }
@@ -291,8 +340,8 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
     }
 
     /// The velocity gradient from velocity slot `slot` (with hat functions from its
-    /// differences `nd.dv`, loaded for that slot), times α, blended with (1 − α) L̄
-    /// for a two-step scheme.
+    /// differences `nd.dv`, loaded for that slot), times α, plus the averages' part
+    /// ([`Weights::lbar`]) for a two-step scheme.
     #[inline(always)]
     pub fn velocity_gradient(
         &self,
@@ -328,9 +377,7 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
                 }
                 if two {
                     for l in 0..B {
-                        let v = lg[a][b][l];
-                        let blended = v + (1.0 - alpha[l]) * self.all[a][b][l];
-                        lg[a][b][l] = if alpha[l] != 1.0 { blended } else { v };
+                        lg[a][b][l] += self.lgrad[a][b][l];
                     }
                 }
             }
@@ -360,12 +407,13 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
         slot: usize,
     ) -> [[f64; B]; D] {
         let h = &ctx.geom.h;
+        let sp = self.at_point();
         let mut u = [[0.0; B]; D];
         for a in 0..D {
             for n in 0..N {
                 let c = nd.vb[a][n];
                 for l in 0..B {
-                    u[a][l] += self.sh[n][l] * c;
+                    u[a][l] += sp[n][l] * c;
                 }
             }
             for b in 0..D {
@@ -418,7 +466,7 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
             if c < 1.0 {
                 let mut vn = 0.0;
                 for n in 0..N {
-                    vn += self.sh[n][l] * nd.v[slot][a][n];
+                    vn += self.at_point()[n][l] * nd.v[slot][a][n];
                 }
                 u[a][l] = c * u[a][l] + (1.0 - c) * vn;
             }
@@ -429,6 +477,16 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
     #[inline(always)]
     pub fn shape(&self) -> &[[f64; B]; N] {
         &self.sh
+    }
+
+    /// The hat functions at the particles ([`Kern::at_point`]).
+    #[inline(always)]
+    fn at_point(&self) -> &[[f64; B]; N] {
+        if super::hats::<D, N>() {
+            &self.sh
+        } else {
+            &self.sp
+        }
     }
 
     /// Whether the run's nodes touch a wall.
@@ -686,14 +744,18 @@ pub(crate) fn clip_at_slip_walls<const D: usize>(
 }
 
 impl<const D: usize, const N: usize> Weights<D, N, 1> {
-    /// One particle's weights `k` (any shape functions, GIMP's included).
+    /// One particle's weights `k` (any shape functions, GIMP's and the domain rule's
+    /// included), whose window starts `below` cells under its cell.
     #[inline(always)]
-    pub fn one(&mut self, k: &Kern<D, N>, at_wall: bool) {
+    pub fn one(&mut self, k: &Kern<D, N>, at_wall: bool, below: [usize; D]) {
         for a in 0..D {
             self.frac[a] = [k.frac[a]];
         }
+        self.below = below;
         for n in 0..N {
             self.sh[n] = [k.s[n]];
+            self.sp[n] = [k.at_point[n]];
+            self.cw[n] = [k.avg_w[n]];
             for d in 0..D {
                 self.g[d][n] = [k.g[d][n]];
             }
@@ -966,7 +1028,8 @@ mod tests {
                 geom: &self.geom,
                 node_lo: [-1; D],
                 tiles: &self.tiles,
-                gimp: false,
+                wide: false,
+                domain: false,
                 alpha,
                 materials: match law {
                     Law::Hyper { .. } => &self.hyper,

@@ -295,7 +295,7 @@ pub(crate) fn velocity_gradient<const D: usize, const N: usize>(
     nd.load(idx, vel, if two { avg } else { &[] }, None);
     nd.load_differences(slot);
     let mut room = lanes::Room::<D, N>::new();
-    room.one.one(k, false);
+    room.one.one(k, false, [0; D]);
     if two {
         room.one.lbar(&nd);
     }

@@ -121,12 +121,12 @@ pub(super) fn scatter_slab<const D: usize, const NA: usize, const N: usize>(
         } else {
             (parts.vol.get(p), Mat::<D>::zeros())
         };
-        let half = if ctx.gimp { Some(&parts.half[p]) } else { None };
+        let half = ctx.half_width(parts.half, parts.def_grad, p);
         // (ξ formed here, not before the stress: there, the 2D scatter's share
         // grew 1.13 against ξ kept by the tile pass, here 1.06.)
         let c = *cell.of(ctx, tiles[p]);
         let xi = ctx.local(&xs[p], &c);
-        let (k, below, _) = ctx.weights::<NA, N>(&xs[p], half, &xi);
+        let (k, below, _) = ctx.weights::<NA, N>(&xs[p], half.as_ref(), &xi);
         if run.is_new(tiles[p], below) {
             if run.started() {
                 acc.flush(ctx, grid, &run.idx, m);
@@ -258,7 +258,7 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
             }
         }
         if m.forces && m.two_step {
-            let c: [f64; N] = std::array::from_fn(|n| (1.0 - k.alpha) * k.s[n]);
+            let c = &k.avg_w;
             for a in 0..D {
                 for b in a..D {
                     let t = &mut self.stress[sym_index::<D>(a, b)];

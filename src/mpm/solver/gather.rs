@@ -31,6 +31,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             mass: particles::Masses::of(&self.kinds, &self.parts.kind),
             x0: &self.parts.x0,
             half: &self.parts.half,
+            def_grad: &self.parts.def_grad,
             tile: &self.place.ptile,
             accel: &self.scratch.accel,
         };
@@ -40,7 +41,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             keep_dx,
             record: (sw, mom),
         };
-        let t = match (self.scheme.gimp, D) {
+        let t = match (self.scheme.wide(), D) {
             (false, 1) => remap::<D, 2, 2>,
             (false, 2) => remap::<D, 2, 4>,
             (false, _) => remap::<D, 2, 8>,
@@ -95,7 +96,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         ctx.walls = self.has_walls();
         let parts = slices!(self);
         let t = by_nodes!(
-            self.scheme.gimp,
+            self.scheme.wide(),
             gather,
             &ctx,
             parts,
@@ -132,7 +133,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         ctx.walls = m.moves && self.has_walls();
         let parts = slices!(self);
         let t = by_nodes!(
-            self.scheme.gimp,
+            self.scheme.wide(),
             update_stress,
             &ctx,
             parts,

@@ -318,7 +318,7 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// threads (consecutive runs mostly share their tiles, so a small cache keeps the
     /// lists short), then touched in chunk order.
     pub(super) fn touch_runs(&mut self) {
-        let (below, above) = if self.scheme.gimp { (1, 2) } else { (0, 1) };
+        let (below, above) = if self.scheme.wide() { (1, 2) } else { (0, 1) };
         let chunks = self.place.cell_runs.len();
         if self.place.run_keys.len() < chunks {
             self.place.run_keys.resize_with(chunks, Vec::new);

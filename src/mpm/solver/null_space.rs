@@ -90,13 +90,14 @@ impl<'c, const D: usize> Solver<'c, D> {
         let mut ns = self.null_space.take().expect("asked for");
         ns.velocity.resize(self.parts.len(), Vector::<D>::zeros());
         let ctx = ctx!(self);
-        let at = (
-            &self.parts.x[..],
-            &self.parts.half[..],
-            &self.place.ptile[..],
-        );
+        let at = kernel::Placed {
+            x: &self.parts.x,
+            half: &self.parts.half,
+            def_grad: &self.parts.def_grad,
+            tile: &self.place.ptile,
+        };
         by_nodes!(
-            self.scheme.gimp,
+            self.scheme.wide(),
             interpolate,
             &ctx,
             at,

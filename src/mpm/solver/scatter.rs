@@ -65,7 +65,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             from_grid,
         };
         by_nodes!(
-            self.scheme.gimp,
+            self.scheme.wide(),
             scatter,
             &ctx,
             &parts,

@@ -49,7 +49,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                 .gravity
                 .as_ref()
                 .map_or(Vector::<D>::zeros(), |gr| vector::<D>(&gr.value)),
-            scheme: GradientScheme::of(scene.method.gradient),
+            scheme: GradientScheme::of(scene.method.gradient, scene.method.quadrature),
             update: scene.method.update,
             phases: Vec::new(),
             flip: scene.method.flip,
@@ -222,7 +222,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             );
         }
         // The slab order first: it checks that every run's cell is in the block.
-        let thick = kernel::slab_thickness_for(self.scheme.gimp);
+        let thick = kernel::slab_thickness_for(self.scheme.wide());
         let (lo, hi) = self.occupied_slabs(thick);
         let index = self.place.slabs.begin(lo, hi, thick);
         self.place.slabs.finish(&RunSlabs {
