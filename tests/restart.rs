@@ -799,9 +799,9 @@ fn rescue_replays_the_run_to_its_last_good_state() {
     let scene = |every: u64| {
         let p = dir.join(format!("every{every}.toml"));
         let text = crossing_scene(16, 3.0, &format!("every_steps = {every}"))
-            .replace("cfl = 0.3", "dt = 0.059")
+            .replace("cfl = 0.3", "dt = 0.0596")
             .replace("every = 3\n", "every = 0.35\n");
-        assert!(text.contains("every = 0.35") && text.contains("dt = 0.059"));
+        assert!(text.contains("every = 0.35") && text.contains("dt = 0.0596"));
         std::fs::write(&p, text).unwrap();
         p
     };

@@ -589,7 +589,11 @@ fn par<const D: usize>(s: Slices<'_, D>, f: &(impl Fn(Slices<'_, D>) -> Tally + 
 /// What a gather does besides interpolating velocities.
 #[derive(Clone, Copy, Debug)]
 pub struct GatherMode {
+    /// The step: positions and deformation advance over it.
     pub dt: f64,
+    /// The velocity's step ([`crate::mpm::Solver::kick`]): external work is the
+    /// external force's impulse over it.
+    pub kick: f64,
     pub flip: f64,
     /// Also update deformation and stress from velocity slot 1.
     pub stress: bool,

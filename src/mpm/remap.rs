@@ -35,6 +35,8 @@ pub struct RemapParts<'a, const D: usize> {
 #[derive(Clone, Copy, Debug)]
 pub struct RemapMode {
     pub dt: f64,
+    /// The velocity's step, as [`crate::mpm::kernel::GatherMode::kick`].
+    pub kick: f64,
     pub flip: f64,
     /// One-step schemes keep the position increment (grid velocity × dt) in `dx`; a
     /// two-step scheme's stress pass sets it from the remapped velocity.
@@ -324,7 +326,7 @@ fn remap_each<const D: usize, const N: usize, const B: usize, const WALL: bool>(
             t.work += w.clip(ctx, l, &mut new, &vnl, mass);
         }
         let a = ctx.accel_kept(parts.accel, parts.x0, p);
-        t.work += m.dt * mass * a.dot(&(old + new)) * 0.5;
+        t.work += m.kick * mass * a.dot(&(old + new)) * 0.5;
         *vp = new;
         t.ok &= new.iter().all(|x| x.is_finite());
         if m.keep_dx {
@@ -469,6 +471,7 @@ mod tests {
                         }
                         let m = RemapMode {
                             dt: 1e-3,
+                            kick: 1e-3,
                             flip,
                             keep_dx,
                             record: (D, 0),

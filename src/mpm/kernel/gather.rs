@@ -347,7 +347,7 @@ fn gather_batch<const D: usize, const N: usize, const B: usize>(
             *work += w.clip(ctx, l, &mut new, &lanes::column(&u, l), mass);
         }
         let acc = ctx.accel_kept(s.accel, s.parts.x0, p);
-        *work += m.dt * mass * acc.dot(&(old + new)) * 0.5;
+        *work += m.kick * mass * acc.dot(&(old + new)) * 0.5;
         vs[l] = new;
         for a in 0..D {
             bad[l] += new[a] * 0.0;

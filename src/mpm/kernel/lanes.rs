@@ -1395,6 +1395,7 @@ mod tests {
                             let nd = nodes::<D, N>(&mut rng, steep, UPDATED);
                             let m = GatherMode {
                                 dt: 1e-3,
+                                kick: 1e-3,
                                 flip,
                                 stress,
                                 move_now,

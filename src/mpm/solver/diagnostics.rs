@@ -114,17 +114,26 @@ impl<'c, const D: usize> Solver<'c, D> {
         }
     }
 
+    /// The time the particles' velocities are at: half the last step before the
+    /// positions' ([`Solver::kick`]).
+    pub fn velocity_time(&self) -> f64 {
+        self.t - 0.5 * self.dt
+    }
+
     /// Volume-weighted L2 norms of the displacement and velocity errors against the
-    /// benchmark's exact solution at the current time (over all ranks).
+    /// benchmark's exact solution, the displacement's at the current time and the
+    /// velocity's at [`Solver::velocity_time`] (over all ranks).
     pub fn errors(&self) -> Option<(f64, f64)> {
         let b = self.benchmark.as_ref()?;
+        let bv = b.at(self.velocity_time());
         let b = b.at(self.t).with_memo(&self.scratch.memo);
         let (parts, vol0) = (&self.parts, &self.kinds.vol0[..]);
         // Summed per fixed chunk, then in a fixed tree: the same on any thread count.
         let chunk = |k: usize| {
             let mut s = [0.0; 3];
             for p in k * LOCATE_CHUNK..parts.len().min((k + 1) * LOCATE_CHUNK) {
-                add_errors(&mut s, (parts, vol0), p, b.exact_of(&parts.x0, p));
+                let exact = (b.exact_of(&parts.x0, p).0, bv.exact(&parts.x0[p]).1);
+                add_errors(&mut s, (parts, vol0), p, exact);
             }
             s
         };
@@ -146,7 +155,7 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// reads. Collective.
     pub fn errors_keeping_forces(&mut self) -> Option<(f64, f64)> {
         let b = self.benchmark.as_ref()?;
-        let at = b.at(self.t);
+        let (at, bv) = (b.at(self.t), b.at(self.velocity_time()));
         let (parts, vol0) = (&self.parts, &self.kinds.vol0[..]);
         let n = parts.len();
         let chunks = n.div_ceil(LOCATE_CHUNK);
@@ -166,8 +175,10 @@ impl<'c, const D: usize> Solver<'c, D> {
                     // The sums in registers over the batch (the closure's `s` is
                     // kept in memory: each particle's adds waited on the last's).
                     let mut acc = s;
-                    for (k, &exact) in out.iter().enumerate() {
-                        add_errors(&mut acc, (parts, vol0), first + i + k, exact);
+                    for (k, &(u, _)) in out.iter().enumerate() {
+                        let p = first + i + k;
+                        let exact = (u, bv.exact(&parts.x0[p]).1);
+                        add_errors(&mut acc, (parts, vol0), p, exact);
                     }
                     s = acc;
                 });

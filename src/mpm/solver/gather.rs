@@ -6,7 +6,7 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// MUSL's remap ([`Phase::Remap`]): new particle velocities, and their momentum
     /// summed over ranks into the scatter records' momentum (the rest of the records,
     /// mass and cover among them, is the step's scatter's).
-    pub(super) fn remap(&mut self, dt: f64) -> bool {
+    pub(super) fn remap(&mut self, dt: f64, kick: f64) -> bool {
         let n = self.parts.len();
         let keep_dx = !self.scheme.two_step();
         // A one-step scheme moves by the increment kept here, at the end of the
@@ -37,6 +37,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         };
         let m = crate::mpm::remap::RemapMode {
             dt,
+            kick,
             flip: self.flip,
             keep_dx,
             record: (sw, mom),
@@ -78,13 +79,20 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// position increments are kept in `dx` for later (MUSL).
     /// `speed`: this is the step's last particle pass, which sets the signal speed the
     /// next step size follows.
-    pub(super) fn gather(&mut self, dt: f64, stress: bool, move_now: bool, speed: bool) -> bool {
+    pub(super) fn gather(
+        &mut self,
+        (dt, kick): (f64, f64),
+        stress: bool,
+        move_now: bool,
+        speed: bool,
+    ) -> bool {
         let n = self.parts.len();
         self.scratch
             .dx
             .resize(if move_now { 0 } else { n }, Vector::<D>::zeros());
         let mode = kernel::GatherMode {
             dt,
+            kick,
             flip: self.flip,
             stress,
             move_now,

@@ -22,7 +22,7 @@ use super::*;
 /// particle's part is then settled to round-off (the error of `S u` is the square root
 /// of the energy's), so that rank counts agree to 1e-12, for 10 % more iterations
 /// than at 1e-10 on the coarse cantilever (at most 166 there).
-const TOLERANCE: f64 = 1e-14;
+const TOLERANCE: f64 = 1e-15;
 
 /// Iterations after which the solve stops whatever the residual (the bound above
 /// holds for any iterate).

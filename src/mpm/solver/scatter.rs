@@ -284,7 +284,7 @@ particles_per_cell = 2
         if s.xpic.is_some() {
             s.xpic_field();
         }
-        s.gather(dt, false, false, false);
+        s.gather((dt, dt), false, false, false);
     }
 
     #[test]

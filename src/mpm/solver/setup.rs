@@ -141,6 +141,12 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.setup_grid();
     }
 
+    /// Replace the node mass below which a node counts as empty (tests: with 0 every
+    /// node a particle touches takes its force, and momentum is kept to round-off).
+    pub fn set_mass_floor(&mut self, floor: f64) {
+        self.grid.mass_floor = floor;
+    }
+
     pub(super) fn setup_grid(&mut self) {
         let two = self.scheme.two_step();
         self.grid.sw = NodeRecord::<D>::width(two);
