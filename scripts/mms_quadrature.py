@@ -12,21 +12,24 @@ scenes (docs/verification.md has the comparison). Whole-body cell weights are 1 
 body fills the grid), as the solver's are on this problem.
 
 Quadratures of `Σ_p v_p σ_p G_i` (and, adjoint, of the velocity gradient):
-  point   at the particle (the solver);
+  point   at the particle (the solver's default);
   gaussK  K Gauss-Legendre points per axis over the particle's current domain;
   domain  per axis the domain split at the cell face inside it, two Gauss points on
           each piece: exact for MPMCG's integrands (piecewise cubic per axis), i.e.
           the domain's integral of G_i with the stress constant over it.
 The domain is the box of half-widths `l0 |F e_a|` around the particle (`l0` half the
-particle spacing), so it follows the stretch along each axis. Mass, momentum, the body
-force and the velocity update stay at the particle.
-Velocity steps: `own` advances the velocity by each step's own size (the solver),
-`centred` by the mean of this step's and the last, half on the first (leapfrog with
+particle spacing), so it follows the stretch along each axis.
+`--mass domain` puts the mass, momentum, body force and the FLIP increment on the
+same domain (the domain's averages of the hat functions); the move stays the
+reconstruction at the particle. The solver's `quadrature = "domain"` is
+`--quadrature domain --mass domain`.
+Velocity steps: `own` advances the velocity by each step's own size, `centred` (the
+solver) by the mean of this step's and the last, half on the first (leapfrog with
 variable steps).
 
 Run with the system Python (it needs numpy):
   /usr/bin/python3 scripts/mms_quadrature.py --dim 1 --ppc 2 --quadrature domain \
-      --cells 16,32,64,128,256,512
+      --mass domain --cells 16,32,64,128,256,512
 """
 import argparse
 import itertools
@@ -187,12 +190,19 @@ def run(d, n, ppc, quadrature, kick):
         dt_last = dt
         cell, xi, _ = locate(x, h, n)
         b = body_force(x0, t)
-        rec = g.scatter(cell, xi, np.column_stack([np.full(len(x), mass), mass * v, mass * b]))
-        nodes_mass, mom, force = rec[0], rec[1:1 + d], rec[1 + d:].copy()
-        # The internal force over each particle's quadrature points, and the
-        # averaged-stress sums σ̄ (upper triangle per node, a full D × D here).
         half = l0 * np.linalg.norm(f, axis=1)  # |F e_a| per axis
         per_axis = [axis_points(x[:, a], half[:, a], h, quadrature) for a in range(d)]
+        vals = np.column_stack([np.full(len(x), mass), mass * v, mass * b])
+        if MASS == "point":
+            rec = g.scatter(cell, xi, vals)
+        else:
+            rec = 0
+            for combo in itertools.product(*per_axis):
+                xq = np.stack([c[0] for c in combo], axis=1)
+                wq = np.prod(np.stack([c[1] for c in combo], axis=1), axis=1)
+                cq, xiq, al = locate(xq, h, n)
+                rec = rec + g.scatter(cq, xiq, vals * wq[:, None])
+        nodes_mass, mom, force = rec[0], rec[1:1 + d], rec[1 + d:].copy()
         points = []
         sbar = np.zeros((d, d) + (m,) * d)
         for combo in itertools.product(*per_axis):
@@ -238,9 +248,14 @@ def run(d, n, ppc, quadrature, kick):
         dv = np.zeros_like(v)
         move = np.zeros_like(v)
         vbf, dvf = vbar.reshape(d, -1), (vn - vi).reshape(d, -1)
+        if MASS != "point":
+            for cq, xiq, al, wq in points:
+                for idx, w, _ in g.corners(cq, xiq):
+                    dv += (wq * w)[:, None] * dvf[:, idx].T
         for idx, w, _ in g.corners(cell, xi):
             xj = np.stack(np.unravel_index(idx, (m,) * d), axis=1) * h
-            dv += w[:, None] * dvf[:, idx].T
+            if MASS == "point":
+                dv += w[:, None] * dvf[:, idx].T
             move += w[:, None] * (vbf[:, idx].T
                                   + np.einsum("nac,nc->na", np.moveaxis(lflat[:, :, idx], -1, 0),
                                               x - xj))
@@ -270,9 +285,13 @@ def main():
     p.add_argument("--dim", type=int, choices=[1, 2], default=1)
     p.add_argument("--ppc", type=int, default=4, help="particles per cell per axis")
     p.add_argument("--quadrature", default="point")
-    p.add_argument("--kick", choices=["own", "centred"], default="own")
+    p.add_argument("--kick", choices=["own", "centred"], default="centred")
     p.add_argument("--cells", default="16,32,64,128,256")
+    p.add_argument("--mass", choices=["point", "domain"], default="point",
+                   help="weights of mass, momentum, body force and the FLIP increment")
     a = p.parse_args()
+    global MASS
+    MASS = a.mass
     print("cells  displacement order   velocity at t order   at t - dt/2 order")
     last = None
     for n in map(int, a.cells.split(",")):

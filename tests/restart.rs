@@ -224,7 +224,8 @@ fields = ["velocity", "stress", "displacement"]
 
 /// (a) Restart from the half-way checkpoint: 1→1 and 2→2 bit-identical to the
 /// uninterrupted run, 2→1 and 1→3 within 1e-12; for the MMS, the crossing disks (with
-/// the null-space diagnostic's history column), and the same disks brittle (failing,
+/// the null-space diagnostic's history column), the same disks under MPMCG's domain
+/// rule (its domains follow the restarted `F` and half-widths) and brittle (failing,
 /// so their stored σ_zz matters).
 #[test]
 fn restart_continues_the_run() {
@@ -240,6 +241,13 @@ fn restart_continues_the_run() {
             "crossing",
             crossing_scene(16, 1.2, "every = 0.6")
                 .replace("\"displacement\"]", "\"displacement\", \"null_velocity\"]"),
+        ),
+        (
+            "domain",
+            crossing_scene(16, 1.2, "every = 0.6").replace(
+                "update = \"musl\"",
+                "update = \"musl\"\nquadrature = \"domain\"",
+            ),
         ),
         ("brittle", brittle),
     ] {

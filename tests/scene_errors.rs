@@ -916,6 +916,19 @@ fn other_validation() {
     .at("2.5")
     .says("expected a non-negative integer, got the float 2.5");
     check(
+        "domain_rule_without_mpmcg",
+        edit(BAR, "flip = 1.0", "flip = 1.0\nquadrature = \"domain\""),
+    )
+    .key("method.quadrature")
+    .says("the domain rule is MPMCG's quadrature: use it with gradient = \"mpmcg\" (got \"mpm\")");
+    check(
+        "quadrature_name",
+        edit(BAR, "flip = 1.0", "flip = 1.0\nquadrature = \"gauss\""),
+    )
+    .key("method.quadrature")
+    .at("\"gauss\"")
+    .says("point");
+    check(
         "balance_mode",
         format!("{BAR}\n[parallel]\nbalance = \"dynamic\"\n"),
     )

@@ -70,7 +70,8 @@ struct SweepArgs {
     /// Cells along x, comma-separated; other axes keep the scene's proportions.
     #[arg(long, default_value = "8,16,32,64")]
     cells: String,
-    /// Gradient schemes, comma-separated (mpm, gimp, averaged, mpmcg).
+    /// Gradient schemes, comma-separated (mpm, gimp, averaged, mpmcg, mpmcg-domain: MPMCG
+    /// with the domain rule).
     #[arg(long, default_value = "mpm,gimp,mpmcg")]
     gradient: String,
     /// Particles per cell per direction in every body [default: the scene's].

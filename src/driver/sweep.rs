@@ -15,7 +15,7 @@ pub mod report;
 pub use report::{Row, Stats};
 
 use crate::driver::run::{self, RunError, RunOptions};
-use crate::input::scene::{self, Gradient, Scene};
+use crate::input::scene::{self, Gradient, Quadrature, Scene};
 use decomposition::SerialComm;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -76,9 +76,44 @@ pub fn parse_cells(list: &str) -> Result<Vec<usize>, String> {
     Ok(cells)
 }
 
+/// A scheme a sweep runs: a gradient and its quadrature, named `mpmcg-domain` for
+/// MPMCG's domain rule and by the gradient otherwise (MPMCG at the particle).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Scheme {
+    pub gradient: Gradient,
+    pub quadrature: Quadrature,
+}
+
+impl Scheme {
+    pub const ALL: [Scheme; 5] = [
+        Scheme::point(Gradient::Mpm),
+        Scheme::point(Gradient::Gimp),
+        Scheme::point(Gradient::Averaged),
+        Scheme::point(Gradient::Mpmcg),
+        Scheme {
+            gradient: Gradient::Mpmcg,
+            quadrature: Quadrature::Domain,
+        },
+    ];
+
+    pub const fn point(gradient: Gradient) -> Self {
+        Scheme {
+            gradient,
+            quadrature: Quadrature::Point,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self.quadrature {
+            Quadrature::Domain => "mpmcg-domain",
+            Quadrature::Point => self.gradient.name(),
+        }
+    }
+}
+
 /// `--gradient mpm,gimp,mpmcg`: known scheme names, each once, in the order given.
-pub fn parse_gradients(list: &str) -> Result<Vec<Gradient>, String> {
-    let known: Vec<&str> = Gradient::ALL.iter().map(|g| g.name()).collect();
+pub fn parse_gradients(list: &str) -> Result<Vec<Scheme>, String> {
+    let known: Vec<&str> = Scheme::ALL.iter().map(|g| g.name()).collect();
     let hint = format!("known gradients: {}", known.join(", "));
     if list.trim().is_empty() {
         return Err(format!("--gradient: the list is empty; {hint}"));
@@ -86,7 +121,7 @@ pub fn parse_gradients(list: &str) -> Result<Vec<Gradient>, String> {
     let mut out = Vec::new();
     for item in list.split(',') {
         let t = item.trim();
-        let g = Gradient::ALL
+        let g = Scheme::ALL
             .into_iter()
             .find(|g| g.name() == t)
             .ok_or_else(|| format!("--gradient: unknown gradient {t:?}; {hint}"))?;
@@ -134,29 +169,26 @@ pub fn grid_at(base: &[usize], n: usize) -> Result<Vec<usize>, String> {
         .collect()
 }
 
-/// The scene at resolution `n` with `gradient` (and `ppc` particles per cell per
-/// direction in every body, if given), and its TOML text. The text is parsed and
-/// validated again, so what runs is exactly what `scene.toml` says.
+/// The scene at resolution `n` with `scheme`'s gradient and quadrature (and `ppc`
+/// particles per cell per direction in every body, if given), and its TOML text. The
+/// text is parsed and validated again, so what runs is exactly what `scene.toml` says.
 pub fn scene_at(
     base: &Scene,
-    gradient: Gradient,
+    scheme: Scheme,
     n: usize,
     ppc: Option<usize>,
 ) -> Result<(Scene, String), String> {
     let mut s = base.clone();
     s.grid.cells = grid_at(&base.grid.cells, n)?;
-    s.method.gradient = gradient;
+    s.method.gradient = scheme.gradient;
+    s.method.quadrature = scheme.quadrature;
     if let Some(p) = ppc {
         for b in &mut s.bodies {
             b.particles_per_cell = p;
         }
     }
     let text = toml::to_string(&s).map_err(|e| format!("cannot write the scene as TOML: {e}"))?;
-    let label = format!(
-        "<{} with {n} cells, gradient {}>",
-        base.name,
-        gradient.name()
-    );
+    let label = format!("<{} with {n} cells, gradient {}>", base.name, scheme.name());
     let parsed = scene::parse(&text, &label).map_err(|e| e.to_string())?;
     Ok((parsed, text))
 }
@@ -167,7 +199,7 @@ pub struct Options {
     /// The scene file, for messages.
     pub scene_file: String,
     pub cells: Vec<usize>,
-    pub gradients: Vec<Gradient>,
+    pub gradients: Vec<Scheme>,
     pub ppc: Option<usize>,
     pub ranks: usize,
     /// Threads per rank; `None`: all of the pool's threads in-process, the `run`
@@ -338,7 +370,7 @@ fn run_mpirun(
 
 fn row_from(
     dir: &Path,
-    gradient: Gradient,
+    gradient: Scheme,
     n: usize,
     ranks: usize,
     threads: usize,
@@ -610,7 +642,15 @@ mod tests {
     fn gradient_lists_keep_their_order_and_reject_unknown_names() {
         assert_eq!(
             parse_gradients("mpmcg, mpm,gimp").unwrap(),
-            vec![Gradient::Mpmcg, Gradient::Mpm, Gradient::Gimp]
+            vec![
+                Scheme::point(Gradient::Mpmcg),
+                Scheme::point(Gradient::Mpm),
+                Scheme::point(Gradient::Gimp)
+            ]
+        );
+        assert_eq!(
+            parse_gradients("mpmcg-domain,mpmcg").unwrap(),
+            vec![Scheme::ALL[4], Scheme::ALL[3]]
         );
         let e = parse_gradients("mpm,bspline").unwrap_err();
         assert!(
@@ -642,7 +682,7 @@ mod tests {
     #[test]
     fn scenes_at_a_resolution_round_trip_through_toml() {
         let base = bar();
-        let (s, text) = scene_at(&base, Gradient::Gimp, 32, Some(4)).unwrap();
+        let (s, text) = scene_at(&base, Scheme::point(Gradient::Gimp), 32, Some(4)).unwrap();
         let again = scene::parse(&text, "t").unwrap();
         for sc in [&s, &again] {
             assert_eq!(sc.grid.cells, vec![32]);
@@ -654,13 +694,13 @@ mod tests {
             assert!(sc.benchmark.is_some());
         }
         // Without --ppc the scene's particles per cell stay.
-        let (s, _) = scene_at(&base, Gradient::Mpm, 8, None).unwrap();
+        let (s, _) = scene_at(&base, Scheme::point(Gradient::Mpm), 8, None).unwrap();
         assert_eq!(
             s.bodies[0].particles_per_cell,
             base.bodies[0].particles_per_cell
         );
         // The scene's own validation still applies.
-        let e = scene_at(&base, Gradient::Mpm, 8, Some(17)).unwrap_err();
+        let e = scene_at(&base, Scheme::point(Gradient::Mpm), 8, Some(17)).unwrap_err();
         assert!(e.contains("particles_per_cell"), "{e}");
     }
 
@@ -701,7 +741,11 @@ mod tests {
             ranks: 3,
             threads: Some(2),
             exe: "/bin/mpmcg".into(),
-            ..options(Path::new("/tmp/x"), vec![8], vec![Gradient::Mpm])
+            ..options(
+                Path::new("/tmp/x"),
+                vec![8],
+                vec![Scheme::point(Gradient::Mpm)],
+            )
         };
         let cmd = mpirun_command(
             &opts,
@@ -745,7 +789,7 @@ mod tests {
             .any(|a| a == "--allow-run-as-root" || a == "--threads"));
     }
 
-    fn options(out: &Path, cells: Vec<usize>, gradients: Vec<Gradient>) -> Options {
+    fn options(out: &Path, cells: Vec<usize>, gradients: Vec<Scheme>) -> Options {
         Options {
             scene_file: "inputs/vibrating_bar.toml".into(),
             cells,
@@ -766,7 +810,11 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("mpmcg_sweep_nobench_{}", std::process::id()));
         let mut base = bar();
         base.benchmark = None;
-        let e = sweep(&base, &options(&dir, vec![8], vec![Gradient::Mpm])).unwrap_err();
+        let e = sweep(
+            &base,
+            &options(&dir, vec![8], vec![Scheme::point(Gradient::Mpm)]),
+        )
+        .unwrap_err();
         assert_eq!(e.exit_code(), 2);
         assert!(e.to_string().contains("no [benchmark]"), "{e}");
         assert!(!dir.exists(), "nothing is written");
@@ -774,7 +822,11 @@ mod tests {
         let mut base = bar();
         base.dim = 2;
         base.grid.cells = vec![16, 8];
-        let e = sweep(&base, &options(&dir, vec![8, 9], vec![Gradient::Mpm])).unwrap_err();
+        let e = sweep(
+            &base,
+            &options(&dir, vec![8, 9], vec![Scheme::point(Gradient::Mpm)]),
+        )
+        .unwrap_err();
         assert!(
             matches!(e, SweepError::Input(ref m) if m.contains("multiple of 2")),
             "{e}"
@@ -792,7 +844,11 @@ mod tests {
         let mut base = bar();
         base.time.cfl = None;
         base.time.dt = Some(0.2);
-        let opts = options(&dir, vec![8, 16], vec![Gradient::Mpm, Gradient::Mpmcg]);
+        let opts = options(
+            &dir,
+            vec![8, 16],
+            vec![Scheme::point(Gradient::Mpm), Scheme::point(Gradient::Mpmcg)],
+        );
         let rows = sweep(&base, &opts).unwrap();
         let status: Vec<_> = rows.iter().map(|r| r.status.as_str()).collect();
         assert_eq!(status, ["completed", "unstable", "completed", "unstable"]);
@@ -819,7 +875,11 @@ mod tests {
     fn sweep_of_the_vibrating_bar_writes_all_outputs() {
         let dir = std::env::temp_dir().join(format!("mpmcg_sweep_bar_{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
-        let opts = options(&dir, vec![8, 16], vec![Gradient::Mpm, Gradient::Mpmcg]);
+        let opts = options(
+            &dir,
+            vec![8, 16],
+            vec![Scheme::point(Gradient::Mpm), Scheme::point(Gradient::Mpmcg)],
+        );
         let rows = sweep(&bar(), &opts).unwrap();
         assert_eq!(rows.len(), 4);
         let names: Vec<_> = rows
