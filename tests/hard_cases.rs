@@ -261,16 +261,15 @@ fn worst_pieces(out: &std::path::Path, h: f64) -> usize {
 
 /// The family at 2 × 2 particles per cell (MUSL, both grids, and the 4 m beam in 3D at
 /// 2 × 2 × 2). MPMCG keeps the 3 and 6 m beams whole on both grids and the 4 m beam on
-/// the shifted grid, where MPM breaks it in 4 pieces; the 5 m beam breaks under
-/// MPM on both grids (13 and 9 pieces: at 2 particles per cell the clamp's top fibre
+/// the shifted grid, where MPM breaks it in 3 pieces; the 5 m beam breaks under
+/// MPM on both grids (13 and 8 pieces: at 2 particles per cell the clamp's top fibre
 /// stretches until lattice neighbours are a cell apart) and MPMCG leaves fewer (2 on the
 /// aligned grid, whole on the shifted one). Not asserted, printed: the 4 m beam on the
-/// aligned grid and the 3D beam, which MPM keeps whole and MPMCG does not (its first
-/// cell column tears off the rest at the clamp; with XPIC they are whole:
-/// `cantilever_family_with_xpic_stays_whole_at_2x2`) (README,
-/// The cantilever family). Before
-/// particles moved with the reconstruction of the nodal averages MPMCG kept 2 of these
-/// 8 2D beams whole and MPM 5.
+/// aligned grid, which MPM keeps whole and MPMCG does not (its first cell column tears
+/// off the rest at the clamp), and the 3D beam (MPMCG 2 pieces, MPM 4); with XPIC they
+/// are whole (`cantilever_family_with_xpic_stays_whole_at_2x2`; docs/hard-cases.md, The
+/// cantilever family). Before particles moved with the reconstruction of the nodal
+/// averages MPMCG kept 2 of these 8 2D beams whole and MPM 5.
 #[test]
 fn cantilever_family_at_2x2() {
     #[derive(PartialEq)]
