@@ -181,8 +181,8 @@ pub fn grid_integral<const D: usize>(geom: &Geom<D>, gi: [i64; D], dj: [i64; D])
 pub struct GradientScheme {
     /// GIMP's shape functions (3 nodes per axis) instead of hat functions (2).
     pub gimp: bool,
-    /// MPMCG's domain rule ([`domain`]): the force and the velocity gradient
-    /// integrated over each particle's current domain, which reaches 3 nodes per axis.
+    /// MPMCG's domain rule ([`domain`]): a particle's weights, force and velocity
+    /// gradient integrated over its current domain, which reaches 3 nodes per axis.
     pub domain: bool,
     pub alpha: Alpha,
 }
