@@ -350,20 +350,7 @@ pub fn gimp<const D: usize>(geom: &Geom<D>, x: &[f64; D], lp: &[f64; D]) -> Weig
             w[a][k] = wk;
             dw[a][k] = dk;
         }
-        // Keep the three slots on existing nodes at a bounded end (the dropped node has
-        // weight zero: the domain stays inside the grid), so the stencil never indexes
-        // outside the grid.
-        if !geom.periodic[a] {
-            if base[a] < 0 {
-                base[a] = 0;
-                w[a] = [w[a][1], w[a][2], 0.0];
-                dw[a] = [dw[a][1], dw[a][2], 0.0];
-            } else if base[a] + 2 > geom.cells[a] as i64 {
-                base[a] -= 1;
-                w[a] = [0.0, w[a][0], w[a][1]];
-                dw[a] = [0.0, dw[a][0], dw[a][1]];
-            }
-        }
+        shift_inside(geom, a, &mut base[a], [&mut w[a], &mut dw[a]]);
     }
     Weights1 {
         base,
@@ -466,29 +453,41 @@ pub fn domain<const D: usize>(geom: &Geom<D>, x: &[f64; D], lp: &[f64; D]) -> Do
                 d.avg_adn[a][s + 1] += wt * au * geom.inv_h[a];
             }
         }
-        if !geom.periodic[a] {
-            let shift = |v: &mut [f64; 3], down: bool| {
-                *v = if down {
-                    [v[1], v[2], 0.0]
-                } else {
-                    [0.0, v[0], v[1]]
-                }
-            };
-            let down = d.base[a] < 0;
-            if down || d.base[a] + 2 > geom.cells[a] as i64 {
-                d.base[a] += if down { 1 } else { -1 };
-                for v in [
-                    &mut d.w[a],
-                    &mut d.avg_n[a],
-                    &mut d.avg_an[a],
-                    &mut d.avg_adn[a],
-                ] {
-                    shift(v, down);
-                }
-            }
-        }
+        let rows = [
+            &mut d.w[a],
+            &mut d.avg_n[a],
+            &mut d.avg_an[a],
+            &mut d.avg_adn[a],
+        ];
+        shift_inside(geom, a, &mut d.base[a], rows);
     }
     d
+}
+
+/// Keep a window of 3 nodes from `base` along axis `a` on existing nodes at a bounded
+/// end, moving its per-node `rows` with it (the dropped node has weight zero: the
+/// domain stays inside the grid), so that the stencil never indexes outside the grid.
+#[inline(always)]
+fn shift_inside<const D: usize, const R: usize>(
+    geom: &Geom<D>,
+    a: usize,
+    base: &mut i64,
+    rows: [&mut [f64; 3]; R],
+) {
+    if geom.periodic[a] {
+        return;
+    }
+    if *base < 0 {
+        *base = 0;
+        for v in rows {
+            *v = [v[1], v[2], 0.0];
+        }
+    } else if *base + 2 > geom.cells[a] as i64 {
+        *base -= 1;
+        for v in rows {
+            *v = [0.0, v[0], v[1]];
+        }
+    }
 }
 
 impl<const D: usize> DomainWeights1<D> {
