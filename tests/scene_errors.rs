@@ -1159,3 +1159,29 @@ fn overlapping_bodies() {
     );
     accepted("bodies_near", &near);
 }
+
+const MMS_2D: &str = include_str!("../inputs/axis_aligned_mms_2d.toml");
+
+#[test]
+fn manufactured_solution_outside_its_domain() {
+    // sin(πX) between slip faces at 0 and 1, or periodic with period 2: on a periodic
+    // unit square its strain would jump at the seam.
+    let periodic = edit(
+        MMS_2D,
+        "boundary = { x_lower = \"slip\", x_upper = \"slip\"",
+        "boundary = { x_lower = \"periodic\", x_upper = \"periodic\"",
+    );
+    check("mms_periodic_unit", &periodic)
+        .key("grid.lower")
+        .says("on [0, 2] on a periodic axis")
+        .says("axis 0 spans [0, 1] and is periodic");
+    let wide = edit(
+        MMS_2D,
+        "upper = [1.0, 1.0]\ncells",
+        "upper = [1.0, 2.0]\ncells",
+    );
+    check("mms_slip_wide", &wide)
+        .key("grid.lower")
+        .says("on [0, 1] per axis between slip faces")
+        .says("axis 1 spans [0, 2]");
+}

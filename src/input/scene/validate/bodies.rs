@@ -76,11 +76,20 @@ fn validate_benchmark(s: &Scene, b: &BenchmarkSpec) -> Result<BenchmarkPlan, Inv
                     center: [center[0], center[1]],
                 })
             } else {
+                // sin(πX) is exact between slip faces at X = 0 and 1, and periodic with
+                // period 2 (its odd extension), so a periodic axis spans [0, 2].
                 for a in 0..s.dim {
-                    if s.grid.lower[a] != 0.0 || s.grid.upper[a] != 1.0 {
+                    let periodic = s.grid.boundary.face(a, false) == Face::Periodic;
+                    let upper = if periodic { 2.0 } else { 1.0 };
+                    if s.grid.lower[a] != 0.0 || s.grid.upper[a] != upper {
                         return Err((
                             "grid.lower".into(),
-                            "`axis_aligned_mms` is posed on the unit interval/square/cube: lower = 0, upper = 1".into(),
+                            format!(
+                                "`axis_aligned_mms` is posed on [0, 1] per axis between slip faces, or on [0, 2] on a periodic axis (the solution's period); axis {a} spans [{}, {}]{}",
+                                s.grid.lower[a],
+                                s.grid.upper[a],
+                                if periodic { " and is periodic" } else { "" }
+                            ),
                         ));
                     }
                 }
