@@ -6,9 +6,9 @@
 # Writes results.csv, report.md, error_vs_wall_time.svg and error_vs_h.svg into --out
 # (default out/peers-mms); scripts/bench_peers_mms.py says what each holds.
 #
-# Usage: scripts/bench_peers_mms.sh [--cells 8,16,32,64,128] [--periodic-cells 8,16,32,64]
+# Usage: scripts/bench_peers_mms.sh [--cells 8,16,32,64,128] [--periodic-cells 8,16,32,64,128]
 #                                   [--ppc 2] [--cpu K] [--out DIR]
-# The defaults take about 15 minutes on one core of a quiet machine (the periodic grid
+# The defaults take about 35 minutes on one core of a quiet machine (the periodic grid
 # has 4 times the particles of the walls' at the same h); `--cells 8,16,32
 # --periodic-cells 8,16,32` about 30 seconds.
 #
