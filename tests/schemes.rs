@@ -436,17 +436,10 @@ fn check_step<const D: usize>(
     use mpmcg::physics::gradient::{self as gr, Domain, Scheme};
     use std::collections::BTreeMap;
     let mut s = solver_with_state::<D>(text, alpha.map(Alpha::Constant), seed);
-    // Particles that carry `F` get a sheared one with stretches 0.6 to 2.6. Under the
-    // domain rule only compressions (0.6 to 0.95, columns shorter than 1), so that the
-    // half-widths `l0 |F e_a|` differ from `l0` but every domain stays in cells the
-    // material fills: a stretched domain at a free surface reaches cells of weight 0,
-    // where the averaged gradient is not defined (the reference panics; the solver
-    // leaves nodes of zero volume out of the nodal averages).
-    let (lo, hi) = if s.scheme.domain {
-        (0.6, 0.95)
-    } else {
-        (0.6, 2.6)
-    };
+    // Particles that carry `F` get a sheared one with stretches 0.6 to 2.6, so that the
+    // domain rule's half-widths `l0 |F e_a|` differ from `l0`, some reach their bound of
+    // half a cell, and domains at the free surface reach cells no particle is in.
+    let (lo, hi) = (0.6, 2.6);
     let mut rng = decomposition::splitmix::Rng::new(seed + 100);
     for f in s.parts.def_grad.iter_mut() {
         for a in 0..D {
@@ -465,7 +458,6 @@ fn check_step<const D: usize>(
         .map(|p| std::array::from_fn(|a| s.parts.x[p][a]))
         .collect();
     let vols: Vec<f64> = (0..n).map(|p| s.parts.volume(p, &s.kinds.vol0)).collect();
-    let omega = Domain::from_particles(&geom, &x, &vols, mpmcg::mpm::solver::FULL_FILL);
     let half = s.parts.half.clone();
     // The domain rule's current half-widths, `l0 |F e_a|` where particles carry `F`.
     let (def_grad, domain) = (s.parts.def_grad.clone(), s.scheme.domain);
@@ -508,6 +500,15 @@ fn check_step<const D: usize>(
             .map(|(nd, w, _)| (gr::wrap_node(&geom, nd), w))
             .collect()
     };
+    // Ω from the nodes' covered volume with the particles' own weights (under the
+    // domain rule, the averages over their domains).
+    let mut cover = BTreeMap::new();
+    for (p, &vp) in vols.iter().enumerate() {
+        for (nd, w) in shapes(p) {
+            *cover.entry(nd).or_insert(0.0) += w * vp;
+        }
+    }
+    let omega = Domain::from_cover(&geom, &cover, mpmcg::mpm::solver::FULL_FILL);
     let grads: Vec<Grads<D>> = (0..n)
         .map(|p| {
             let mut m: BTreeMap<[i64; D], [f64; D]> = BTreeMap::new();
@@ -608,7 +609,7 @@ fn check_steps<const D: usize>() {
     for periodic in [false, true] {
         for g in Gradient::ALL {
             for &domain in quadratures(g) {
-                // Also with particles that carry a stretched `F` (neo-Hookean): the
+                // Also with particles that carry a sheared `F` (neo-Hookean): the
                 // domain rule's domains follow it.
                 for carries_f in [false, true] {
                     let mut text = step_scene(D, g, periodic);

@@ -69,6 +69,13 @@ impl<const D: usize> Domain<D> {
                 *cover.entry(wrap_node(geom, node)).or_default() += s * vp;
             }
         }
+        Self::from_cover(geom, &cover, theta)
+    }
+
+    /// The same domain from each node's covered volume `Σ_p S_k v_p` (keyed by wrapped
+    /// node), for particles whose weights are not the hat functions at their positions
+    /// (the domain rule covers nodes with the averages over each particle's domain).
+    pub fn from_cover(geom: &Geom<D>, cover: &BTreeMap<[i64; D], f64>, theta: f64) -> Self {
         let fill = |node: [i64; D]| -> f64 {
             let node = wrap_node(geom, node);
             let Some(&c) = cover.get(&node) else {
