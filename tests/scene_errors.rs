@@ -1172,7 +1172,7 @@ fn manufactured_solution_outside_its_domain() {
         "boundary = { x_lower = \"periodic\", x_upper = \"periodic\"",
     );
     check("mms_periodic_unit", &periodic)
-        .key("grid.lower")
+        .key("grid.upper")
         .says("on [0, 2] on a periodic axis")
         .says("axis 0 spans [0, 1] and is periodic");
     let wide = edit(
@@ -1181,7 +1181,15 @@ fn manufactured_solution_outside_its_domain() {
         "upper = [1.0, 2.0]\ncells",
     );
     check("mms_slip_wide", &wide)
-        .key("grid.lower")
+        .key("grid.upper")
         .says("on [0, 1] per axis between slip faces")
         .says("axis 1 spans [0, 2]");
+    let shifted = edit(
+        MMS_2D,
+        "lower = [0.0, 0.0]\nupper",
+        "lower = [-1.0, 0.0]\nupper",
+    );
+    check("mms_shifted", &shifted)
+        .key("grid.lower")
+        .says("axis 0 spans [-1, 1]");
 }

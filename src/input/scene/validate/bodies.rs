@@ -82,8 +82,13 @@ fn validate_benchmark(s: &Scene, b: &BenchmarkSpec) -> Result<BenchmarkPlan, Inv
                     let periodic = s.grid.boundary.face(a, false) == Face::Periodic;
                     let upper = if periodic { 2.0 } else { 1.0 };
                     if s.grid.lower[a] != 0.0 || s.grid.upper[a] != upper {
+                        let key = if s.grid.lower[a] != 0.0 {
+                            "grid.lower"
+                        } else {
+                            "grid.upper"
+                        };
                         return Err((
-                            "grid.lower".into(),
+                            key.into(),
                             format!(
                                 "`axis_aligned_mms` is posed on [0, 1] per axis between slip faces, or on [0, 2] on a periodic axis (the solution's period); axis {a} spans [{}, {}]{}",
                                 s.grid.lower[a],
