@@ -10,7 +10,7 @@
 #         (438 976); 3.5 minutes with 3 repeats on a quiet 2-core machine, 7 on a busy one
 #   small: 2D 128^2, 3D 32^3; about 1.5 minutes
 #
-# Set-up on first use: a virtual environment with warp-lang (scripts/peers_venv.sh).
+# Set-up on first use: a virtual environment with warp-lang (scripts/peers_setup.sh).
 # The mpmcg binary: $MPMCG if set, else a release build of this checkout.
 # Pinned with taskset to core K (default 0), mpmcg with --threads 1, the OMP and rayon
 # thread variables at 1 (warp runs its CPU kernels on one thread). Run it on an otherwise
@@ -18,15 +18,6 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-source scripts/peers_venv.sh
-
-if [ -z "${MPMCG:-}" ]; then
-    cargo build --release --quiet
-    MPMCG="${CARGO_TARGET_DIR:-target}/release/mpmcg"
-fi
-command -v taskset >/dev/null || { echo "taskset not found (util-linux)" >&2; exit 2; }
-
-export OMP_NUM_THREADS=1 RAYON_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1
-echo "$(date -u +%Y-%m-%d) $(uname -m), $(getconf _NPROCESSORS_ONLN) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //'); load: $(cut -d' ' -f1-3 /proc/loadavg)" >&2
+source scripts/peers_setup.sh
 exec python3 scripts/bench_peers.py --mpmcg "$MPMCG" --warp-python "$venv/bin/python" \
     --warp-cache "$venv/kernels" "$@"

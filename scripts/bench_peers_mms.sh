@@ -12,20 +12,11 @@
 # has 4 times the particles of the walls' at the same h); `--cells 8,16,32
 # --periodic-cells 8,16,32` about 30 seconds.
 #
-# Set-up on first use: a virtual environment with warp-lang (scripts/peers_venv.sh).
+# Set-up on first use: a virtual environment with warp-lang (scripts/peers_setup.sh).
 # The mpmcg binary: $MPMCG if set, else a release build of this checkout. Run it on an
 # otherwise idle machine: the figures are wall time.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-source scripts/peers_venv.sh
-
-if [ -z "${MPMCG:-}" ]; then
-    cargo build --release --quiet
-    MPMCG="${CARGO_TARGET_DIR:-target}/release/mpmcg"
-fi
-command -v taskset >/dev/null || { echo "taskset not found (util-linux)" >&2; exit 2; }
-
-export OMP_NUM_THREADS=1 RAYON_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1
-echo "$(date -u +%Y-%m-%d) $(uname -m), $(getconf _NPROCESSORS_ONLN) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //'); load: $(cut -d' ' -f1-3 /proc/loadavg)" >&2
+source scripts/peers_setup.sh
 exec "$venv/bin/python" scripts/bench_peers_mms.py --mpmcg "$MPMCG" --warp-cache "$venv/kernels" "$@"

@@ -62,15 +62,10 @@ c = 100.0
     )
 }
 
-/// Maximum-over-time displacement error and wall time of one run.
-fn mms(dim: usize, cells: usize, ppc: usize, gradient: Gradient) -> (f64, f64) {
-    let text = mms_text(dim, cells, ppc, gradient);
-    let scene = scene::parse(&text, "convergence").expect("valid scene");
-    let out = std::env::temp_dir().join(format!(
-        "mpmcg-convergence-{}-{}-{dim}d-{cells}",
-        std::process::id(),
-        gradient.name()
-    ));
+/// One run of `scene` on one thread, to its end: the maximum-over-time displacement
+/// and velocity errors, and the wall time. `tag` names its scratch folder.
+fn run_errors(scene: &scene::Scene, tag: &str) -> ((f64, f64), f64) {
+    let out = std::env::temp_dir().join(format!("mpmcg-convergence-{}-{tag}", std::process::id()));
     let opts = RunOptions {
         out: out.clone(),
         quiet: true,
@@ -78,14 +73,20 @@ fn mms(dim: usize, cells: usize, ppc: usize, gradient: Gradient) -> (f64, f64) {
         ..RunOptions::default()
     };
     let start = Instant::now();
-    let summary = run(&scene, &SerialComm, &opts).unwrap_or_else(|e| panic!("{}: {e}", scene.name));
+    let summary = run(scene, &SerialComm, &opts).unwrap_or_else(|e| panic!("{}: {e}", scene.name));
     let wall = start.elapsed().as_secs_f64();
     let _ = std::fs::remove_dir_all(&out);
     assert_eq!(summary.status, "completed");
-    (
-        summary.error.expect("benchmark error").displacement_l2,
-        wall,
-    )
+    let e = summary.error.expect("benchmark error");
+    ((e.displacement_l2, e.velocity_l2), wall)
+}
+
+/// Maximum-over-time displacement error and wall time of one run.
+fn mms(dim: usize, cells: usize, ppc: usize, gradient: Gradient) -> (f64, f64) {
+    let text = mms_text(dim, cells, ppc, gradient);
+    let scene = scene::parse(&text, "convergence").expect("valid scene");
+    let ((u, _), wall) = run_errors(&scene, &format!("{}-{dim}d-{cells}", gradient.name()));
+    (u, wall)
 }
 
 /// Observed orders `log2(e_k / e_{k+1})` of a sequence of grids refined by 2.
@@ -285,22 +286,9 @@ fn domain_study(dim: usize, ppc: usize, cells: &[usize]) -> (Vec<f64>, Vec<f64>)
             .replace("[method]\n", "[method]\nquadrature = \"domain\"\n");
         let scene = scene::parse(&text, "convergence").expect("valid scene");
         assert_eq!(scene.method.quadrature, scene::Quadrature::Domain);
-        let out = std::env::temp_dir().join(format!(
-            "mpmcg-convergence-{}-domain-{dim}d-{n}",
-            std::process::id()
-        ));
-        let opts = RunOptions {
-            out: out.clone(),
-            quiet: true,
-            threads: 1,
-            ..RunOptions::default()
-        };
-        let s = run(&scene, &SerialComm, &opts).unwrap_or_else(|e| panic!("{}: {e}", scene.name));
-        let _ = std::fs::remove_dir_all(&out);
-        assert_eq!(s.status, "completed");
-        let e = s.error.expect("benchmark error");
-        u.push(e.displacement_l2);
-        v.push(e.velocity_l2);
+        let ((eu, ev), _) = run_errors(&scene, &format!("domain-{dim}d-{n}"));
+        u.push(eu);
+        v.push(ev);
     }
     eprintln!(
         "{dim}D MMS, MPMCG domain rule, {ppc} per cell, cells {cells:?}:\n  \
@@ -354,20 +342,7 @@ fn mms_2d_periodic_orders() {
             &format!("cells = [{}, {}]", 2 * n, 2 * n),
         );
         let scene = scene::parse(&text, "periodic").expect("valid scene");
-        let out = std::env::temp_dir().join(format!(
-            "mpmcg-convergence-{}-periodic-{n}",
-            std::process::id()
-        ));
-        let opts = RunOptions {
-            out: out.clone(),
-            quiet: true,
-            threads: 1,
-            ..RunOptions::default()
-        };
-        let s = run(&scene, &SerialComm, &opts).unwrap_or_else(|e| panic!("{e}"));
-        let _ = std::fs::remove_dir_all(&out);
-        assert_eq!(s.status, "completed");
-        e.push(s.error.expect("benchmark error").displacement_l2);
+        e.push(run_errors(&scene, &format!("periodic-{n}")).0 .0);
     }
     eprintln!("periodic 2D MMS, MPMCG: {e:?}, orders {:.2?}", orders(&e));
     assert_orders("MPMCG 2D periodic", &e, &per_unit, &[1.8, 1.8]);
