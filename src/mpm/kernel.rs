@@ -19,7 +19,7 @@
 //! subtraction per axis), so no loop locates its particles again.
 
 use crate::input::scene::Face;
-use crate::mpm::particles::{self, split_mut, ParticleSlices};
+use crate::mpm::particles::{self, ParticleSlices};
 use crate::physics::benchmark;
 use crate::physics::material::Material;
 use crate::physics::shape::{self, Alpha, Geom};
@@ -503,9 +503,6 @@ impl<const D: usize> Ctx<'_, D> {
 /// solver's per-particle arrays the loops need besides.
 pub struct Slices<'a, const D: usize> {
     pub parts: ParticleSlices<'a, D>,
-    /// Position increment of the step (two-step schemes move particles after the
-    /// stress pass).
-    pub dx: &'a mut [Vector<D>],
     /// Storage index of each particle's cell's lower corner node.
     pub tile: &'a [u32],
     /// The external force per unit mass the step's scatter kept, or empty
@@ -532,19 +529,16 @@ impl<'a, const D: usize> Slices<'a, D> {
 
     fn split_at(self, mid: usize) -> (Self, Self) {
         let (p0, p1) = self.parts.split_at(mid);
-        let (d0, d1) = split_mut(self.dx, mid);
         let (k0, k1) = split(self.tile, mid);
         let (a0, a1) = split(self.accel, mid);
         (
             Slices {
                 parts: p0,
-                dx: d0,
                 tile: k0,
                 accel: a0,
             },
             Slices {
                 parts: p1,
-                dx: d1,
                 tile: k1,
                 accel: a1,
             },
@@ -597,7 +591,7 @@ pub struct GatherMode {
     pub flip: f64,
     /// Also update deformation and stress from velocity slot 1.
     pub stress: bool,
-    /// Move particles now; otherwise store the increments in `dx` (MUSL).
+    /// Move particles now; under MUSL the stress pass moves them.
     pub move_now: bool,
     /// The scheme uses grid-averaged gradients (`avg` holds L̄).
     pub two_step: bool,
@@ -616,11 +610,13 @@ pub struct StressMode {
     pub slot: usize,
     pub dt: f64,
     pub two_step: bool,
-    /// Move the particles with [`moving_velocity`] (two-step schemes under MUSL, whose
-    /// gather ran before the remap).
+    /// Move the particles with the velocity of slot `slot` (MUSL, whose gather ran
+    /// before the remap): a two-step scheme's reconstruction ([`moving_velocity`]), a
+    /// one-step scheme's grid interpolation. This is the velocity whose gradient
+    /// deforms the particles in the same pass; moved with the velocity before the
+    /// remap, neighbouring particles drifted apart while their deformation gradients
+    /// stayed small, and one-step schemes tore coarse beams.
     pub moves: bool,
-    /// Move the particles by the increments `dx` kept (one-step schemes under MUSL).
-    pub moves_kept: bool,
     /// Report the fastest signal speed (see [`GatherMode::speed`]).
     pub speed: bool,
 }

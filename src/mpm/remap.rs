@@ -38,9 +38,6 @@ pub struct RemapMode {
     /// The velocity's step, as [`crate::mpm::kernel::GatherMode::kick`].
     pub kick: f64,
     pub flip: f64,
-    /// One-step schemes keep the position increment (grid velocity × dt) in `dx`; a
-    /// two-step scheme's stress pass sets it from the remapped velocity.
-    pub keep_dx: bool,
     /// Where a node's momentum goes in `mom`: records of `.0` numbers, its `D`
     /// components from entry `.1` on (the scatter records' momentum slots).
     pub record: (usize, usize),
@@ -53,8 +50,6 @@ pub struct RemapMode {
 #[derive(Clone, Copy)]
 struct ParticlePtr<const D: usize> {
     v: RowPtr<Vector<D>>,
-    /// Empty unless the increment is kept.
-    dx: RowPtr<Vector<D>>,
 }
 
 /// External work done (gravity, body force, slip-wall clips) and whether every new
@@ -82,7 +77,7 @@ impl RemapTally {
 }
 
 /// Update the particle velocities `v` from the grid velocities `vel` (FLIP/PIC blend,
-/// clipped at slip walls as in `kernel::gather`), keep `dx` if asked, and add the new
+/// clipped at slip walls as in `kernel::gather`) and add the new
 /// momentum into `mom` (`D` per node where `m.record` says, cleared by the caller), in
 /// the slab colours of
 /// `kernel::scatter` (the same order whatever the thread count, so the same sums).
@@ -91,17 +86,13 @@ pub fn remap<const D: usize, const NA: usize, const N: usize>(
     ctx: &Ctx<'_, D>,
     parts: &RemapParts<'_, D>,
     v: &mut [Vector<D>],
-    dx: &mut [Vector<D>],
     slabs: &SlabOrder,
     vel: &[f64],
     mom: &mut [f64],
     m: RemapMode,
 ) -> RemapTally {
-    assert!(v.len() == parts.x.len() && (!m.keep_dx || dx.len() == v.len()));
-    let pp = ParticlePtr {
-        v: RowPtr::new(v),
-        dx: RowPtr::new(if m.keep_dx { dx } else { &mut [] }),
-    };
+    assert_eq!(v.len(), parts.x.len());
+    let pp = ParticlePtr { v: RowPtr::new(v) };
     slabs.check_reach::<NA>();
     let grid = GridPtr::new(mom);
     let slab = |slab: Slab<'_>| remap_slab::<D, NA, N>(ctx, parts, pp, slab, vel, grid, m);
@@ -251,7 +242,7 @@ fn remap_hats<const D: usize, const NA: usize, const N: usize, const B: usize>(
 
 /// The remap of particles `ps` (sharing their nodes) with weights `w` over their
 /// nodes' velocities `nd`: the new velocities (FLIP/PIC blend, clipped at slip walls),
-/// the work on them, the kept increments, and their momentum into the run's sums `sum`,
+/// the work on them, and their momentum into the run's sums `sum`,
 /// particle by particle in order.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
@@ -312,7 +303,7 @@ fn remap_each<const D: usize, const N: usize, const B: usize, const WALL: bool>(
     for (l, &p) in ps.iter().enumerate() {
         let p = p as usize;
         // SAFETY: p is visited by this thread only (see `ParticlePtr`); no other
-        // reference to v[p] or dx[p] lives meanwhile.
+        // reference to v[p] lives meanwhile.
         let vp = unsafe { pp.v.row(p) };
         let old = *vp;
         let mass = parts.mass.get(p);
@@ -329,10 +320,6 @@ fn remap_each<const D: usize, const N: usize, const B: usize, const WALL: bool>(
         t.work += m.kick * mass * a.dot(&(old + new)) * 0.5;
         *vp = new;
         t.ok &= new.iter().all(|x| x.is_finite());
-        if m.keep_dx {
-            // SAFETY: as for v[p].
-            unsafe { *pp.dx.row(p) = vnl * m.dt };
-        }
         let mv = new * mass;
         for a in 0..D {
             for n in 0..N {
@@ -384,7 +371,7 @@ mod tests {
 
     /// The remap gives the same bits whatever the batch width (in `D` dimensions,
     /// `N` nodes): new velocities (FLIP, PIC and a blend; clipped at a slip wall),
-    /// kept increments, the external work (gravity, a kept body force, the walls'),
+    /// the external work (gravity, a kept body force, the walls'),
     /// the momentum sums and the finite-state flag, for every width, with and without
     /// walls, and with a non-finite nodal velocity.
     fn lanes_match<const D: usize, const N: usize>(seed: u64) {
@@ -416,7 +403,7 @@ mod tests {
                 walls,
             };
             for flip in [1.0, 0.0, 0.95] {
-                for keep_dx in [true, false] {
+                {
                     for (width, body, nan) in [
                         (LANES, false, false),
                         (LANES, true, false),
@@ -473,19 +460,13 @@ mod tests {
                             dt: 1e-3,
                             kick: 1e-3,
                             flip,
-                            keep_dx,
                             record: (D, 0),
                         };
                         let v0: Vec<Vector<D>> = (0..n)
                             .map(|_| Vector::<D>::from_fn(|_, _| rng.f64() - 0.5))
                             .collect();
                         let (mut va, mut vb) = (v0.clone(), v0);
-                        let (mut dxa, mut dxb) =
-                            (vec![Vector::<D>::zeros(); n], vec![Vector::<D>::zeros(); n]);
-                        let ptr = |v: &mut Vec<Vector<D>>, dx: &mut Vec<Vector<D>>| ParticlePtr {
-                            v: RowPtr::new(v),
-                            dx: RowPtr::new(dx),
-                        };
+                        let ptr = |v: &mut Vec<Vector<D>>| ParticlePtr { v: RowPtr::new(v) };
                         let mut ta = RemapTally {
                             ok: true,
                             work: 0.5,
@@ -500,7 +481,7 @@ mod tests {
                             1 if walls => [0, 1],
                             _ => [0, 0],
                         }));
-                        let pa = ptr(&mut va, &mut dxa);
+                        let pa = ptr(&mut va);
                         let ra = &mut rooms.0;
                         for p in 0..width as u32 {
                             let one = &mut ra.one;
@@ -518,7 +499,7 @@ mod tests {
                                 &mut ta,
                             );
                         }
-                        let pb = ptr(&mut vb, &mut dxb);
+                        let pb = ptr(&mut vb);
                         let ps: Vec<u32> = (0..width as u32).collect();
                         let (rb, nd, sumb, tb) = (&mut rooms.1, &nd, &mut sumb, &mut tb);
                         match width {
@@ -563,7 +544,7 @@ mod tests {
                             ),
                         }
                         let what = format!(
-                        "{D}D, {width} lanes, flip {flip}, keep dx {keep_dx}, body force {body}, infinite node {nan}, walls {walls}"
+                        "{D}D, {width} lanes, flip {flip}, body force {body}, infinite node {nan}, walls {walls}"
                     );
                         assert_eq!(ta.ok, tb.ok, "{what}");
                         assert_eq!(ta.ok, !nan, "{what}");
@@ -571,7 +552,6 @@ mod tests {
                         for p in 0..n {
                             for a in 0..D {
                                 assert_eq!(bits(va[p][a]), bits(vb[p][a]), "v {p}: {what}");
-                                assert_eq!(bits(dxa[p][a]), bits(dxb[p][a]), "dx {p}: {what}");
                             }
                         }
                         for a in 0..D {
@@ -584,7 +564,7 @@ mod tests {
                 }
             }
         }
-        assert_eq!(cases, 60);
+        assert_eq!(cases, 30);
     }
 
     #[test]

@@ -49,7 +49,6 @@ macro_rules! slices {
     ($s:ident) => {
         kernel::Slices {
             parts: $s.parts.slices(),
-            dx: &mut $s.scratch.dx,
             tile: &$s.place.ptile,
             accel: &$s.scratch.accel,
         }
@@ -316,8 +315,6 @@ struct Scratch<const D: usize> {
     keep: Vec<bool>,
     /// A particle's record, packed for migration.
     record: Vec<f64>,
-    /// Per particle, the position increment a one-step scheme keeps for the move.
-    dx: Vec<Vector<D>>,
     /// The sort's permutation and its in-place application's marks.
     perm: Vec<u32>,
     permuted: Vec<u64>,
@@ -339,7 +336,6 @@ impl<const D: usize> Scratch<D> {
         Scratch {
             keep: Vec::new(),
             record: Vec::new(),
-            dx: Vec::new(),
             perm: Vec::new(),
             permuted: Vec::new(),
             buf: Vec::new(),

@@ -293,7 +293,7 @@ pub(super) fn batch_width(batches: bool, tile: &[u32], p: usize) -> usize {
 /// data `nd` (loaded, with the differences of the updated slot if `m.stress`, and
 /// XPIC's field if `xpic`): the new velocity (FLIP/PIC blend, or XPIC's), clipped at
 /// slip walls, the external work into `work` particle by particle in order, the
-/// velocity gradient and deformation (`m.stress`), the move or the kept increment.
+/// velocity gradient and deformation (`m.stress`), and the move (`m.move_now`).
 /// Returns the lanes' marks of an unphysical state, a non-finite velocity included.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
@@ -362,24 +362,16 @@ fn gather_batch<const D: usize, const N: usize, const B: usize>(
     }
     if m.move_now {
         lanes::advance(s, r, &u, m.dt);
-    } else if !m.two_step {
-        // (A two-step scheme's stress pass sets the increment: MUSL moves it with
-        // the reconstruction of the remapped velocity.)
-        for (l, p) in r.enumerate() {
-            for a in 0..D {
-                s.dx[p][a] = u[a][l] * m.dt;
-            }
-        }
     }
     bad
 }
 
 /// The stress pass of particles `p0 .. p0 + B` of `s` with weights `w` over their
 /// nodes' data `nd` (loaded, with the differences of slot `m.slot`): the velocity
-/// gradient and deformation, and the move with the reconstruction of slot `m.slot`
-/// (`m.moves`; the velocity into a slip wall clipped to it, the wall's work into
-/// `work`) or by the kept increment (`m.moves_kept`). Returns the lanes' marks of an
-/// unphysical state; the signal speed is left to the caller.
+/// gradient and deformation, and if `m.moves` the move with the velocity of slot
+/// `m.slot` (a two-step scheme's reconstruction, else the grid interpolation; the
+/// velocity into a slip wall clipped to it, the wall's work into `work`). Returns the
+/// lanes' marks of an unphysical state; the signal speed is left to the caller.
 #[inline(always)]
 fn stress_batch<const D: usize, const N: usize, const B: usize>(
     ctx: &Ctx<'_, D>,
@@ -394,7 +386,11 @@ fn stress_batch<const D: usize, const N: usize, const B: usize>(
     let lg = w.velocity_gradient(nd, m.slot, m.two_step);
     let bad = w.deform(ctx, s, r.clone(), &lg, m.dt);
     if m.moves {
-        let u = w.moving_velocity(ctx, nd, m.slot);
+        let u = if m.two_step {
+            w.moving_velocity(ctx, nd, m.slot)
+        } else {
+            w.velocity_at(nd, m.slot)
+        };
         if w.at_wall() {
             for (l, p) in r.clone().enumerate() {
                 // Only particles touching a wall's nodes can be clipped: the others'
@@ -408,10 +404,6 @@ fn stress_batch<const D: usize, const N: usize, const B: usize>(
             }
         }
         lanes::advance(s, r, &u, m.dt);
-    } else if m.moves_kept {
-        for p in r {
-            s.parts.x[p] += s.dx[p];
-        }
     }
     bad
 }

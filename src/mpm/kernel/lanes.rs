@@ -326,6 +326,21 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
         (vn, dv)
     }
 
+    /// The grid velocity of slot `slot` at the particles, `Σ_n S_n v_n`.
+    #[inline(always)]
+    pub fn velocity_at(&self, nd: &NodeData<D, N>, slot: usize) -> [[f64; B]; D] {
+        let mut u = [[0.0; B]; D];
+        for n in 0..N {
+            for a in 0..D {
+                let v = nd.v[slot][a][n];
+                for l in 0..B {
+                    u[a][l] += self.sh[n][l] * v;
+                }
+            }
+        }
+        u
+    }
+
     /// `Σ_n S_n x_n` added to `u`: XPIC's field `nd.x` at the particles.
     #[inline(always)]
     pub fn add_field(&self, nd: &NodeData<D, N>, u: &mut [[f64; B]; D]) {
@@ -1106,13 +1121,11 @@ mod tests {
     /// A pass's view of the test particles `p` and its per-particle arrays.
     fn slices<'a, const D: usize>(
         p: &'a mut Particles<D>,
-        dx: &'a mut [Vector<D>],
         tile: &'a [u32],
         accel: &'a [Vector<D>],
     ) -> Slices<'a, D> {
         Slices {
             parts: p.slices(),
-            dx,
             tile,
             accel,
         }
@@ -1155,14 +1168,8 @@ mod tests {
         }
     }
 
-    /// Both particle sets (and kept increments) hold the same bits.
-    fn same_bits<const D: usize>(
-        a: &Particles<D>,
-        b: &Particles<D>,
-        dx: &[Vector<D>],
-        dx_b: &[Vector<D>],
-        what: &str,
-    ) {
+    /// Both particle sets hold the same bits.
+    fn same_bits<const D: usize>(a: &Particles<D>, b: &Particles<D>, what: &str) {
         for p in 0..LANES {
             let bits = |v: &[f64]| v.get(p).map(|x| x.to_bits());
             assert_eq!(bits(&a.vol), bits(&b.vol), "vol {p}: {what}");
@@ -1177,7 +1184,6 @@ mod tests {
             let vecs = [
                 (a.x[p].as_slice(), b.x[p].as_slice(), "x"),
                 (a.v[p].as_slice(), b.v[p].as_slice(), "v"),
-                (dx[p].as_slice(), dx_b[p].as_slice(), "dx"),
             ];
             for (x, y, name) in vecs {
                 for (x, y) in x.iter().zip(y) {
@@ -1215,10 +1221,6 @@ mod tests {
     ) {
         let (mut a, cell) = particles::<D>(rng, law, nan_lane);
         let mut b = a.clone();
-        let mut dx: Vec<Vector<D>> = (0..LANES)
-            .map(|_| Vector::<D>::from_fn(|_, _| rng.f64()) * 1e-3)
-            .collect();
-        let mut dx_b = dx.clone();
         // A kept body force in half the cases, gravity alone in the others.
         let accel: Vec<Vector<D>> = if cover.cases.is_multiple_of(2) {
             (0..LANES)
@@ -1231,7 +1233,7 @@ mod tests {
         let run = run::<D, N>(walls);
         let work0 = 0.25;
         // One at a time.
-        let mut sa = slices(&mut a, &mut dx, &tile, &accel);
+        let mut sa = slices(&mut a, &tile, &accel);
         let (mut work_a, mut marks_a) = (work0, [0.0; LANES]);
         for p in 0..width {
             batch(
@@ -1250,7 +1252,7 @@ mod tests {
         }
         let top_a = (0..width).fold(max0, |v, p| speed_one(ctx, &sa, p, v));
         // A batch.
-        let mut sb = slices(&mut b, &mut dx_b, &tile, &accel);
+        let mut sb = slices(&mut b, &tile, &accel);
         let (mut work_b, mut marks_b) = (work0, [0.0; LANES]);
         batch(
             ctx,
@@ -1278,7 +1280,7 @@ mod tests {
         assert_eq!(ok, physical(&marks_b), "{what}");
         assert_eq!(top_a.to_bits(), top_b.to_bits(), "speed: {what}");
         assert_eq!(work_a.to_bits(), work_b.to_bits(), "work: {what}");
-        same_bits(&a, &b, &dx, &dx_b, &what);
+        same_bits(&a, &b, &what);
         cover.cases += 1;
         cover.inverted += usize::from(!ok && nan_lane.is_none());
         let gravity_only = accel.is_empty() && matches!(pass, Pass::Stress(_));
@@ -1310,12 +1312,9 @@ mod tests {
             for law in LAWS {
                 for walls in [false, true] {
                     let ctx = setup.ctx(alpha, law, walls);
-                    for (two_step, moves, moves_kept) in [
-                        (true, true, false),
-                        (true, false, false),
-                        (false, false, true),
-                        (false, false, false),
-                    ] {
+                    for (two_step, moves) in
+                        [(true, true), (true, false), (false, true), (false, false)]
+                    {
                         let mut rooms = (Room::new(), Room::new());
                         for (steep, max0, nan_lane, width) in VARIANTS {
                             let slot = rng.below(2);
@@ -1325,11 +1324,10 @@ mod tests {
                                 dt: 1e-3,
                                 two_step,
                                 moves,
-                                moves_kept,
                                 speed: true,
                             };
                             let what = format!(
-                                "{alpha:?}, two-step {two_step}, moves {moves}/{moves_kept}, steep {steep}, max {max0}"
+                                "{alpha:?}, two-step {two_step}, moves {moves}, steep {steep}, max {max0}"
                             );
                             let case = (&nd, max0, nan_lane, width);
                             let pass = Pass::Stress(&m);
@@ -1358,10 +1356,10 @@ mod tests {
 
     /// The gather gives the same bits whatever the batch width: velocities (FLIP,
     /// PIC, a blend and XPIC), clipped at walls, the external work (gravity, a kept
-    /// body force, the walls'), volumes, deformation gradients, stresses, positions or
-    /// kept increments, the physical-state flag and the signal speed, for each α,
-    /// one- and two-step schemes (the latter moving with the reconstruction), with and
-    /// without the stress update, moving now or keeping the increment, each law, with
+    /// body force, the walls'), volumes, deformation gradients, stresses, positions,
+    /// the physical-state flag and the signal speed, for each α, one- and two-step
+    /// schemes (the latter moving with the reconstruction), with and without the
+    /// stress update, moving now or leaving the move to the stress pass, each law, with
     /// and without walls, and the [`VARIANTS`].
     #[test]
     fn gather_is_the_same_at_every_width() {
@@ -1453,9 +1451,8 @@ mod tests {
             p.vol.push(kind_vol0(0) * j);
             p.kind.push(0);
         }
-        let mut dx = vec![Vector::<2>::zeros(); n];
         let tile = vec![0u32; n];
-        let s = slices(&mut p, &mut dx, &tile, &[]);
+        let s = slices(&mut p, &tile, &[]);
         let one_by_one = |max: f64| (0..n).fold(max, |m, q| speed_one(&ctx, &s, q, m));
         let all = one_by_one(0.0);
         let (mut below, mut above) = (0, 0);
@@ -1485,16 +1482,14 @@ mod tests {
             dt: 1e-3,
             two_step: true,
             moves: true,
-            moves_kept: false,
             speed: false,
         };
         let run = run::<2, 4>(false);
         let mut pass = |marks: &mut [f64; LANES], nan_lane, steep, width| {
             let nd = nodes::<2, 4>(&mut rng, steep, 0);
             let (mut p, cell) = particles::<2>(&mut rng, law, nan_lane);
-            let mut dx = vec![Vector::<2>::zeros(); LANES];
             let tile = vec![0u32; LANES];
-            let mut s = slices(&mut p, &mut dx, &tile, &[]);
+            let mut s = slices(&mut p, &tile, &[]);
             let mut t = Tally::ZERO;
             let (pass, room) = (Pass::Stress(&m), &mut Room::new());
             batch(

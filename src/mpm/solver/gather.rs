@@ -7,13 +7,6 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// summed over ranks into the scatter records' momentum (the rest of the records,
     /// mass and cover among them, is the step's scatter's).
     pub(super) fn remap(&mut self, dt: f64, kick: f64) -> bool {
-        let n = self.parts.len();
-        let keep_dx = !self.scheme.two_step();
-        // A one-step scheme moves by the increment kept here, at the end of the
-        // stress pass; a two-step scheme's stress pass moves with the reconstruction.
-        self.scratch
-            .dx
-            .resize(if keep_dx { n } else { 0 }, Vector::<D>::zeros());
         // Summed into the records' momentum slots in place: no field of its own.
         let (sw, mom) = (self.grid.sw, NodeRecord::<D>::momentum(0));
         self.grid
@@ -39,7 +32,6 @@ impl<'c, const D: usize> Solver<'c, D> {
             dt,
             kick,
             flip: self.flip,
-            keep_dx,
             record: (sw, mom),
         };
         let t = match (self.scheme.wide(), D) {
@@ -53,7 +45,6 @@ impl<'c, const D: usize> Solver<'c, D> {
             &ctx,
             &parts,
             &mut self.parts.v,
-            &mut self.scratch.dx,
             &self.place.slabs,
             &self.grid.vel,
             &mut self.grid.scat,
@@ -75,8 +66,8 @@ impl<'c, const D: usize> Solver<'c, D> {
     }
 
     /// Grid → particle: velocities (FLIP/PIC blend) and positions from slot 1, and if
-    /// `stress` the velocity gradient, deformation and stress. If `!move_now`, the
-    /// position increments are kept in `dx` for later (MUSL).
+    /// `stress` the velocity gradient, deformation and stress; positions if `move_now`
+    /// (under MUSL the stress pass moves the particles).
     /// `speed`: this is the step's last particle pass, which sets the signal speed the
     /// next step size follows.
     pub(super) fn gather(
@@ -86,10 +77,6 @@ impl<'c, const D: usize> Solver<'c, D> {
         move_now: bool,
         speed: bool,
     ) -> bool {
-        let n = self.parts.len();
-        self.scratch
-            .dx
-            .resize(if move_now { 0 } else { n }, Vector::<D>::zeros());
         let mode = kernel::GatherMode {
             dt,
             kick,
@@ -133,8 +120,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             slot,
             dt,
             two_step: self.scheme.two_step(),
-            moves: moves && self.scheme.two_step(),
-            moves_kept: moves && !self.scheme.two_step(),
+            moves,
             speed,
         };
         let mut ctx = ctx!(self);

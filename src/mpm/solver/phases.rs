@@ -18,18 +18,18 @@ pub enum Phase {
     GridUpdate { forces: bool },
     /// MPMCG node → node step of the velocity gradient, `L̄_j`, from velocity `slot`.
     AveragedGradient { slot: usize },
-    /// Grid → particle: velocity (FLIP/PIC), position (now, or the increment kept for
-    /// the `Stress` pass that moves), and if `stress` the deformation and stress;
-    /// `speed`: the step's last particle pass.
+    /// Grid → particle: velocity (FLIP/PIC), position if `move_now` (else the `Stress`
+    /// pass moves), and if `stress` the deformation and stress; `speed`: the step's
+    /// last particle pass.
     Gather {
         stress: bool,
         move_now: bool,
         speed: bool,
     },
     /// Deformation and stress from velocity `slot` at the current positions.
-    /// `moves` (MUSL): then move each particle, a two-step scheme's with the remapped
-    /// velocity's reconstruction ([`kernel::moving_velocity`]), a one-step scheme's by
-    /// the increment its `Remap` or `Gather` kept.
+    /// `moves` (MUSL): then move each particle with the velocity that deformed it, the
+    /// remapped one: a two-step scheme's with its reconstruction
+    /// ([`kernel::moving_velocity`]), a one-step scheme's with its grid interpolation.
     Stress {
         slot: usize,
         speed: bool,
