@@ -408,9 +408,9 @@ fn energy_loss(out: &std::path::Path) -> f64 {
 /// The beam bent by a prescribed velocity field, at large and at 1 % amplitude: MPMCG
 /// keeps the total energy within 1 % of the initial kinetic energy for two periods,
 /// and loses less than MPM at both amplitudes (the slides' claim). MPM's largest
-/// excursion is reported, not bounded: at large amplitude it sits at the bound (0.89 %
-/// with each step's own velocity step, 1.01 % with the centred one; 0.53 % and 0.42 %
-/// at CFL 0.1), moved by a tenth by round-off-level changes to its cell crossings.
+/// excursion is reported, not bounded: at large amplitude it sits near the bound (0.79 %
+/// with its particles moving with the remapped velocity, 1.01 % before), moved by a
+/// tenth by round-off-level changes to its cell crossings.
 #[test]
 fn bent_beam_energy() {
     for (tag, text) in [

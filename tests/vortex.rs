@@ -9,11 +9,11 @@
 //!
 //! | cells |   mpm    |   gimp   |  mpmcg   | mpmcg, domain rule |
 //! |-------|----------|----------|----------|--------------------|
-//! |  32   | 2.14e-2  | 1.87e-2  | 1.91e-2  | 2.05e-2            |
-//! |  64   | 1.05e-2  | 8.78e-3  | 8.94e-3  | 8.96e-3            |
-//! |  128  | 1.67e-2  | 2.59e-3  | 2.16e-3  | 2.05e-3            |
+//! |  32   | 2.13e-2  | 1.86e-2  | 1.91e-2  | 2.05e-2            |
+//! |  64   | 1.02e-2  | 8.76e-3  | 8.94e-3  | 8.96e-3            |
+//! |  128  | 1.39e-2  | 2.38e-3  | 2.16e-3  | 2.05e-3            |
 //!
-//! MPMCG converges at order 1.09 then 2.05; MPM stalls (order −0.66 from 64 to 128
+//! MPMCG converges at order 1.09 then 2.05; MPM stalls (order −0.45 from 64 to 128
 //! cells) as particles cross cells.
 
 #![forbid(unsafe_code)]
