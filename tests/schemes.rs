@@ -416,12 +416,15 @@ impl<const D: usize> Step<D> {
     }
 }
 
-/// One USL step of the solver against the same step written out with the reference
-/// gradients of `mpmcg::physics::gradient`, Ω the continuous cell weights of the particles:
-/// `f_i = −Σ_p v_p σ_p · G_i(x_p)`, `v_i' = v_i + (dt/2) f_i / m_i` (the first step's kick),
-/// `L_p = Σ_i v_i' ⊗ G_i(x_p)`, FLIP velocity, linear elastic stress (or `F' = (I + dt L) F`), and the position
-/// moved with the grid velocity (MPM, GIMP) or with the reconstruction
-/// `Σ_j S_j (v̄_j + L̄_j (x − x_j))` of the nodal averages (two-step schemes).
+/// One step of the solver (USL, or MUSL if `musl`) against the same step written out
+/// with the reference gradients of `mpmcg::physics::gradient`, Ω the continuous cell
+/// weights of the particles: `f_i = −Σ_p v_p σ_p · G_i(x_p)`, `v_i' = v_i + (dt/2) f_i /
+/// m_i` (the first step's kick), FLIP velocity `V_p'`; the grid velocity `u_i` that
+/// deforms and moves the particles is `v_i'` under USL and the remapped
+/// `Σ_p S_i m_p V_p' / m_i` under MUSL; `L_p = Σ_i u_i ⊗ G_i(x_p)`, linear elastic
+/// stress (or `F' = (I + dt L) F`), and the position moved with `u` interpolated (MPM,
+/// GIMP) or with the reconstruction `Σ_j S_j (ū_j + L̄_j (x − x_j))` of its nodal
+/// averages (two-step schemes).
 /// This checks the solver's two local steps (σ̄_j, L̄_j over weighted cells, node
 /// volumes, ghost handling) against the one-formula definition, including periodic
 /// seams and a body that leaves cells empty.
@@ -432,6 +435,7 @@ fn check_step<const D: usize>(
     gradient: Gradient,
     alpha: Option<f64>,
     seed: u64,
+    musl: bool,
 ) -> f64 {
     use mpmcg::physics::gradient::{self as gr, Domain, Scheme};
     use std::collections::BTreeMap;
@@ -541,23 +545,47 @@ fn check_step<const D: usize>(
             std::array::from_fn(|a| p[a] / m + kick * f[a] / m),
         )
     };
+    // FLIP's velocity increments, and under MUSL the momentum of the new velocities.
+    let dvs: Vec<[f64; D]> = (0..n)
+        .map(|p| {
+            let mut dv = [0.0; D];
+            for (nd, w) in shapes(p) {
+                let (a0, a1) = vel(&nd);
+                (0..D).for_each(|a| dv[a] += w * (a1[a] - a0[a]));
+            }
+            dv
+        })
+        .collect();
+    let mut remapped: BTreeMap<[i64; D], [f64; D]> = BTreeMap::new();
+    for p in 0..n {
+        for (nd, w) in shapes(p) {
+            let e = remapped.entry(nd).or_insert([0.0; D]);
+            (0..D).for_each(|a| e[a] += masses[p] * w * (before.v[p][a] + dvs[p][a]));
+        }
+    }
+    let u = |nd: &[i64; D]| -> [f64; D] {
+        if !musl {
+            return vel(nd).1;
+        }
+        let m = mass.get(nd).copied().unwrap_or(0.0);
+        if m <= floor {
+            return [0.0; D];
+        }
+        std::array::from_fn(|a| remapped[nd][a] / m)
+    };
     let mut worst = 0.0f64;
     for p in 0..n {
-        let mut dv = [0.0; D];
-        let mut vn = [0.0; D];
+        let mut un = [0.0; D];
         for (nd, w) in shapes(p) {
-            let (a0, a1) = vel(&nd);
-            for a in 0..D {
-                dv[a] += w * (a1[a] - a0[a]);
-                vn[a] += w * a1[a];
-            }
+            let v = u(&nd);
+            (0..D).for_each(|a| un[a] += w * v[a]);
         }
         let mut l = [[0.0; D]; D];
         for (nd, g) in &grads[p] {
-            let v1 = vel(nd).1;
+            let v = u(nd);
             for a in 0..D {
                 for b in 0..D {
-                    l[a][b] += v1[a] * g[b];
+                    l[a][b] += v[a] * g[b];
                 }
             }
         }
@@ -565,23 +593,28 @@ fn check_step<const D: usize>(
         // averages, the others with the grid velocity.
         let two_step = alpha.is_some() || matches!(gradient, Gradient::Averaged | Gradient::Mpmcg);
         let moved = if two_step {
-            gr::moving_velocity(&geom, &omega, &x[p], |nd| vel(&gr::wrap_node(&geom, nd)).1)
+            gr::moving_velocity(&geom, &omega, &x[p], |nd| u(&gr::wrap_node(&geom, nd)))
         } else {
-            vn
+            un
         };
-        let step = Step { dt, dv, moved, l };
+        let step = Step {
+            dt,
+            dv: dvs[p],
+            moved,
+            l,
+        };
         worst = worst.max(step.error(p, &before, &s.parts));
     }
     worst
 }
 
 /// A disk (interval, ball) that leaves the grid's corner cells empty, free faces; or
-/// a slab across periodic x faces.
-fn step_scene(dim: usize, gradient: Gradient, periodic: bool) -> String {
+/// a slab across periodic x faces; under `update`.
+fn step_scene(dim: usize, gradient: Gradient, periodic: bool, update: &str) -> String {
     let text = scene_text(
         dim,
         gradient,
-        "usl",
+        update,
         1.0,
         if periodic { Case::Periodic } else { Case::Free },
     );
@@ -610,32 +643,35 @@ fn check_steps<const D: usize>() {
         for g in Gradient::ALL {
             for &domain in quadratures(g) {
                 // Also with particles that carry a sheared `F` (neo-Hookean): the
-                // domain rule's domains follow it.
-                for carries_f in [false, true] {
-                    let mut text = step_scene(D, g, periodic);
+                // domain rule's domains follow it; and under MUSL, where the remapped
+                // velocity deforms and moves the particles.
+                for (carries_f, musl) in [(false, false), (true, false), (false, true)] {
+                    let update = if musl { "musl" } else { "usl" };
+                    let mut text = step_scene(D, g, periodic, update);
                     if domain {
                         text = with_domain(&text);
                     }
                     if carries_f {
                         text = neo_hookean(&text);
                     }
-                    let e = check_step::<D>(&text, g, None, 7);
+                    let e = check_step::<D>(&text, g, None, 7, musl);
                     let name = format!(
-                        "{}{}{}",
+                        "{}{}{}, {update}",
                         g.name(),
                         if domain { " domain" } else { "" },
-                        if carries_f { ", F" } else { "" }
+                        if carries_f { ", F" } else { "" },
                     );
-                    report.push(format!("{D}D {name:17} periodic={periodic}: {e:.1e}"));
+                    report.push(format!("{D}D {name:23} periodic={periodic}: {e:.1e}"));
                     assert!(e < 1e-11, "{}", report.last().unwrap());
                 }
             }
         }
         let e = check_step::<D>(
-            &step_scene(D, Gradient::Mpmcg, periodic),
+            &step_scene(D, Gradient::Mpmcg, periodic, "usl"),
             Gradient::Mpmcg,
             Some(0.5),
             8,
+            false,
         );
         report.push(format!("{D}D α = 0.5  periodic={periodic}: {e:.1e}"));
         assert!(e < 1e-11, "{}", report.last().unwrap());
