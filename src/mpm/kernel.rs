@@ -612,10 +612,8 @@ pub struct StressMode {
     pub two_step: bool,
     /// Move the particles with the velocity of slot `slot` (MUSL, whose gather ran
     /// before the remap): a two-step scheme's reconstruction ([`moving_velocity`]), a
-    /// one-step scheme's grid interpolation. This is the velocity whose gradient
-    /// deforms the particles in the same pass; moved with the velocity before the
-    /// remap, neighbouring particles drifted apart while their deformation gradients
-    /// stayed small, and one-step schemes tore coarse beams.
+    /// one-step scheme's grid interpolation. It is the velocity whose gradient deforms
+    /// them in the same pass, so that neighbours part only as their `F` says.
     pub moves: bool,
     /// Report the fastest signal speed (see [`GatherMode::speed`]).
     pub speed: bool,

@@ -403,164 +403,161 @@ mod tests {
                 walls,
             };
             for flip in [1.0, 0.0, 0.95] {
-                {
-                    for (width, body, nan) in [
-                        (LANES, false, false),
-                        (LANES, true, false),
-                        (HALF, true, false),
-                        (QUARTER, true, false),
-                        (LANES, false, true),
-                    ] {
-                        let n = LANES;
-                        // In cell 3 along every axis (h = 0.1), one at its lower face.
-                        let cell = [3.0; D];
-                        let x: Vec<Vector<D>> = (0..n)
-                            .map(|l| {
-                                Vector::<D>::from_fn(|a, _| {
-                                    0.3 + 0.1 * if l == 0 && a == 0 { 0.0 } else { rng.f64() }
-                                })
+                for (width, body, nan) in [
+                    (LANES, false, false),
+                    (LANES, true, false),
+                    (HALF, true, false),
+                    (QUARTER, true, false),
+                    (LANES, false, true),
+                ] {
+                    let n = LANES;
+                    // In cell 3 along every axis (h = 0.1), one at its lower face.
+                    let cell = [3.0; D];
+                    let x: Vec<Vector<D>> = (0..n)
+                        .map(|l| {
+                            Vector::<D>::from_fn(|a, _| {
+                                0.3 + 0.1 * if l == 0 && a == 0 { 0.0 } else { rng.f64() }
                             })
-                            .collect();
-                        // A kind per particle, so that the masses differ.
-                        let kind_mass: Vec<f64> =
-                            (0..n).map(|_| 1e-4 * (0.5 + rng.f64())).collect();
-                        let kind: Vec<u16> = (0..n as u16).collect();
-                        let accel: Vec<Vector<D>> = if body {
-                            (0..n)
-                                .map(|_| Vector::<D>::from_fn(|_, _| rng.f64() - 5.0))
-                                .collect()
-                        } else {
-                            Vec::new()
-                        };
-                        let tile = vec![0u32; n];
-                        let parts = RemapParts {
-                            x: &x,
-                            mass: crate::mpm::particles::Masses {
-                                kind_mass: &kind_mass,
-                                kind: &kind,
-                            },
-                            x0: &x,
-                            half: &[],
-                            def_grad: &[],
-                            tile: &tile,
-                            accel: &accel,
-                        };
-                        let mut nd = NodeData::<D, N>::new();
-                        for a in 0..D {
-                            for k in 0..N {
-                                for slot in 0..2 {
-                                    nd.v[slot][a][k] = rng.f64() - 0.5;
-                                }
+                        })
+                        .collect();
+                    // A kind per particle, so that the masses differ.
+                    let kind_mass: Vec<f64> = (0..n).map(|_| 1e-4 * (0.5 + rng.f64())).collect();
+                    let kind: Vec<u16> = (0..n as u16).collect();
+                    let accel: Vec<Vector<D>> = if body {
+                        (0..n)
+                            .map(|_| Vector::<D>::from_fn(|_, _| rng.f64() - 5.0))
+                            .collect()
+                    } else {
+                        Vec::new()
+                    };
+                    let tile = vec![0u32; n];
+                    let parts = RemapParts {
+                        x: &x,
+                        mass: crate::mpm::particles::Masses {
+                            kind_mass: &kind_mass,
+                            kind: &kind,
+                        },
+                        x0: &x,
+                        half: &[],
+                        def_grad: &[],
+                        tile: &tile,
+                        accel: &accel,
+                    };
+                    let mut nd = NodeData::<D, N>::new();
+                    for a in 0..D {
+                        for k in 0..N {
+                            for slot in 0..2 {
+                                nd.v[slot][a][k] = rng.f64() - 0.5;
                             }
                         }
-                        if nan {
-                            nd.v[UPDATED][1][2] = f64::INFINITY;
-                        }
-                        let m = RemapMode {
-                            dt: 1e-3,
-                            kick: 1e-3,
-                            flip,
-                            record: (D, 0),
-                        };
-                        let v0: Vec<Vector<D>> = (0..n)
-                            .map(|_| Vector::<D>::from_fn(|_, _| rng.f64() - 0.5))
-                            .collect();
-                        let (mut va, mut vb) = (v0.clone(), v0);
-                        let ptr = |v: &mut Vec<Vector<D>>| ParticlePtr { v: RowPtr::new(v) };
-                        let mut ta = RemapTally {
-                            ok: true,
-                            work: 0.5,
-                        };
-                        let mut tb = ta;
-                        let mut suma = [[0.25; N]; D];
-                        let mut sumb = suma;
-                        // With walls, a slip wall at the cell's lower nodes along the
-                        // first axis and a fixed wall at its upper nodes along the second.
-                        let run = Run::<D, 2, N>::with_sides(std::array::from_fn(|a| match a {
-                            0 if walls => [-1, 0],
-                            1 if walls => [0, 1],
-                            _ => [0, 0],
-                        }));
-                        let pa = ptr(&mut va);
-                        let ra = &mut rooms.0;
-                        for p in 0..width as u32 {
-                            let one = &mut ra.one;
-                            remap_hats(
-                                &ctx,
-                                &parts,
-                                pa,
-                                &[p],
-                                &cell,
-                                &run,
-                                &nd,
-                                one,
-                                m,
-                                &mut suma,
-                                &mut ta,
-                            );
-                        }
-                        let pb = ptr(&mut vb);
-                        let ps: Vec<u32> = (0..width as u32).collect();
-                        let (rb, nd, sumb, tb) = (&mut rooms.1, &nd, &mut sumb, &mut tb);
-                        match width {
-                            LANES => remap_hats(
-                                &ctx,
-                                &parts,
-                                pb,
-                                &ps,
-                                &cell,
-                                &run,
-                                nd,
-                                &mut rb.lanes,
-                                m,
-                                sumb,
-                                tb,
-                            ),
-                            HALF => remap_hats(
-                                &ctx,
-                                &parts,
-                                pb,
-                                &ps,
-                                &cell,
-                                &run,
-                                nd,
-                                &mut rb.half,
-                                m,
-                                sumb,
-                                tb,
-                            ),
-                            _ => remap_hats(
-                                &ctx,
-                                &parts,
-                                pb,
-                                &ps,
-                                &cell,
-                                &run,
-                                nd,
-                                &mut rb.quarter,
-                                m,
-                                sumb,
-                                tb,
-                            ),
-                        }
-                        let what = format!(
+                    }
+                    if nan {
+                        nd.v[UPDATED][1][2] = f64::INFINITY;
+                    }
+                    let m = RemapMode {
+                        dt: 1e-3,
+                        kick: 1e-3,
+                        flip,
+                        record: (D, 0),
+                    };
+                    let v0: Vec<Vector<D>> = (0..n)
+                        .map(|_| Vector::<D>::from_fn(|_, _| rng.f64() - 0.5))
+                        .collect();
+                    let (mut va, mut vb) = (v0.clone(), v0);
+                    let ptr = |v: &mut Vec<Vector<D>>| ParticlePtr { v: RowPtr::new(v) };
+                    let mut ta = RemapTally {
+                        ok: true,
+                        work: 0.5,
+                    };
+                    let mut tb = ta;
+                    let mut suma = [[0.25; N]; D];
+                    let mut sumb = suma;
+                    // With walls, a slip wall at the cell's lower nodes along the
+                    // first axis and a fixed wall at its upper nodes along the second.
+                    let run = Run::<D, 2, N>::with_sides(std::array::from_fn(|a| match a {
+                        0 if walls => [-1, 0],
+                        1 if walls => [0, 1],
+                        _ => [0, 0],
+                    }));
+                    let pa = ptr(&mut va);
+                    let ra = &mut rooms.0;
+                    for p in 0..width as u32 {
+                        let one = &mut ra.one;
+                        remap_hats(
+                            &ctx,
+                            &parts,
+                            pa,
+                            &[p],
+                            &cell,
+                            &run,
+                            &nd,
+                            one,
+                            m,
+                            &mut suma,
+                            &mut ta,
+                        );
+                    }
+                    let pb = ptr(&mut vb);
+                    let ps: Vec<u32> = (0..width as u32).collect();
+                    let (rb, nd, sumb, tb) = (&mut rooms.1, &nd, &mut sumb, &mut tb);
+                    match width {
+                        LANES => remap_hats(
+                            &ctx,
+                            &parts,
+                            pb,
+                            &ps,
+                            &cell,
+                            &run,
+                            nd,
+                            &mut rb.lanes,
+                            m,
+                            sumb,
+                            tb,
+                        ),
+                        HALF => remap_hats(
+                            &ctx,
+                            &parts,
+                            pb,
+                            &ps,
+                            &cell,
+                            &run,
+                            nd,
+                            &mut rb.half,
+                            m,
+                            sumb,
+                            tb,
+                        ),
+                        _ => remap_hats(
+                            &ctx,
+                            &parts,
+                            pb,
+                            &ps,
+                            &cell,
+                            &run,
+                            nd,
+                            &mut rb.quarter,
+                            m,
+                            sumb,
+                            tb,
+                        ),
+                    }
+                    let what = format!(
                         "{D}D, {width} lanes, flip {flip}, body force {body}, infinite node {nan}, walls {walls}"
                     );
-                        assert_eq!(ta.ok, tb.ok, "{what}");
-                        assert_eq!(ta.ok, !nan, "{what}");
-                        assert_eq!(bits(ta.work), bits(tb.work), "work: {what}");
-                        for p in 0..n {
-                            for a in 0..D {
-                                assert_eq!(bits(va[p][a]), bits(vb[p][a]), "v {p}: {what}");
-                            }
-                        }
+                    assert_eq!(ta.ok, tb.ok, "{what}");
+                    assert_eq!(ta.ok, !nan, "{what}");
+                    assert_eq!(bits(ta.work), bits(tb.work), "work: {what}");
+                    for p in 0..n {
                         for a in 0..D {
-                            for k in 0..N {
-                                assert_eq!(bits(suma[a][k]), bits(sumb[a][k]), "sum: {what}");
-                            }
+                            assert_eq!(bits(va[p][a]), bits(vb[p][a]), "v {p}: {what}");
                         }
-                        cases += 1;
                     }
+                    for a in 0..D {
+                        for k in 0..N {
+                            assert_eq!(bits(suma[a][k]), bits(sumb[a][k]), "sum: {what}");
+                        }
+                    }
+                    cases += 1;
                 }
             }
         }
