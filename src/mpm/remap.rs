@@ -479,67 +479,24 @@ mod tests {
                         1 if walls => [0, 1],
                         _ => [0, 0],
                     }));
+                    // One batch of particles `ps` through `remap_hats` with a room of
+                    // the batch's width.
+                    macro_rules! batch {
+                        ($pp:expr, $ps:expr, $room:expr, $sum:expr, $t:expr) => {
+                            remap_hats(&ctx, &parts, $pp, $ps, &cell, &run, &nd, $room, m, $sum, $t)
+                        };
+                    }
                     let pa = ptr(&mut va);
-                    let ra = &mut rooms.0;
                     for p in 0..width as u32 {
-                        let one = &mut ra.one;
-                        remap_hats(
-                            &ctx,
-                            &parts,
-                            pa,
-                            &[p],
-                            &cell,
-                            &run,
-                            &nd,
-                            one,
-                            m,
-                            &mut suma,
-                            &mut ta,
-                        );
+                        batch!(pa, &[p], &mut rooms.0.one, &mut suma, &mut ta);
                     }
                     let pb = ptr(&mut vb);
                     let ps: Vec<u32> = (0..width as u32).collect();
-                    let (rb, nd, sumb, tb) = (&mut rooms.1, &nd, &mut sumb, &mut tb);
+                    let rb = &mut rooms.1;
                     match width {
-                        LANES => remap_hats(
-                            &ctx,
-                            &parts,
-                            pb,
-                            &ps,
-                            &cell,
-                            &run,
-                            nd,
-                            &mut rb.lanes,
-                            m,
-                            sumb,
-                            tb,
-                        ),
-                        HALF => remap_hats(
-                            &ctx,
-                            &parts,
-                            pb,
-                            &ps,
-                            &cell,
-                            &run,
-                            nd,
-                            &mut rb.half,
-                            m,
-                            sumb,
-                            tb,
-                        ),
-                        _ => remap_hats(
-                            &ctx,
-                            &parts,
-                            pb,
-                            &ps,
-                            &cell,
-                            &run,
-                            nd,
-                            &mut rb.quarter,
-                            m,
-                            sumb,
-                            tb,
-                        ),
+                        LANES => batch!(pb, &ps, &mut rb.lanes, &mut sumb, &mut tb),
+                        HALF => batch!(pb, &ps, &mut rb.half, &mut sumb, &mut tb),
+                        _ => batch!(pb, &ps, &mut rb.quarter, &mut sumb, &mut tb),
                     }
                     let what = format!(
                         "{D}D, {width} lanes, flip {flip}, body force {body}, infinite node {nan}, walls {walls}"
