@@ -590,12 +590,14 @@ fn check_step<const D: usize>(
             }
         }
         // Two-step schemes move the particle with the reconstruction of their nodal
-        // averages, the others with the grid velocity.
+        // averages (under the domain rule its average over the domain), the others
+        // with the grid velocity.
         let two_step = alpha.is_some() || matches!(gradient, Gradient::Averaged | Gradient::Mpmcg);
-        let moved = if two_step {
-            gr::moving_velocity(&geom, &omega, &x[p], |nd| u(&gr::wrap_node(&geom, nd)))
-        } else {
-            un
+        let vel = |nd: [i64; D]| u(&gr::wrap_node(&geom, nd));
+        let moved = match (two_step, domain && alpha.is_none()) {
+            (true, true) => gr::moving_velocity_domain(&geom, &omega, &x[p], &lp(p), vel),
+            (true, false) => gr::moving_velocity(&geom, &omega, &x[p], vel),
+            (false, _) => un,
         };
         let step = Step {
             dt,

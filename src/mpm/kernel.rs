@@ -161,8 +161,8 @@ pub struct Kern<const D: usize, const N: usize> {
     /// The weights of mass, momentum and the velocity interpolation: the shape
     /// functions, under the domain rule their averages over the particle's domain.
     pub s: [f64; N],
-    /// The hat functions at the particle, which the two-step schemes' move blends
-    /// (`s` but under the domain rule).
+    /// The hat functions at the particle, with which the two-step schemes' move blends
+    /// into the grid velocity at a wall (`s` but under the domain rule).
     pub at_point: [f64; N],
     /// Shape-function gradients, `g[d][n]` along axis `d` at node `n` (nodes innermost,
     /// so that a loop over the nodes runs over adjacent numbers).
@@ -177,6 +177,9 @@ pub struct Kern<const D: usize, const N: usize> {
     pub frac: [f64; D],
     /// Per axis: the particle gives weight to a node on the lower / upper grid face.
     pub ends: [[bool; 2]; D],
+    /// Under the domain rule the centred moments `avg(S_n (x − x_p))` per axis and node,
+    /// with which the move averages the reconstruction over the domain (else zero).
+    pub mom: [[f64; N]; D],
 }
 
 impl<const D: usize> Ctx<'_, D> {
@@ -236,6 +239,7 @@ impl<const D: usize> Ctx<'_, D> {
             avg_w: [0.0; N],
             frac: [0.0; D],
             ends: [[false; 2]; D],
+            mom: [[0.0; N]; D],
         };
         if NA == 2 {
             for a in 0..D {
@@ -292,6 +296,7 @@ impl<const D: usize> Ctx<'_, D> {
             avg_w: [0.0; N],
             frac: *xi,
             ends: [[false; 2]; D],
+            mom: [[0.0; N]; D],
         };
         for n in 0..N {
             let mut r = n;
@@ -307,6 +312,10 @@ impl<const D: usize> Ctx<'_, D> {
                 k.g[b][n] = g[b];
             }
             k.avg_w[n] = c;
+            let m = d.moments(&o);
+            for b in 0..D {
+                k.mom[b][n] = m[b];
+            }
         }
         (k, below, d.w)
     }

@@ -466,24 +466,16 @@ pub fn mpmcg<const D: usize>(
     mpmcg_with(geom, omega, x, |xi| alpha.eval(xi))
 }
 
-/// MPMCG under the domain rule: [`mpmcg`]'s gradient averaged over the box of
-/// half-widths `lp` around `x` (each at most half a cell), cut at bounded grid faces,
-/// by 3-point Gauss quadrature per axis on each cell's piece of the box: exact, as the
-/// gradient is a polynomial of degree at most 3 per axis within a cell. Nodes are
-/// unwrapped as seen from each quadrature point.
-pub fn mpmcg_domain<const D: usize>(
-    geom: &Geom<D>,
-    omega: &Domain<D>,
-    x: &[f64; D],
-    alpha: Alpha,
-    lp: &[f64; D],
-) -> Vec<([i64; D], [f64; D])> {
+/// Quadrature points `y` and weights `w` (summing to 1) over the box of half-widths `lp`
+/// around `x` (each at most half a cell), cut at bounded grid faces: 3-point Gauss per
+/// axis on each cell's piece of the box, exact for polynomials of degree 5 per axis
+/// within a cell.
+fn box_points<const D: usize>(geom: &Geom<D>, x: &[f64; D], lp: &[f64; D]) -> Vec<([f64; D], f64)> {
     const G: [(f64, f64); 3] = [
         (-0.774_596_669_241_483_4, 5.0 / 18.0),
         (0.0, 8.0 / 18.0),
         (0.774_596_669_241_483_4, 5.0 / 18.0),
     ];
-    // Per axis the quadrature points and weights (summing to 1) over the pieces.
     let axes: Vec<Vec<(f64, f64)>> = (0..D)
         .map(|a| {
             let r = lp[a].min(0.5 * geom.h[a]);
@@ -513,18 +505,37 @@ pub fn mpmcg_domain<const D: usize>(
                 .collect()
         })
         .collect();
-    let mut acc: BTreeMap<[i64; D], [f64; D]> = BTreeMap::new();
     let total: usize = axes.iter().map(Vec::len).product();
-    for k in 0..total {
-        let mut r = k;
-        let mut y = [0.0; D];
-        let mut w = 1.0;
-        for a in 0..D {
-            let (ya, wa) = axes[a][r % axes[a].len()];
-            r /= axes[a].len();
-            y[a] = ya;
-            w *= wa;
-        }
+    (0..total)
+        .map(|k| {
+            let mut r = k;
+            let mut y = [0.0; D];
+            let mut w = 1.0;
+            for a in 0..D {
+                let (ya, wa) = axes[a][r % axes[a].len()];
+                r /= axes[a].len();
+                y[a] = ya;
+                w *= wa;
+            }
+            (y, w)
+        })
+        .collect()
+}
+
+/// MPMCG under the domain rule: [`mpmcg`]'s gradient averaged over the box of
+/// half-widths `lp` around `x` (each at most half a cell), cut at bounded grid faces,
+/// by 3-point Gauss quadrature per axis on each cell's piece of the box: exact, as the
+/// gradient is a polynomial of degree at most 3 per axis within a cell. Nodes are
+/// unwrapped as seen from each quadrature point.
+pub fn mpmcg_domain<const D: usize>(
+    geom: &Geom<D>,
+    omega: &Domain<D>,
+    x: &[f64; D],
+    alpha: Alpha,
+    lp: &[f64; D],
+) -> Vec<([i64; D], [f64; D])> {
+    let mut acc: BTreeMap<[i64; D], [f64; D]> = BTreeMap::new();
+    for (y, w) in box_points(geom, x, lp) {
         for (n, g) in mpmcg(geom, omega, &y, alpha) {
             let e = acc.entry(n).or_insert([0.0; D]);
             for d in 0..D {
@@ -588,6 +599,24 @@ pub fn moving_velocity<const D: usize>(
             let lin: f64 = (0..D).map(|b| l[a][b] * (x[b] - xj[b])).sum();
             u[a] += sj * (vbar[a] + lin);
         }
+    }
+    u
+}
+
+/// The velocity MPMCG under the domain rule moves a particle at `x` with: the average of
+/// [`moving_velocity`] over its domain, the box of half-widths `lp` cut at bounded grid
+/// faces (the same box its gradient is averaged over).
+pub fn moving_velocity_domain<const D: usize>(
+    geom: &Geom<D>,
+    omega: &Domain<D>,
+    x: &[f64; D],
+    lp: &[f64; D],
+    vel: impl Fn([i64; D]) -> [f64; D],
+) -> [f64; D] {
+    let mut u = [0.0; D];
+    for (y, w) in box_points(geom, x, lp) {
+        let uy = moving_velocity(geom, omega, &y, &vel);
+        (0..D).for_each(|a| u[a] += w * uy[a]);
     }
     u
 }

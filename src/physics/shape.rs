@@ -364,7 +364,7 @@ pub fn gimp<const D: usize>(geom: &Geom<D>, x: &[f64; D], lp: &[f64; D]) -> Weig
 }
 
 /// The domain rule's per-axis data of one particle over the 3 nodes from `base`: the
-/// hat functions at the particle (its move) and the averages over its domain
+/// hat functions at the particle (its move's blend at a wall) and the averages over its domain
 /// `[x − l, x + l]` of `N_k`, `a N_k` and `a N_k'`, with `a(ξ) = 4ξ(1 − ξ)` in the cell
 /// of each point. MPMCG's α is `Π_a a(ξ_a)`, so over a box every integral the particle
 /// needs is a product of these: its mass, momentum and velocity weight `avg(S_k) =
@@ -382,6 +382,9 @@ pub struct DomainWeights1<const D: usize> {
     pub avg_n: [[f64; 3]; D],
     pub avg_an: [[f64; 3]; D],
     pub avg_adn: [[f64; 3]; D],
+    /// The centred first moments `avg(N_k (x − x_p))` (lengths): with `avg_n`, the move's
+    /// average of the reconstruction over the domain.
+    pub avg_nc: [[f64; 3]; D],
 }
 
 /// Two-point Gauss–Legendre abscissa on [−1, 1]: exact for the cubics the domain rule
@@ -408,6 +411,7 @@ pub fn domain<const D: usize>(geom: &Geom<D>, x: &[f64; D], lp: &[f64; D]) -> Do
         avg_n: [[0.0; 3]; D],
         avg_an: [[0.0; 3]; D],
         avg_adn: [[0.0; 3]; D],
+        avg_nc: [[0.0; 3]; D],
     };
     for a in 0..D {
         let t = xi[a];
@@ -451,6 +455,9 @@ pub fn domain<const D: usize>(geom: &Geom<D>, x: &[f64; D], lp: &[f64; D]) -> Do
                 d.avg_an[a][s + 1] += wt * au * u;
                 d.avg_adn[a][s] -= wt * au * geom.inv_h[a];
                 d.avg_adn[a][s + 1] += wt * au * geom.inv_h[a];
+                let dx = (u + k as f64 - t) * geom.h[a];
+                d.avg_nc[a][s] += wt * (1.0 - u) * dx;
+                d.avg_nc[a][s + 1] += wt * u * dx;
             }
         }
         let rows = [
@@ -458,6 +465,7 @@ pub fn domain<const D: usize>(geom: &Geom<D>, x: &[f64; D], lp: &[f64; D]) -> Do
             &mut d.avg_n[a],
             &mut d.avg_an[a],
             &mut d.avg_adn[a],
+            &mut d.avg_nc[a],
         ];
         shift_inside(geom, a, &mut d.base[a], rows);
     }
@@ -512,6 +520,20 @@ impl<const D: usize> DomainWeights1<D> {
             p
         });
         (n, s, g, n - an)
+    }
+
+    /// Node `o`'s centred moments `avg(S (x − x_p))` per axis.
+    #[inline(always)]
+    pub fn moments(&self, o: &[usize; D]) -> [f64; D] {
+        std::array::from_fn(|b| {
+            let mut p = self.avg_nc[b][o[b]];
+            for a in 0..D {
+                if a != b {
+                    p *= self.avg_n[a][o[a]];
+                }
+            }
+            p
+        })
     }
 }
 

@@ -67,7 +67,8 @@ pub(crate) struct Weights<const D: usize, const N: usize, const B: usize> {
     /// With 3 nodes per axis, the weights of the nodes' averages ([`Kern::avg_w`]);
     /// with hat functions they are `(1 − α) S` and not stored.
     cw: [[f64; B]; N],
-    /// With 3 nodes per axis, the hat functions at the particle ([`Kern::at_point`]);
+    /// With 3 nodes per axis, the hat functions at the particle ([`Kern::at_point`], the
+    /// move's blend at a wall);
     /// with hat functions they are `sh`.
     sp: [[f64; B]; N],
     /// With hat functions `g[d][n]` is written and read only where node `n` is the
@@ -80,14 +81,19 @@ pub(crate) struct Weights<const D: usize, const N: usize, const B: usize> {
     ends: [[[bool; 2]; D]; B],
     /// Whether the run's nodes touch a wall: else `ends` are all false.
     at_wall: bool,
-    /// `Σ_n S_n L̄_n` with the hat functions at the particle, and per column `c`
-    /// `Σ_n S_n o_c(n) L̄_n` (`o_c` the node's offset from the particle's cell corner in
-    /// cells), for the reconstruction ([`Weights::moving_velocity`]).
+    /// `Σ_n S_n L̄_n` with the shape functions (under the domain rule their averages),
+    /// and per column `c` `Σ_n S_n o_c(n) L̄_n` (`o_c` the node's offset from the
+    /// particle's cell corner in cells), for the reconstruction
+    /// ([`Weights::moving_velocity`]).
     all: [[[f64; B]; D]; D],
     upper: [[[f64; B]; D]; D],
     /// The averages' part of the particle's velocity gradient, `Σ_n c_n L̄_n` with the
     /// weights `c_n` of [`Kern::avg_w`].
     lgrad: [[[f64; B]; D]; D],
+    /// Under the domain rule, `avg(S_n (x − x_p))` per axis and node ([`Kern::mom`]) and
+    /// the move's term `Σ_n L̄_n avg(S_n (x − x_p))` ([`Weights::lbar`]).
+    mom: [[[f64; B]; N]; D],
+    lmom: [[f64; B]; D],
 }
 
 /// A set of weights of each width, zeroed once for a task's particles and filled again
@@ -170,6 +176,8 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
             all: [[[0.0; B]; D]; D],
             upper: [[[0.0; B]; D]; D],
             lgrad: [[[0.0; B]; D]; D],
+            mom: [[[0.0; B]; N]; D],
+            lmom: [[0.0; B]; D],
         }
     }
 
@@ -283,20 +291,25 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
     }
 
     /// [`Weights::lbar`] with 3 nodes per axis (the domain rule), nodes numbered in
-    /// base 3 from the window's first, `below` cells under the particle's cell corner.
+    /// base 3 from the window's first, `below` cells under the particle's cell corner;
+    /// with the move's moment term ([`Weights::moving_velocity`]).
     #[inline(always)]
     fn lbar_wide(&mut self, nd: &NodeData<D, N>) {
         for a in 0..D {
             for c in 0..D {
                 let (mut all, mut up, mut lg) = ([0.0; B], [0.0; B], [0.0; B]);
                 let step = 3usize.pow(c as u32);
+                if c == 0 {
+                    self.lmom[a] = [0.0; B];
+                }
                 for n in 0..N {
                     let v = nd.lb[a][c][n];
                     let o = ((n / step) % 3) as f64 - self.below[c] as f64;
                     for l in 0..B {
-                        all[l] += self.sp[n][l] * v;
-                        up[l] += self.sp[n][l] * o * v;
+                        all[l] += self.sh[n][l] * v;
+                        up[l] += self.sh[n][l] * o * v;
                         lg[l] += self.cw[n][l] * v;
+                        self.lmom[a][l] += self.mom[c][n][l] * v;
                     }
                 }
                 self.all[a][c] = all;
@@ -405,7 +418,11 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
     /// `u(x) = Σ_j S_j(x) (v̄_j + L̄_j (x − x_j))`. Exact for linear velocity fields, like
     /// the grid interpolation `Σ_i S_i v_i`, but built from the same nodal averages as the
     /// particle's velocity gradient, so the particles separate only as fast as their
-    /// deformation gradients register (README, "The schemes"). Next to a wall the
+    /// deformation gradients register (README, "The schemes"). Under the domain rule the
+    /// reconstruction's average over the particle's domain,
+    /// `Σ_j avg(S_j) (v̄_j + L̄_j (x_p − x_j)) + L̄_j avg(S_j (x − x_p))`, as its gradient is
+    /// averaged over that domain (at one point the clamped beams tore where the domain is
+    /// cut at the clamp, docs/hard-cases.md). Next to a wall the
     /// reconstruction of an interior node, carried to the wall by `L̄_j`, need not vanish
     /// on it, while the grid velocity of slot `slot` does (the wall's nodes are held): the
     /// velocity blends from `u` to the grid interpolation `Σ_i S_i v_i` with the particle's
@@ -422,8 +439,13 @@ impl<const D: usize, const N: usize, const B: usize> Weights<D, N, B> {
         slot: usize,
     ) -> [[f64; B]; D] {
         let h = &ctx.geom.h;
-        let sp = self.at_point();
-        let mut u = [[0.0; B]; D];
+        // The shape functions: at the particle, or under the domain rule their averages.
+        let sp = &self.sh;
+        let mut u = if super::hats::<D, N>() {
+            [[0.0; B]; D]
+        } else {
+            self.lmom
+        };
         for a in 0..D {
             for n in 0..N {
                 let c = nd.vb[a][n];
@@ -773,6 +795,7 @@ impl<const D: usize, const N: usize> Weights<D, N, 1> {
             self.cw[n] = [k.avg_w[n]];
             for d in 0..D {
                 self.g[d][n] = [k.g[d][n]];
+                self.mom[d][n] = [k.mom[d][n]];
             }
         }
         self.alpha = [k.alpha];
