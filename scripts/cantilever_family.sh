@@ -13,6 +13,7 @@
 #   REFINE=2       divide h by this (same particles per cell, so more particles)
 #   XPIC=2         update particle velocities by XPIC of this order instead of FLIP
 #                  ([method] xpic, README: The cantilever family)
+#   QUADRATURE=domain  MPMCG's domain rule ([method] quadrature; MPM ignores it)
 # After the pieces, one line per run: the energy balance at the end (kinetic + strain
 # − work of gravity, ~0 for a conservative run) against the largest work done.
 set -euo pipefail
@@ -52,15 +53,19 @@ variant() {
             -e 's/value = \[0.0, -10.0\]/value = [0.0, -10.0, 0.0]/' \
             -e 's/lower = \[0.0, 0.0\], upper = \[\(.*\), 1.0\]/lower = [0.0, 0.0, 0.0], upper = [\1, 1.0, 1.0]/' "$f"
     fi
-    with_xpic "$f"
+    with_method "$f"
     target/release/mpmcg run "$f" --out "$out/$tag" --quiet --threads 1 \
         || echo "$tag: the run did not complete (exit $?)" >&2
 }
 
-# with_xpic FILE: the scene's particle velocity update as XPIC=ORDER asks.
-with_xpic() {
+# with_method FILE: the particle velocity update as XPIC=ORDER asks, and MPMCG's
+# quadrature as QUADRATURE asks.
+with_method() {
     if [ -n "${XPIC:-}" ]; then
         sed -i "s/^\[method\]/[method]\nxpic = $XPIC/" "$1"
+    fi
+    if [ -n "${QUADRATURE:-}" ] && grep -q '^gradient = "mpmcg"' "$1"; then
+        sed -i "s/^\[method\]/[method]\nquadrature = \"$QUADRATURE\"/" "$1"
     fi
 }
 
@@ -100,7 +105,7 @@ particles_per_cell = 2
 every = 0.05
 fields = ["velocity", "stress", "displacement"]
 SCENE
-    with_xpic "$f"
+    with_method "$f"
     target/release/mpmcg run "$f" --out "$out/$tag" --quiet --threads 1 \
         || echo "$tag: the run did not complete (exit $?)" >&2
 }
