@@ -364,9 +364,9 @@ pub fn gimp<const D: usize>(geom: &Geom<D>, x: &[f64; D], lp: &[f64; D]) -> Weig
 }
 
 /// The domain rule's per-axis data of one particle over the 3 nodes from `base`: the
-/// hat functions at the particle (its move's blend at a wall) and the averages over its domain
-/// `[x − l, x + l]` of `N_k`, `a N_k` and `a N_k'`, with `a(ξ) = 4ξ(1 − ξ)` in the cell
-/// of each point. MPMCG's α is `Π_a a(ξ_a)`, so over a box every integral the particle
+/// hat functions at the particle (its move's blend at a wall) and the averages over its
+/// domain `[x − l, x + l]` of `N_k`, `a N_k` and `a N_k'`, with `a(ξ) = 4ξ(1 − ξ)` in the
+/// cell of each point. MPMCG's α is `Π_a a(ξ_a)`, so over a box every integral the particle
 /// needs is a product of these: its mass, momentum and velocity weight `avg(S_k) =
 /// Π avg(N_k)`, the force's and the velocity gradient's
 /// `avg(α ∂_b S_k) = avg(a N_k')_b Π_{a≠b} avg(a N_k)_a` and
