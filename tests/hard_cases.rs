@@ -317,6 +317,31 @@ fn cantilever_family_at_2x2() {
     }
 }
 
+/// The three 2 × 2 cells of the family that MPMCG breaks with FLIP and its point rule
+/// (the 4 and 5 m beams on the aligned grid, the 3D beam at 2 × 2 × 2) as (tag, scene)
+/// with `line` added to `[method]`, tags starting with `tag`.
+fn torn_cells_with(tag: &str, line: &str) -> [(String, String); 3] {
+    let with = |text: String| -> String {
+        let t = text.replacen("[method]", &format!("[method]\n{line}"), 1);
+        assert!(t.contains(line));
+        t
+    };
+    [
+        (
+            format!("{tag}-4"),
+            with(shifted_cantilever(4.0, 1.0e6, 2, 0.0)),
+        ),
+        (
+            format!("{tag}-5"),
+            with(shifted_cantilever(5.0, 1.0e6, 2, 0.0)),
+        ),
+        (
+            format!("{tag}-3d"),
+            with(in_3d(&shifted_cantilever(4.0, 1.0e6, 2, 0.0))),
+        ),
+    ]
+}
+
 /// The three 2 × 2 cells of the family that MPMCG breaks with FLIP (the 4 and 5 m
 /// beams on the aligned grid, the 3D beam at 2 × 2 × 2) with `xpic = 2`: whole. What
 /// broke them is velocity noise at the clamp's top corner, in the part of the particle
@@ -326,21 +351,8 @@ fn cantilever_family_at_2x2() {
 #[test]
 fn cantilever_family_with_xpic_stays_whole_at_2x2() {
     let h = 0.25;
-    let xpic = |text: String| -> String {
-        let t = text.replacen("[method]", "[method]\nxpic = 2", 1);
-        assert!(t.contains("xpic = 2"));
-        t
-    };
-    let cases = [
-        ("xpic-4", xpic(shifted_cantilever(4.0, 1.0e6, 2, 0.0))),
-        ("xpic-5", xpic(shifted_cantilever(5.0, 1.0e6, 2, 0.0))),
-        (
-            "xpic-3d",
-            xpic(in_3d(&shifted_cantilever(4.0, 1.0e6, 2, 0.0))),
-        ),
-    ];
-    for (tag, text) in cases {
-        let (r, out) = run_scene(&with_gradient(&text, "mpmcg"), tag);
+    for (tag, text) in torn_cells_with("xpic", "xpic = 2") {
+        let (r, out) = run_scene(&with_gradient(&text, "mpmcg"), &tag);
         let s = r.unwrap_or_else(|e| panic!("{tag}: {e}"));
         let pieces = worst_pieces(&out, h);
         eprintln!(
@@ -361,21 +373,8 @@ fn cantilever_family_with_xpic_stays_whole_at_2x2() {
 #[test]
 fn cantilever_family_with_domain_rule_stays_whole_at_2x2() {
     let h = 0.25;
-    let domain = |text: String| -> String {
-        let t = text.replacen("[method]", "[method]\nquadrature = \"domain\"", 1);
-        assert!(t.contains("quadrature = \"domain\""));
-        t
-    };
-    let cases = [
-        ("domain-4", domain(shifted_cantilever(4.0, 1.0e6, 2, 0.0))),
-        ("domain-5", domain(shifted_cantilever(5.0, 1.0e6, 2, 0.0))),
-        (
-            "domain-3d",
-            domain(in_3d(&shifted_cantilever(4.0, 1.0e6, 2, 0.0))),
-        ),
-    ];
-    for (tag, text) in cases {
-        let (r, out) = run_scene(&with_gradient(&text, "mpmcg"), tag);
+    for (tag, text) in torn_cells_with("domain", "quadrature = \"domain\"") {
+        let (r, out) = run_scene(&with_gradient(&text, "mpmcg"), &tag);
         let s = r.unwrap_or_else(|e| panic!("{tag}: {e}"));
         let pieces = worst_pieces(&out, h);
         let rows = history(&out);
