@@ -38,10 +38,20 @@ keep sum_i G_i = 0, sum_i x_i (x) G_i = I and the move's exactness for linear fi
   --disk     the spinning disk of docs/hard-cases.md: the strain energy as a share of the
              initial kinetic energy every 10 s (about 7 minutes per 10 s)
 
+Transfers of the grid velocity, with any mode:
+
+  --affine   the particle's last velocity gradient carried to the nodes, m_i v_i =
+             sum_p m_p S_ip (v_p + L_p (x_i - x_p)) (--affine skew: its antisymmetric
+             part only)
+  --centroid the remapped grid velocity, which is the particles' at their mass
+             centroid x_i + d_i, moved to the node with the reconstruction's gradient,
+             v_i - d_i . Lbar_i(v), and the internal force the adjoint of the gradient of
+             that velocity (so the force's power stays the stress power)
+
 Usage: /usr/bin/python3 scripts/consistent_move.py --family [--schemes mpm,cg,rg,rh,rq] [--jobs 2]
        /usr/bin/python3 scripts/consistent_move.py --gradient [--cells 16,32,64]
        /usr/bin/python3 scripts/consistent_move.py --mms [--schemes cg,rh] [--cells 8,16,32] [--ppc 2] [--subpoints]
-       /usr/bin/python3 scripts/consistent_move.py --disk [--schemes cg,rh] [--end 100]
+       /usr/bin/python3 scripts/consistent_move.py --disk [--schemes cg,rh] [--end 100] [--centroid]
        /usr/bin/python3 scripts/consistent_move.py --check
 Needs numpy and scipy (Debian: python3-numpy python3-scipy). Results and their reading:
 docs/hard-cases.md, "What a prototype shows".
@@ -55,6 +65,8 @@ import scipy.sparse as sp
 
 THETA = 0.9  # the fill a node needs to count in full (docs/schemes.md)
 SUBPOINTS = False  # --subpoints
+AFFINE = False  # --affine
+CENTROID = False  # --centroid
 
 
 class Scene:
@@ -284,6 +296,23 @@ class State:
         self.m = sc.rho * vol0
         self.t, self.steps, self.work = 0.0, 0, 0.0
         self.spacing = np.sqrt(vol0[0])   # the lattice spacing (all runs here are square)
+        self.L = np.zeros((len(x), 2, 2))
+
+    def p2g(self, S, mi, live, V):
+        """Grid velocities from the particles' momenta, with --affine the particle's
+        velocity gradient carried to the node: m_i v_i = sum_p m_p S_ip (v_p + L_p (x_i - x_p))."""
+        gd, m = self.gd, self.m
+        mom = np.stack([S.T @ (m * V[:, a]) for a in (0, 1)], 1)
+        if AFFINE:
+            L = self.L
+            if AFFINE == 'skew':
+                L = 0.5 * (L - L.transpose(0, 2, 1))
+            for a in (0, 1):
+                for c in (0, 1):
+                    mom[:, a] += (S.T @ (m * L[:, a, c])) * gd.xn[:, c] - S.T @ (m * L[:, a, c] * self.x[:, c])
+        v = np.zeros((gd.nn, 2))
+        v[live] = mom[live] / mi[live, None]
+        return gd.bc(v)
 
     def stress(self):
         sc, F = self.sc, self.F
@@ -295,6 +324,18 @@ class State:
         lj = np.log(np.linalg.det(F))
         W = 0.5 * sc.mu * (np.sum(F * F, axis=(1, 2)) - 2) - sc.mu * lj + 0.5 * sc.lam * lj ** 2
         return 0.5 * np.sum(self.m * np.sum(self.V ** 2, 1)), np.sum(self.vol0 * W)
+
+    def prime(self, scheme):
+        """With --affine, the particles' velocity gradient of their initial velocities (a
+        few passes of L = D p2g(V), as a first step would compute it)."""
+        if not AFFINE:
+            return
+        S, U, D, _ = operators(self.gd, self.x, self.vol0, scheme)
+        mi = S.T @ self.m
+        live = mi > 1e-12 * self.m.min()
+        for _ in range(3):
+            vh = self.p2g(S, mi, live, self.V)
+            self.L = np.stack([np.stack([D[a][c] @ vh[:, a] for c in (0, 1)], 1) for a in (0, 1)], 1)
 
     def dt_cfl(self, cfl):
         sc = self.sc
@@ -314,13 +355,22 @@ class State:
         mi = S.T @ m
         tau = self.stress()
         b = np.tile(sc.g, (len(m), 1)) if body is None else body
-        f = np.stack([-(D[a][0].T @ (vol0 * tau[:, a, 0]) + D[a][1].T @ (vol0 * tau[:, a, 1]))
-                      + S.T @ (m * b[:, a]) for a in (0, 1)], 1)
         live = mi > 1e-12 * m.min()
-        v, vp = np.zeros((gd.nn, 2)), np.zeros((gd.nn, 2))
-        v[live] = np.stack([S.T @ (m * self.V[:, a]) for a in (0, 1)], 1)[live] / mi[live, None]
+        if CENTROID:
+            # The grid velocity is the particles' at their mass centroid x_i + d_i, not
+            # at the node: C corrects it to the node with the reconstruction's gradient,
+            # and the force is the adjoint of the gradient of the corrected velocity.
+            Lb, _ = node_ops(gd, S, vol0 * J)
+            d = np.zeros((gd.nn, 2))
+            d[live] = np.stack([S.T @ (m * self.x[:, c]) for c in (0, 1)], 1)[live] / mi[live, None] - gd.xn[live]
+            K = sp.identity(gd.nn) - sum(sp.diags(d[:, c]) @ Lb[c] for c in (0, 1))
+            C = [(sp.diags((live & ~gd.mask[:, a]).astype(float)) @ K).tocsr() for a in (0, 1)]
+        else:
+            C = [sp.identity(gd.nn, format='csr')] * 2
+        f = np.stack([-C[a].T @ (D[a][0].T @ (vol0 * tau[:, a, 0]) + D[a][1].T @ (vol0 * tau[:, a, 1]))
+                      + S.T @ (m * b[:, a]) for a in (0, 1)], 1)
+        v, vp = self.p2g(S, mi, live, self.V), np.zeros((gd.nn, 2))
         vp[live] = v[live] + dt * f[live] / mi[live, None]
-        gd.bc(v)
         gd.bc(vp)
         Svp = S @ vp
         Vn = self.V + Svp - S @ v
@@ -332,10 +382,11 @@ class State:
         self.work += 0.5 * np.sum(m * (np.sum(Vn ** 2, 1) - np.sum(free ** 2, 1)))
         self.work += 0.5 * dt * np.sum(m * np.sum((self.V + Vn) * b, 1))
         self.V = Vn
-        vh = np.zeros((gd.nn, 2))
-        vh[live] = np.stack([S.T @ (m * Vn[:, a]) for a in (0, 1)], 1)[live] / mi[live, None]
-        gd.bc(vh)
+        vh = self.p2g(S, mi, live, Vn)
+        if CENTROID:
+            vh = np.stack([C[a] @ vh[:, a] for a in (0, 1)], 1)
         L = np.stack([np.stack([D[a][c] @ vh[:, a] for c in (0, 1)], 1) for a in (0, 1)], 1)
+        self.L = L
         self.F = (np.eye(2) + dt * L) @ self.F
         self.x = self.x + dt * np.stack([U[a] @ vh[:, a] for a in (0, 1)], 1)
         self.t += dt
@@ -418,6 +469,7 @@ def disk(scheme, end, ppc):
     r = x - 0.5
     st = State(sc, x, 0.2 * np.stack([-r[:, 1], r[:, 0]], 1), np.tile(np.eye(2), (len(x), 1, 1)),
                np.full(len(x), (0.05 / ppc) ** 2))
+    st.prime(scheme)
     ke0 = st.energies()[0]
     for k in range(1, int(round(end / 10)) + 1):
         for _ in range(10000):
@@ -497,14 +549,20 @@ def main():
     ap.add_argument('--gradient', action='store_true')
     ap.add_argument('--subpoints', action='store_true',
                     help='integrate over 2 x 2 sub-points of each particle (--mms, --family)')
+    ap.add_argument('--affine', nargs='?', const='full', default=None,
+                    help='carry the particle velocity gradient to the nodes (m_i v_i = sum m_p S (v_p + L_p (x_i - x_p)))')
+    ap.add_argument('--centroid', action='store_true',
+                    help='correct the remapped grid velocity from the particles\' mass centroid to the node (force adjoint)')
     ap.add_argument('--schemes', default=None)
     ap.add_argument('--cells', default='8,16,32')
     ap.add_argument('--ppc', type=int, default=2)
     ap.add_argument('--end', type=float, default=100.0)
     ap.add_argument('--jobs', type=int, default=2)
     a = ap.parse_args()
-    global SUBPOINTS
+    global SUBPOINTS, AFFINE, CENTROID
+    CENTROID = a.centroid
     SUBPOINTS = a.subpoints
+    AFFINE = a.affine
     if a.check:
         check()
     if a.gradient:
