@@ -267,10 +267,15 @@ pub fn shape_bounds<const D: usize>(s: &Shape) -> ([f64; D], [f64; D]) {
     }
 }
 
-/// Is a point inside a shape (closed sets)?
+/// Is a point inside a shape? Plane faces are half-open, `[lower, upper)` along their
+/// axis (a point within a 1e-9 share of the extent of a face counts as on it): a face
+/// that falls on a row of lattice points (an odd number of particles per cell and a face
+/// half a cell off the grid's lines) then seeds that row once, on the lower side, so a
+/// box seeds exactly its volume of particles and two boxes that share a face neither
+/// overlap nor leave a gap. Curved surfaces are closed sets.
 pub fn inside<const D: usize>(s: &Shape, x: &[f64; D]) -> bool {
     match s {
-        Shape::Box { lower, upper } => (0..D).all(|a| x[a] >= lower[a] && x[a] <= upper[a]),
+        Shape::Box { lower, upper } => (0..D).all(|a| half_open(x[a], lower[a], upper[a])),
         Shape::Sphere { center, radius } => {
             (0..D).map(|a| (x[a] - center[a]).powi(2)).sum::<f64>() <= radius * radius
         }
@@ -284,8 +289,78 @@ pub fn inside<const D: usize>(s: &Shape, x: &[f64; D]) -> bool {
         }
         Shape::Cylinder { center, radius, z } => {
             (x[0] - center[0]).powi(2) + (x[1] - center[1]).powi(2) <= radius * radius
-                && x[2] >= z[0]
-                && x[2] <= z[1]
+                && half_open(x[2], z[0], z[1])
         }
+    }
+}
+
+/// `lo ≤ x < hi` with both ends moved down by a 1e-9 share of `hi − lo`, so that a
+/// lattice point computed a rounding error off a face is taken as on it.
+fn half_open(x: f64, lo: f64, hi: f64) -> bool {
+    let tol = 1e-9 * (hi - lo).abs();
+    x >= lo - tol && x < hi - tol
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn body(lower: Vec<f64>, upper: Vec<f64>, n: usize) -> BodySpec {
+        BodySpec {
+            material: "m".into(),
+            shape: Shape::Box { lower, upper },
+            particles_per_cell: n,
+            velocity: None,
+            velocity_gradient: None,
+        }
+    }
+
+    fn count<const D: usize>(b: &BodySpec, geom: &Geom<D>) -> usize {
+        let (c0, c1) = body_cells::<D>(b, geom);
+        let mut n = 0;
+        lattice_points::<D>(b, geom, (c0, c1), (c0, c1), |_, _, _| {
+            n += 1;
+            true
+        });
+        n
+    }
+
+    #[test]
+    fn a_box_seeds_its_volume_when_its_faces_lie_on_lattice_points() {
+        // Cells of 0.25 from -0.125: with 3 per cell the lattice has points at 0 and 1,
+        // the box's faces; with 2 per cell none lies on a face.
+        let geom = Geom::<2>::new([-0.125, -0.125], [2.125, 1.375], [9, 6], [false; 2]);
+        let b3 = body(vec![0.0, 0.0], vec![2.0, 1.0], 3);
+        assert_eq!(count(&b3, &geom), 24 * 12);
+        let b2 = body(vec![0.0, 0.0], vec![2.0, 1.0], 2);
+        assert_eq!(count(&b2, &geom), 16 * 8);
+        // In 3D, and a cylinder's ends likewise.
+        let g3 = Geom::<3>::new([-0.125; 3], [1.125; 3], [5; 3], [false; 3]);
+        assert_eq!(
+            count(&body(vec![0.0; 3], vec![1.0; 3], 3), &g3),
+            12 * 12 * 12
+        );
+        let cyl = BodySpec {
+            shape: Shape::Cylinder {
+                center: vec![0.5, 0.5],
+                radius: 10.0,
+                z: vec![0.0, 1.0],
+            },
+            ..body(vec![], vec![], 3)
+        };
+        assert_eq!(count(&cyl, &g3), 15 * 15 * 12);
+    }
+
+    #[test]
+    fn boxes_that_share_a_face_on_lattice_points_do_not_overlap() {
+        let geom = Geom::<2>::new([-0.125, -0.125], [2.125, 1.375], [9, 6], [false; 2]);
+        let left = body(vec![0.0, 0.0], vec![1.0, 1.0], 3);
+        let right = body(vec![1.0, 0.0], vec![2.0, 1.0], 3);
+        assert_eq!(overlap::<2>(&left, &right, &geom), None);
+        assert_eq!(overlap::<2>(&right, &left, &geom), None);
+        assert_eq!(count(&left, &geom) + count(&right, &geom), 24 * 12);
+        // Moved into each other by a particle spacing they do.
+        let into = body(vec![1.0 - 1.0 / 12.0, 0.0], vec![2.0, 1.0], 3);
+        assert!(overlap::<2>(&left, &into, &geom).is_some());
     }
 }
