@@ -46,7 +46,8 @@ Transfers of the grid velocity, with any mode:
   --centroid the remapped grid velocity, which is the particles' at their mass
              centroid x_i + d_i, moved to the node with the reconstruction's gradient,
              v_i - d_i . Lbar_i(v), and the internal force the adjoint of the gradient of
-             that velocity (so the force's power stays the stress power)
+             that velocity (so the force's power stays the stress power); --centroid
+             exact: the fixed point v_c = v - d . Lbar(v_c), exact for linear fields
 
 Usage: /usr/bin/python3 scripts/consistent_move.py --family [--schemes mpm,cg,rg,rh,rq] [--jobs 2]
        /usr/bin/python3 scripts/consistent_move.py --gradient [--cells 16,32,64]
@@ -66,7 +67,7 @@ import scipy.sparse as sp
 THETA = 0.9  # the fill a node needs to count in full (docs/schemes.md)
 SUBPOINTS = False  # --subpoints
 AFFINE = False  # --affine
-CENTROID = False  # --centroid
+CENTROID = None  # --centroid [once|exact]
 
 
 class Scene:
@@ -363,11 +364,21 @@ class State:
             Lb, _ = node_ops(gd, S, vol0 * J)
             d = np.zeros((gd.nn, 2))
             d[live] = np.stack([S.T @ (m * self.x[:, c]) for c in (0, 1)], 1)[live] / mi[live, None] - gd.xn[live]
-            K = sp.identity(gd.nn) - sum(sp.diags(d[:, c]) @ Lb[c] for c in (0, 1))
-            C = [(sp.diags((live & ~gd.mask[:, a]).astype(float)) @ K).tocsr() for a in (0, 1)]
+            M = sum(sp.diags(d[:, c]) @ Lb[c] for c in (0, 1))
+            P = [sp.diags((live & ~gd.mask[:, a]).astype(float)) for a in (0, 1)]
+            if CENTROID == 'exact':
+                # The fixed point v_c = P (v - d . Lbar(v_c)): exact for a linear field.
+                from scipy.sparse.linalg import splu
+                lu = [splu((sp.identity(gd.nn) + P[a] @ M).tocsc()) for a in (0, 1)]
+                C = [lambda u, a=a: P[a] @ lu[a].solve(P[a] @ u) for a in (0, 1)]
+                CT = [lambda u, a=a: P[a] @ lu[a].solve(P[a] @ u, trans='T') for a in (0, 1)]
+            else:
+                K = [(P[a] @ (sp.identity(gd.nn) - M)).tocsr() for a in (0, 1)]
+                C = [lambda u, a=a: K[a] @ u for a in (0, 1)]
+                CT = [lambda u, a=a: K[a].T @ u for a in (0, 1)]
         else:
-            C = [sp.identity(gd.nn, format='csr')] * 2
-        f = np.stack([-C[a].T @ (D[a][0].T @ (vol0 * tau[:, a, 0]) + D[a][1].T @ (vol0 * tau[:, a, 1]))
+            C = CT = [lambda u: u] * 2
+        f = np.stack([-CT[a](D[a][0].T @ (vol0 * tau[:, a, 0]) + D[a][1].T @ (vol0 * tau[:, a, 1]))
                       + S.T @ (m * b[:, a]) for a in (0, 1)], 1)
         v, vp = self.p2g(S, mi, live, self.V), np.zeros((gd.nn, 2))
         vp[live] = v[live] + dt * f[live] / mi[live, None]
@@ -384,7 +395,7 @@ class State:
         self.V = Vn
         vh = self.p2g(S, mi, live, Vn)
         if CENTROID:
-            vh = np.stack([C[a] @ vh[:, a] for a in (0, 1)], 1)
+            vh = np.stack([C[a](vh[:, a]) for a in (0, 1)], 1)
         L = np.stack([np.stack([D[a][c] @ vh[:, a] for c in (0, 1)], 1) for a in (0, 1)], 1)
         self.L = L
         self.F = (np.eye(2) + dt * L) @ self.F
@@ -551,8 +562,9 @@ def main():
                     help='integrate over 2 x 2 sub-points of each particle (--mms, --family)')
     ap.add_argument('--affine', nargs='?', const='full', default=None,
                     help='carry the particle velocity gradient to the nodes (m_i v_i = sum m_p S (v_p + L_p (x_i - x_p)))')
-    ap.add_argument('--centroid', action='store_true',
-                    help='correct the remapped grid velocity from the particles\' mass centroid to the node (force adjoint)')
+    ap.add_argument('--centroid', nargs='?', const='once', default=None,
+                    help='correct the remapped grid velocity from the particles\' mass centroid to the node '
+                         '(force adjoint): once (default) or exact (the fixed point)')
     ap.add_argument('--schemes', default=None)
     ap.add_argument('--cells', default='8,16,32')
     ap.add_argument('--ppc', type=int, default=2)
