@@ -5,8 +5,7 @@
 # plus the 4 m beam in 3D at 2 × 2 × 2 and 3 × 3 × 3 (1 m wide, free sides), and a bar
 # hanging from a fixed ceiling. Prints, per run, the worst number of pieces over the
 # snapshots and the largest gap to a nearest neighbour (scripts/connectivity.py,
-# particles closer than one cell are neighbours). About three minutes on one core
-# (three times that with QUADRATURE=domain).
+# particles closer than one cell are neighbours). A few minutes on one core.
 # Usage: scripts/cantilever_family.sh [OUT]        (default out/cantilever_family)
 # Variants, as environment variables (the README's tables name the ones they used):
 #   UPDATE=usl     the update order (default musl)
@@ -79,9 +78,9 @@ with_method() {
 # hanging TAG E GRADIENT: a 1 m × 4 m bar (2 × 2 per cell) hanging under its weight
 # from a fixed ceiling at y = 0: tension at a clamp without bending (README, The
 # cantilever family). Same variants; SHIFT moves the grid along x only (the bar's sides
-# then lie inside cells), as the beams' clamp, the ceiling stays on the grid's face: a
-# ceiling moved off the bar's top holds it only through the top cell's particles, and
-# they slide out of it (the bar fell to the floor).
+# then lie inside cells), so that the ceiling, like the beams' clamp, stays on a grid
+# face: moved off the bar's top, it held the bar only through the top cell's particles,
+# which slid out of it, and the bar fell.
 hanging() {
     local tag=$1 e=$2 g=$3 r=${REFINE:-1} sh=${SHIFT:-0}
     local f="$out/$tag.toml"
