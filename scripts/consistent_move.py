@@ -63,10 +63,11 @@ import time
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.linalg import splu
 
 THETA = 0.9  # the fill a node needs to count in full (docs/schemes.md)
 SUBPOINTS = False  # --subpoints
-AFFINE = False  # --affine
+AFFINE = None  # --affine [full|skew]
 CENTROID = None  # --centroid [once|exact]
 
 
@@ -368,7 +369,6 @@ class State:
             P = [sp.diags((live & ~gd.mask[:, a]).astype(float)) for a in (0, 1)]
             if CENTROID == 'exact':
                 # The fixed point v_c = P (v - d . Lbar(v_c)): exact for a linear field.
-                from scipy.sparse.linalg import splu
                 lu = [splu((sp.identity(gd.nn) + P[a] @ M).tocsc()) for a in (0, 1)]
                 C = [lambda u, a=a: P[a] @ lu[a].solve(P[a] @ u) for a in (0, 1)]
                 CT = [lambda u, a=a: P[a] @ lu[a].solve(P[a] @ u, trans='T') for a in (0, 1)]
