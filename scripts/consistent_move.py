@@ -46,8 +46,9 @@ Transfers of the grid velocity, with any mode:
   --centroid the remapped grid velocity, which is the particles' at their mass
              centroid x_i + d_i, moved to the node with the reconstruction's gradient,
              v_i - d_i . Lbar_i(v), and the internal force the adjoint of the gradient of
-             that velocity (so the force's power stays the stress power); --centroid
-             exact: the fixed point v_c = v - d . Lbar(v_c), exact for linear fields
+             that velocity (so the force's power stays the stress power); --centroid K:
+             K passes v_j = v - d . Lbar(v_(j-1)); --centroid exact: their fixed point,
+             exact for linear fields
 
 Usage: /usr/bin/python3 scripts/consistent_move.py --family [--schemes mpm,cg,rg,rh,rq] [--jobs 2]
        /usr/bin/python3 scripts/consistent_move.py --gradient [--cells 16,32,64]
@@ -373,7 +374,11 @@ class State:
                 C = [lambda u, a=a: P[a] @ lu[a].solve(P[a] @ u) for a in (0, 1)]
                 CT = [lambda u, a=a: P[a] @ lu[a].solve(P[a] @ u, trans='T') for a in (0, 1)]
             else:
-                K = [(P[a] @ (sp.identity(gd.nn) - M)).tocsr() for a in (0, 1)]
+                # `once`: v_1 = P (v - d . Lbar(v)); a number k: k such passes, each
+                # v_j = P (v - d . Lbar(v_(j-1))) from v_0 = P v.
+                K = [P[a].tocsr() for a in (0, 1)]
+                for _ in range(1 if CENTROID == 'once' else int(CENTROID)):
+                    K = [(P[a] - P[a] @ M @ K[a]).tocsr() for a in (0, 1)]
                 C = [lambda u, a=a: K[a] @ u for a in (0, 1)]
                 CT = [lambda u, a=a: K[a].T @ u for a in (0, 1)]
         else:
@@ -564,7 +569,7 @@ def main():
                     help='carry the particle velocity gradient to the nodes (m_i v_i = sum m_p S (v_p + L_p (x_i - x_p)))')
     ap.add_argument('--centroid', nargs='?', const='once', default=None,
                     help='correct the remapped grid velocity from the particles\' mass centroid to the node '
-                         '(force adjoint): once (default) or exact (the fixed point)')
+                         '(force adjoint): once (default), K passes, or exact (the fixed point)')
     ap.add_argument('--schemes', default=None)
     ap.add_argument('--cells', default='8,16,32')
     ap.add_argument('--ppc', type=int, default=2)
