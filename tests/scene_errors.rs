@@ -922,6 +922,48 @@ fn other_validation() {
     .key("method.quadrature")
     .says("the domain rule is MPMCG's quadrature: use it with gradient = \"mpmcg\" (got \"mpm\")");
     check(
+        "centroid_without_averages",
+        edit(BAR, "flip = 1.0", "flip = 1.0\ncentroid_passes = 4"),
+    )
+    .key("method.centroid_passes")
+    .says("the centroid correction uses the averaged gradient L̄: use it with gradient = \"mpmcg\" or \"averaged\" (got \"mpm\")");
+    check(
+        "centroid_with_usl",
+        edit(
+            &edit(BAR, "gradient = \"mpm\"", "gradient = \"mpmcg\""),
+            "flip = 1.0",
+            "flip = 1.0\ncentroid_passes = 4",
+        ),
+    )
+    .key("method.centroid_passes")
+    .says("corrects MUSL's remapped velocity: use it with update = \"musl\" (got \"usl\")");
+    check(
+        "centroid_passes_high",
+        edit(DISKS, "flip = 1.0", "flip = 1.0\ncentroid_passes = 9"),
+    )
+    .key("method.centroid_passes")
+    .says("must be an integer in [0, 8] (0 = off), got 9");
+    check(
+        "centroid_with_xpic",
+        edit(
+            DISKS,
+            "flip = 1.0",
+            "flip = 1.0\nxpic = 2\ncentroid_passes = 4",
+        ),
+    )
+    .key("method.centroid_passes")
+    .says("cannot be combined: drop one of method.xpic and method.centroid_passes");
+    check(
+        "centroid_periodic",
+        edit(
+            include_str!("../inputs/axis_aligned_mms_2d_periodic.toml"),
+            "update = \"usl\"",
+            "update = \"musl\"\ncentroid_passes = 4",
+        ),
+    )
+    .key("method.centroid_passes")
+    .says("does not support periodic faces");
+    check(
         "quadrature_name",
         edit(BAR, "flip = 1.0", "flip = 1.0\nquadrature = \"gauss\""),
     )

@@ -82,6 +82,7 @@ macro_rules! by_pad {
     };
 }
 
+mod centroid;
 mod clock;
 mod diagnostics;
 mod gather;
@@ -198,6 +199,8 @@ pub struct Solver<'c, const D: usize> {
     pub tiles: Tiles<D>,
     /// XPIC's order m, if the scene asks for it (else FLIP/PIC by `flip`).
     xpic: Option<usize>,
+    /// Passes of the centroid correction; 0 is off ([`Solver::centroid_velocity`]).
+    centroid_passes: usize,
     /// The null-space diagnostic's state, if the scene asks for its field.
     pub null_space: Option<NullSpace<D>>,
     grid: GridFields<D>,
@@ -224,6 +227,12 @@ struct GridFields<const D: usize> {
     /// also uses between steps).
     xpic_add: Vec<f64>,
     xpic_term: Vec<f64>,
+    /// The centroid correction's fields, empty without it: per node the offset `d_i`
+    /// of its mass centroid (D), the velocity or force it starts from (D), and a D × D
+    /// tensor per node for the adjoint ([`Solver::centroid_force`]).
+    centroid_d: Vec<f64>,
+    centroid_base: Vec<f64>,
+    centroid_tensor: Vec<f64>,
     /// Per node: its fill fraction `φ_k` (see [`Solver::domain_weights`]), copied to
     /// the ghosts.
     fill: Vec<f64>,
@@ -282,6 +291,9 @@ impl<const D: usize> GridFields<D> {
             vel: Vec::new(),
             xpic_add: Vec::new(),
             xpic_term: Vec::new(),
+            centroid_d: Vec::new(),
+            centroid_base: Vec::new(),
+            centroid_tensor: Vec::new(),
             fill: Vec::new(),
             cell_w: Vec::new(),
             node_vol: Vec::new(),
@@ -485,6 +497,9 @@ impl<'c, const D: usize> Solver<'c, D> {
             }
             Phase::XpicField => self.xpic_field(),
             Phase::Remap => return self.remap(dt, kick),
+            Phase::CentroidOffsets => self.centroid_offsets(),
+            Phase::CentroidForce => self.centroid_force(),
+            Phase::CentroidVelocity { slot } => self.centroid_velocity(slot),
         }
         true
     }

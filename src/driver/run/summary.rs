@@ -120,6 +120,9 @@ pub struct Summary {
     /// The XPIC order, when XPIC replaced the FLIP/PIC blend.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub xpic: Option<u32>,
+    /// Passes of the centroid correction, when it is on.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub centroid_passes: Option<u32>,
     /// `SI`, or `dimensionless` for benchmark scenes (as in the snapshots).
     pub units: String,
     /// `completed`, `unstable` or `interrupted`.
@@ -246,6 +249,8 @@ impl<'a, const D: usize> Run<'a, D> {
             update: scene.method.update.name().into(),
             flip: scene.method.flip,
             xpic: scene.method.xpic,
+            centroid_passes: (scene.method.centroid_passes > 0)
+                .then_some(scene.method.centroid_passes),
             units: Labels::of::<D>(scene).units,
             status: String::new(),
             message: None,

@@ -174,6 +174,16 @@ pub struct Method {
     /// MPMCG's quadrature of the internal force and the velocity gradient.
     #[serde(default, skip_serializing_if = "is_point")]
     pub quadrature: Quadrature,
+    /// Passes of the centroid correction (MUSL, two-step schemes): the remapped grid
+    /// velocity is the particles' at their mass centroid `x_i + d_i`, and each pass
+    /// moves it towards the node, `v ← v₀ − L̄(v) d_i`; the grid force is its adjoint.
+    /// 0 (the default) is off: docs/schemes.md, "The centroid correction".
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub centroid_passes: u32,
+}
+
+fn is_zero(n: &u32) -> bool {
+    *n == 0
 }
 
 fn is_point(q: &Quadrature) -> bool {
@@ -201,6 +211,7 @@ impl Default for Method {
             flip: default_flip(),
             xpic: None,
             quadrature: Quadrature::Point,
+            centroid_passes: 0,
         }
     }
 }

@@ -3,7 +3,7 @@
 
 mod bodies;
 
-use super::schema::{variants, Boundary, Face, Field, Gradient, Model, Quadrature, Scene};
+use super::schema::{variants, Boundary, Face, Field, Gradient, Model, Quadrature, Scene, Update};
 use crate::input::plan::{CheckpointEvery, Plan};
 use bodies::{kinds_of, validate_benchmark_table, validate_bodies, validate_materials};
 
@@ -12,6 +12,9 @@ type Invalid = (String, String);
 /// The highest XPIC order accepted: each order costs one particle → grid pass per step,
 /// and past a few the filter differs from FLIP only in the exact null space.
 pub const MAX_XPIC: u32 = 8;
+/// The most passes of the centroid correction: each divides what is left of the
+/// centroid's offset several times over, and four already leave well under 1 % of it.
+pub const MAX_CENTROID_PASSES: u32 = 8;
 
 fn finite(key: &str, x: f64) -> Result<(), Invalid> {
     if x.is_finite() {
@@ -201,8 +204,10 @@ fn validate_time(s: &Scene) -> Result<(), Invalid> {
     Ok(())
 }
 
-/// `[method]`: the FLIP fraction, the XPIC order and the quadrature.
+/// `[method]`: the FLIP fraction, the XPIC order, the quadrature and the centroid
+/// correction.
 fn validate_method(s: &Scene) -> Result<(), Invalid> {
+    validate_centroid(s)?;
     if s.method.quadrature == Quadrature::Domain && s.method.gradient != Gradient::Mpmcg {
         return Err((
             "method.quadrature".into(),
@@ -238,6 +243,56 @@ fn validate_method(s: &Scene) -> Result<(), Invalid> {
                 ),
             ));
         }
+    }
+    Ok(())
+}
+
+/// `[method] centroid_passes`: it corrects the remapped velocity with the averaged
+/// gradient L̄, so it needs a two-step scheme and MUSL (the other orders' particle
+/// updates read the grid velocity it would change); XPIC's passes reuse the buffers it
+/// fills, and the node positions it interpolates are not one linear field across a
+/// periodic seam.
+fn validate_centroid(s: &Scene) -> Result<(), Invalid> {
+    let n = s.method.centroid_passes;
+    if n == 0 {
+        return Ok(());
+    }
+    let key = || "method.centroid_passes".to_string();
+    if n > MAX_CENTROID_PASSES {
+        return Err((
+            key(),
+            format!("must be an integer in [0, {MAX_CENTROID_PASSES}] (0 = off), got {n}"),
+        ));
+    }
+    if !matches!(s.method.gradient, Gradient::Mpmcg | Gradient::Averaged) {
+        return Err((
+            key(),
+            format!(
+                "the centroid correction uses the averaged gradient L̄: use it with gradient = \"mpmcg\" or \"averaged\" (got \"{}\")",
+                s.method.gradient.name()
+            ),
+        ));
+    }
+    if s.method.update != Update::Musl {
+        return Err((
+            key(),
+            format!(
+                "the centroid correction corrects MUSL's remapped velocity: use it with update = \"musl\" (got \"{}\")",
+                s.method.update.name()
+            ),
+        ));
+    }
+    if s.method.xpic.is_some() {
+        return Err((
+            key(),
+            "the centroid correction and XPIC cannot be combined: drop one of method.xpic and method.centroid_passes".into(),
+        ));
+    }
+    if (0..s.dim).any(|a| s.grid.boundary.face(a, false) == Face::Periodic) {
+        return Err((
+            key(),
+            "the centroid correction does not support periodic faces yet".into(),
+        ));
     }
     Ok(())
 }

@@ -23,12 +23,15 @@ pub enum Part {
     Migrate,
     /// The sort by cell, when the particles fell out of order.
     Sort,
+    CentroidOffsets,
+    CentroidForce,
+    CentroidVelocity,
 }
 
 impl Part {
     /// Every part: the time step, the phases (each part sums its phase's repeats in a
     /// step, such as MUSL's two grid updates), then the step's end.
-    pub const ALL: [Part; 12] = [
+    pub const ALL: [Part; 15] = [
         Part::TimeStep,
         Part::Scatter,
         Part::AveragedForce,
@@ -38,6 +41,9 @@ impl Part {
         Part::Gather,
         Part::Remap,
         Part::Stress,
+        Part::CentroidOffsets,
+        Part::CentroidForce,
+        Part::CentroidVelocity,
         Part::Check,
         Part::Migrate,
         Part::Sort,
@@ -58,6 +64,9 @@ impl Part {
             Part::Check => "check",
             Part::Migrate => "migrate",
             Part::Sort => "sort",
+            Part::CentroidOffsets => "centroid_offsets",
+            Part::CentroidForce => "centroid_force",
+            Part::CentroidVelocity => "centroid_velocity",
         }
     }
 
@@ -72,6 +81,9 @@ impl Part {
             Phase::Stress { .. } => Part::Stress,
             Phase::Remap => Part::Remap,
             Phase::XpicField => Part::XpicField,
+            Phase::CentroidOffsets => Part::CentroidOffsets,
+            Phase::CentroidForce => Part::CentroidForce,
+            Phase::CentroidVelocity { .. } => Part::CentroidVelocity,
         }
     }
 }
@@ -135,6 +147,9 @@ mod tests {
                 speed: true,
                 moves: true,
             },
+            Phase::CentroidOffsets,
+            Phase::CentroidForce,
+            Phase::CentroidVelocity { slot: 0 },
         ];
         let parts: Vec<Part> = phases.iter().map(|&p| Part::of(p)).collect();
         for (i, a) in parts.iter().enumerate() {

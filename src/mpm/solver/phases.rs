@@ -44,6 +44,17 @@ pub enum Phase {
     /// from the velocity before the force update, by m − 1 grid → particle → grid
     /// passes ([`Solver::xpic_field`]).
     XpicField,
+    /// The centroid correction only, before the step's first scatter (which then
+    /// finds the particles located): the offsets `d_i` of the nodes' mass centroids
+    /// ([`Solver::centroid_offsets`]).
+    CentroidOffsets,
+    /// The centroid correction only, after the `AveragedForce`: the grid force becomes
+    /// the adjoint of the correction applied to it ([`Solver::centroid_force`]).
+    CentroidForce,
+    /// The centroid correction only, before the `AveragedGradient` of velocity `slot`:
+    /// that velocity moved from the mass centroids to the nodes
+    /// ([`Solver::centroid_velocity`]).
+    CentroidVelocity { slot: usize },
 }
 
 impl Update {
@@ -124,6 +135,8 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// The step's phases for this scheme: one-step schemes skip the grid averages.
     pub(super) fn resolve_phases(&mut self) {
         let two = self.scheme.two_step();
+        let centroid = self.centroid_passes > 0;
+        debug_assert!(!centroid || (two && self.update == Update::Musl && self.xpic.is_none()));
         self.phases = self
             .update
             .phases()
@@ -147,6 +160,23 @@ impl<'c, const D: usize> Solver<'c, D> {
                     },
                 ],
                 Phase::Gather { .. } if self.xpic.is_some() => vec![Phase::XpicField, p],
+                // The correction (MUSL only, checked with the scene) wraps the scatter
+                // of moved particles, the averaged force and the gradient the
+                // particles deform and move with.
+                Phase::Scatter {
+                    forces,
+                    moved: true,
+                } if centroid => vec![
+                    Phase::CentroidOffsets,
+                    Phase::Scatter {
+                        forces,
+                        moved: false,
+                    },
+                ],
+                Phase::AveragedForce if centroid => vec![p, Phase::CentroidForce],
+                Phase::AveragedGradient { slot } if centroid => {
+                    vec![Phase::CentroidVelocity { slot }, p]
+                }
                 _ => vec![p],
             })
             .collect();

@@ -72,6 +72,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             speed_agreed: false,
             tiles,
             xpic: scene.method.xpic.map(|m| m as usize),
+            centroid_passes: scene.method.centroid_passes as usize,
             null_space: scene
                 .snapshot_plan()
                 .filter(|o| o.fields.contains(&crate::input::scene::Field::NullVelocity))

@@ -415,6 +415,34 @@ impl<const D: usize> NodeView<'_, D> {
     /// The node → node force of [`Solver::averaged_force`] on every owned node, from
     /// `sigma` (σ̄'s upper triangle per node, [`kernel::sym_index`]) into the force
     /// slots of `scat`.
+    pub(super) fn force_tiles<const NP: usize>(&self, scat: &mut [f64], sw: usize, sigma: &[f64]) {
+        // σ̄ is symmetric to the bit (both entries are the same sum over the same
+        // volume, `averaged_force`): its upper triangle only, a third fewer numbers to
+        // transpose in 3D, and the stencil reads `σ̄_ba` where it needs `σ̄_ab`.
+        self.tensor_force_tiles::<NP, 6>(
+            scat,
+            sw,
+            sigma,
+            NodeRecord::<D>::SYM,
+            kernel::sym_index::<D>,
+        );
+    }
+
+    /// [`force_tiles`](NodeView::force_tiles) for any D × D tensor per node, stored
+    /// whole row by row (`a D + b`): the centroid correction's adjoint
+    /// ([`Solver::centroid_force`]), whose tensors `w ⊗ d` are not symmetric.
+    pub(super) fn full_force_tiles<const NP: usize>(
+        &self,
+        scat: &mut [f64],
+        sw: usize,
+        tensor: &[f64],
+    ) {
+        self.tensor_force_tiles::<NP, 9>(scat, sw, tensor, D * D, |a, b| a * D + b);
+    }
+
+    /// `f_i −= Σ_j T_j · ∫ w S_j ∇S_i dv` on every owned node into the force slots of
+    /// `scat`, for a tensor field `T` stored with `width` numbers per node, entry
+    /// `(a, b)` at `index(a, b)`; `R` (at least `width`) sizes its table.
     ///
     /// A row of [`TILE`] nodes along the first axis at a time, one node per lane: the
     /// row's neighbours are side by side in the padded arrays, so every product below
@@ -423,22 +451,25 @@ impl<const D: usize> NodeView<'_, D> {
     /// cell the one-node loop skips (no cell there, or weight 0) adds an exact zero to
     /// `f`, which never holds −0 (it starts at +0, and a sum of finite numbers is −0
     /// only if both are): the same bits as one node at a time.
-    pub(super) fn force_tiles<const NP: usize>(&self, scat: &mut [f64], sw: usize, sigma: &[f64]) {
-        let sym = NodeRecord::<D>::SYM;
+    fn tensor_force_tiles<const NP: usize, const R: usize>(
+        &self,
+        scat: &mut [f64],
+        sw: usize,
+        sigma: &[f64],
+        width: usize,
+        index: fn(usize, usize) -> usize,
+    ) {
         let cell_k = self.cell_k;
         let ahead = |n: usize, len: usize| {
-            kernel::prefetch(sigma, n * sym, len * sym);
+            kernel::prefetch(sigma, n * width, len * width);
             kernel::prefetch(self.cell_w, n, len);
         };
         self.par_tiles::<NP>(scat, sw, ahead, |slot, pad, recs| {
             // Filled in place, component by component: a row's lanes are the
             // neighbouring entries of one component. (`array::from_fn` built these in
             // a temporary and copied it, a `memcpy` of 15 kB per tile in 3D.)
-            // σ̄ is symmetric to the bit (both entries are the same sum over the same
-            // volume, `averaged_force`): its upper triangle only, a third fewer numbers
-            // to transpose in 3D, and the stencil reads `σ̄_ba` where it needs `σ̄_ab`.
-            let mut sp = [[0.0; NP]; 6];
-            let sp = pad_table(&mut sp, sym, |k, i| sigma[pad[k] * sym + i]);
+            let mut sp = [[0.0; NP]; R];
+            let sp = pad_table(&mut sp, width, |k, i| sigma[pad[k] * width + i]);
             let mut cw = [[0.0; NP]; 1];
             let cw = &pad_table(&mut cw, 1, |k, _| self.cell_w[pad[k]])[0];
             // The sums of σ̄_ab over padded neighbours along b,
@@ -447,11 +478,7 @@ impl<const D: usize> NodeView<'_, D> {
             // added them each time. The same addition, so the same bits. (The last
             // PAD^b entries, which no cell reads, are 0: [`pair_table`].)
             let mut ssp = [[[0.0; NP]; D]; D];
-            let ssp = pair_table(
-                &mut ssp,
-                |a, b| &sp[kernel::sym_index::<D>(a, b)],
-                |lo, hi| lo + hi,
-            );
+            let ssp = pair_table(&mut ssp, |a, b| &sp[index(a, b)], |lo, hi| lo + hi);
             self.pad_rows(slot, |o0, p0, own, _, low| {
                 let mut f = [[0.0; TILE]; D];
                 for q in 0..(1 << D) {
@@ -644,7 +671,7 @@ pub(super) fn avg_of<const D: usize>(scat: &[f64], nodes: usize) -> &[f64] {
 }
 
 #[cfg(test)]
-mod adjoint_tests {
+pub(super) mod adjoint_tests {
     //! Energy consistency: `Σ_i f_int,i · v_i = −Σ_p V_p σ_p : L_p` for any grid
     //! velocity `v` and particle stresses `σ_p`, with `f_int` from the scatter and the
     //! node→node step and `L_p` from the gather's velocity gradient at the same
@@ -746,14 +773,14 @@ particles_per_cell = 3
     /// jittered by up to `jitter` cells (partly filled surface cells).
     /// Particle `p`'s velocity gradient from velocity slot 1 (with L̄ where the scheme
     /// has it), as the particle passes form it.
-    pub(super) fn gradient_at(s: &Solver<'_, 2>, p: usize) -> Mat<2> {
+    pub(in crate::mpm::solver) fn gradient_at(s: &Solver<'_, 2>, p: usize) -> Mat<2> {
         let ctx = ctx!(s);
         let (k, idx) = ctx.kern::<2, 4>(&s.parts.x[p], None, s.place.ptile[p]);
         let avg = avg_of::<2>(&s.grid.scat, s.grid.node_vol.len());
         kernel::velocity_gradient(&k, &idx, &s.grid.vel, avg, 1, s.scheme.two_step())
     }
 
-    pub(super) fn beam(
+    pub(in crate::mpm::solver) fn beam(
         gradient: &str,
         x_lower: &str,
         jitter: f64,
