@@ -74,9 +74,6 @@ fn scene(dim: usize, gradient: &str) -> String {
             },
         },
     };
-    // The centroid correction refuses periodic faces: slip walls instead, and the
-    // bodies head for each other across the block boundaries at the box's middle.
-    let centroid = xpic.contains("centroid");
     let (lower, upper, cells, c1, c2, v1, v2, r) = if dim == 2 {
         (
             "[0.0, 0.0]",
@@ -100,25 +97,11 @@ fn scene(dim: usize, gradient: &str) -> String {
             0.2,
         )
     };
-    let face = if centroid { "slip" } else { "periodic" };
     let faces = ["x", "y", "z"][..dim]
         .iter()
-        .map(|a| format!("{a}_lower = \"{face}\", {a}_upper = \"{face}\""))
+        .map(|a| format!("{a}_lower = \"periodic\", {a}_upper = \"periodic\""))
         .collect::<Vec<_>>()
         .join(", ");
-    let (v1, v2) = if centroid {
-        let flip = |v: &str| {
-            let parts: Vec<f64> = v
-                .trim_matches(|c| c == '[' || c == ']')
-                .split(',')
-                .map(|x| -x.trim().parse::<f64>().unwrap())
-                .collect();
-            format!("{parts:?}")
-        };
-        (flip(v1), flip(v2))
-    } else {
-        (v1.to_string(), v2.to_string())
-    };
     format!(
         r#"
 name = "crossing"
@@ -162,8 +145,8 @@ fn summary(out: &Path) -> serde_json::Value {
 
 /// For every scheme in 2D and 3D, MPMCG's domain rule (its particles reach a node
 /// further, as GIMP's do), the domain rule with the centroid correction (its passes
-/// copy velocities and tensors to the ghosts; slip walls, the bodies meeting in the
-/// middle) and MPMCG with XPIC(2) in 2D (its extra scatters are summed over ranks
+/// copy velocities and tensors to the ghosts, its offsets are summed across the
+/// periodic faces) and MPMCG with XPIC(2) in 2D (its extra scatters are summed over ranks
 /// too): 2, 3 and 4 ranks reproduce the 1-rank final state to
 /// 1e-12 (relative to the domain size for positions and to the initial speed for
 /// velocities); the same rank count twice is bit-identical; mass and momentum agree.

@@ -954,16 +954,6 @@ fn other_validation() {
     .key("method.centroid_passes")
     .says("cannot be combined: drop one of method.xpic and method.centroid_passes");
     check(
-        "centroid_periodic",
-        edit(
-            include_str!("../inputs/axis_aligned_mms_2d_periodic.toml"),
-            "update = \"usl\"",
-            "update = \"musl\"\ncentroid_passes = 4",
-        ),
-    )
-    .key("method.centroid_passes")
-    .says("does not support periodic faces");
-    check(
         "quadrature_name",
         edit(BAR, "flip = 1.0", "flip = 1.0\nquadrature = \"gauss\""),
     )

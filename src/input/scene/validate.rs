@@ -250,8 +250,7 @@ fn validate_method(s: &Scene) -> Result<(), Invalid> {
 /// `[method] centroid_passes`: it corrects the remapped velocity with the averaged
 /// gradient L̄, so it needs a two-step scheme and MUSL (the other orders' particle
 /// updates read the grid velocity it would change); XPIC's passes reuse the buffers it
-/// fills, and the node positions it interpolates are not one linear field across a
-/// periodic seam.
+/// fills.
 fn validate_centroid(s: &Scene) -> Result<(), Invalid> {
     let n = s.method.centroid_passes;
     if n == 0 {
@@ -286,12 +285,6 @@ fn validate_centroid(s: &Scene) -> Result<(), Invalid> {
         return Err((
             key(),
             "the centroid correction and XPIC cannot be combined: drop one of method.xpic and method.centroid_passes".into(),
-        ));
-    }
-    if (0..s.dim).any(|a| s.grid.boundary.face(a, false) == Face::Periodic) {
-        return Err((
-            key(),
-            "the centroid correction does not support periodic faces yet".into(),
         ));
     }
     Ok(())

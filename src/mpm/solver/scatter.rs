@@ -28,6 +28,14 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// The scatter proper, into `scat`, summed over ranks. `from_grid`: momentum of the
     /// field `xpic_term` interpolated at the particles instead of their velocities.
     pub(super) fn scatter_pass(&mut self, forces: bool, from_grid: bool) {
+        self.scatter_local(forces, from_grid);
+        self.block
+            .ghost_sum(self.comm, &mut self.grid.scat, self.grid.sw);
+    }
+
+    /// [`scatter_pass`](Solver::scatter_pass) into this rank's stored nodes, before
+    /// the sum over ranks and periodic images.
+    pub(super) fn scatter_local(&mut self, forces: bool, from_grid: bool) {
         let two = self.scheme.two_step() && !from_grid;
         zero(&mut self.grid.scat);
         let ctx = ctx!(self);
@@ -73,8 +81,6 @@ impl<'c, const D: usize> Solver<'c, D> {
             &mut self.grid.scat,
             m
         );
-        self.block
-            .ghost_sum(self.comm, &mut self.grid.scat, self.grid.sw);
     }
 
     /// XPIC(m) (Hammerquist & Nairn 2017): the particles' new velocities are
