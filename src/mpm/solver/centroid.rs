@@ -31,27 +31,32 @@ impl<'c, const D: usize> Solver<'c, D> {
         let h = self.geom.h;
         // The field a scatter `from_grid` interpolates (XPIC's and the null-space
         // diagnostic's term; neither runs with the correction within a step).
-        let src = &mut self.grid.xpic_term;
+        let mut src = std::mem::take(&mut self.grid.xpic_term);
         src.clear();
         src.resize(nn * D, 0.0);
-        for slot in 1..self.tiles.slots() {
-            for o in 0..tn {
-                if let Some(c) = self.tiles.local(slot, o) {
-                    let n = slot * tn + o;
+        let nodes = self.nodes();
+        nodes.each_tile(&mut src, D, |slot, x| {
+            for (o, x) in x.chunks_exact_mut(D).enumerate() {
+                if let Some(c) = nodes.tiles.local(slot, o) {
                     for a in 0..D {
-                        src[n * D + a] = (self.block.node_lo[a] + c[a] as i64) as f64 * h[a];
+                        x[a] = (nodes.node_lo[a] + c[a] as i64) as f64 * h[a];
                     }
                 }
             }
-        }
+        });
+        self.grid.xpic_term = src;
         self.scatter_local(false, true);
         let sw = self.grid.sw;
-        let x = &self.grid.xpic_term;
-        for (rec, x) in self.grid.scat.chunks_exact_mut(sw).zip(x.chunks_exact(D)) {
-            for a in 0..D {
-                rec[NodeRecord::<D>::momentum(a)] -= x[a] * rec[NodeRecord::<D>::MASS];
+        let (mut scat, x) = (std::mem::take(&mut self.grid.scat), &self.grid.xpic_term);
+        self.nodes().each_tile(&mut scat, sw, |slot, recs| {
+            for (o, rec) in recs.chunks_exact_mut(sw).enumerate() {
+                let x = &x[(slot * tn + o) * D..][..D];
+                for a in 0..D {
+                    rec[NodeRecord::<D>::momentum(a)] -= x[a] * rec[NodeRecord::<D>::MASS];
+                }
             }
-        }
+        });
+        self.grid.scat = scat;
         self.block.ghost_sum(self.comm, &mut self.grid.scat, sw);
         let mut d = std::mem::take(&mut self.grid.centroid_d);
         d.clear();
@@ -180,7 +185,9 @@ impl<'c, const D: usize> Solver<'c, D> {
 
 #[cfg(test)]
 mod tests {
-    use super::super::stencils::adjoint_tests::{beam, gradient_at};
+    use super::super::stencils::adjoint_tests::{
+        beam, gradient_at_3d, jittered_box_3d, powers, stressed_beam,
+    };
     use super::*;
     use crate::physics::gradient::tests::Rng;
 
@@ -207,14 +214,11 @@ mod tests {
     fn force_is_the_adjoint_of_the_corrected_gradient_and_keeps_momentum() {
         for face in ["fixed", "slip", "free"] {
             for jitter in [0.0, 0.6] {
-                let mut rng = Rng(2024);
-                let mut s = beam("mpmcg", face, jitter, &mut rng);
+                let (fv, work) = powers("mpmcg", face, jitter, true, 2024, 4);
+                let rel = (fv - work).abs() / fv.abs().max(work.abs());
+                assert!(rel < 1e-12, "{face} jitter {jitter}: Σ f·v {fv} vs {work}");
+                let (mut s, _) = stressed_beam("mpmcg", face, jitter, 2024);
                 s.centroid_passes = 4;
-                for p in 0..s.parts.len() {
-                    let (a, b, c) = (rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5);
-                    s.parts.stress[p] = Mat::<2>::new(a, c, c, b) * 1e3;
-                    s.parts.vol[p] *= 0.5 + rng.f64();
-                }
                 s.centroid_offsets();
                 s.scatter(true, false);
                 s.averaged_force();
@@ -239,34 +243,6 @@ mod tests {
                     change > 1e-3 * size,
                     "{face} jitter {jitter}: change {change:e}"
                 );
-                let mut vel = vec![0.0; s.tiles.nodes() * 4];
-                let mut owned = Vec::new();
-                s.for_owned(|n, c| owned.push((n, c)));
-                for &(n, c) in &owned {
-                    let v = &mut vel[n * 4..n * 4 + 4];
-                    if s.grid.centroid_d[n * 2..n * 2 + 2] != [0.0; 2] {
-                        v[0] = rng.f64() - 0.5;
-                        v[1] = rng.f64() - 0.5;
-                        v[2] = v[0];
-                        v[3] = v[1];
-                        s.apply_bc(c, v);
-                    }
-                }
-                s.block.ghost_copy(s.comm, &mut vel, 4);
-                s.grid.vel = vel;
-                let mut fv = 0.0f64;
-                for (&(n, _), f) in owned.iter().zip(&f1) {
-                    fv += f[0] * s.grid.vel[n * 4 + 2] + f[1] * s.grid.vel[n * 4 + 3];
-                }
-                s.centroid_velocity(1);
-                s.averaged_velocity_gradient(1);
-                let mut work = 0.0f64;
-                for p in 0..s.parts.len() {
-                    let l = gradient_at(&s, p);
-                    work -= s.parts.vol[p] * s.parts.stress[p].component_mul(&l).sum();
-                }
-                let rel = (fv - work).abs() / fv.abs().max(work.abs());
-                assert!(rel < 1e-12, "{face} jitter {jitter}: Σ f·v {fv} vs {work}");
             }
         }
     }
@@ -358,25 +334,8 @@ mod tests {
     /// the force changes by more than a thousandth.
     #[test]
     fn force_is_the_adjoint_of_the_corrected_gradient_in_3d() {
-        use crate::input::scene;
-        use decomposition::{Layout, SerialComm};
-        let sc = scene::parse(
-            &super::super::setup::sparse_tests::text(3, 1.0, 16, "mpmcg"),
-            "c3",
-        )
-        .unwrap();
-        let layout = Layout::choose([16; 3], [false; 3], 1).unwrap();
-        let mut s = Solver::<3>::new(&sc, &SerialComm, layout);
+        let (mut s, mut rng) = jittered_box_3d(41);
         s.centroid_passes = 4;
-        let mut rng = Rng(41);
-        let h = s.geom.h;
-        for p in 0..s.parts.len() {
-            for a in 0..3 {
-                s.parts.x[p][a] += 0.9 * h[a] * (rng.f64() - 0.5);
-            }
-            s.parts.def_grad[p] =
-                Mat::<3>::from_fn(|i, k| f64::from(u8::from(i == k)) + 0.2 * (rng.f64() - 0.5));
-        }
         s.centroid_offsets();
         s.scatter(true, false);
         s.averaged_force();
@@ -445,18 +404,9 @@ mod tests {
         }
         s.centroid_velocity(1);
         s.averaged_velocity_gradient(1);
-        let ctx = ctx!(s);
         let mut work = 0.0f64;
         for p in 0..s.parts.len() {
-            let (k, idx) = ctx.kern::<2, 8>(&s.parts.x[p], None, s.place.ptile[p]);
-            let l = kernel::velocity_gradient(
-                &k,
-                &idx,
-                &s.grid.vel,
-                super::super::stencils::avg_of::<3>(&s.grid.scat, s.grid.node_vol.len()),
-                1,
-                true,
-            );
+            let l = gradient_at_3d(&s, p);
             let sigma = s.materials[0].stress_of_def_grad(&s.parts.def_grad[p]);
             work -= s.parts.volume(p, &s.kinds.vol0) * sigma.component_mul(&l).sum();
         }

@@ -713,16 +713,14 @@ particles_per_cell = 3
         )
     }
 
-    /// (Σ f·v, −Σ V σ:L) for random stresses and volumes, positions jittered by up to
-    /// `jitter` cells (partly filled cells, an irregular Ω) and a random grid velocity,
-    /// with the boundary conditions applied to it if `bc`.
-    pub(super) fn powers(
+    /// The beam of [`beam`] with random stresses and volumes (a material that stores
+    /// its stress), and the stream that drew them.
+    pub(in crate::mpm::solver) fn stressed_beam(
         gradient: &str,
         x_lower: &str,
         jitter: f64,
-        bc: bool,
         seed: u64,
-    ) -> (f64, f64) {
+    ) -> (Solver<'static, 2>, Rng) {
         let mut rng = Rng(seed);
         let mut s = beam(gradient, x_lower, jitter, &mut rng);
         for p in 0..s.parts.len() {
@@ -730,9 +728,32 @@ particles_per_cell = 3
             s.parts.stress[p] = Mat::<2>::new(a, c, c, b) * 1e3;
             s.parts.vol[p] *= 0.5 + rng.f64();
         }
-        s.scatter(true, true);
+        (s, rng)
+    }
+
+    /// (Σ f·v, −Σ V σ:L) for random stresses and volumes, positions jittered by up to
+    /// `jitter` cells (partly filled cells, an irregular Ω) and a random grid velocity,
+    /// with the boundary conditions applied to it if `bc`; with `passes` of the
+    /// centroid correction on the force and the velocity the gradient reads.
+    pub(in crate::mpm::solver) fn powers(
+        gradient: &str,
+        x_lower: &str,
+        jitter: f64,
+        bc: bool,
+        seed: u64,
+        passes: usize,
+    ) -> (f64, f64) {
+        let (mut s, mut rng) = stressed_beam(gradient, x_lower, jitter, seed);
+        s.centroid_passes = passes;
+        if passes > 0 {
+            s.centroid_offsets();
+        }
+        s.scatter(true, passes == 0);
         if s.scheme.two_step() {
             s.averaged_force();
+        }
+        if passes > 0 {
+            s.centroid_force();
         }
         let mut vel = vec![0.0; s.tiles.nodes() * 4];
         let mut owned = Vec::new();
@@ -758,6 +779,9 @@ particles_per_cell = 3
                     * s.grid.vel[n * 4 + 2 + a];
             }
         }
+        if passes > 0 {
+            s.centroid_velocity(1);
+        }
         if s.scheme.two_step() {
             s.averaged_velocity_gradient(1);
         }
@@ -773,7 +797,7 @@ particles_per_cell = 3
     /// jittered by up to `jitter` cells (partly filled surface cells).
     /// Particle `p`'s velocity gradient from velocity slot 1 (with L̄ where the scheme
     /// has it), as the particle passes form it.
-    pub(in crate::mpm::solver) fn gradient_at(s: &Solver<'_, 2>, p: usize) -> Mat<2> {
+    pub(super) fn gradient_at(s: &Solver<'_, 2>, p: usize) -> Mat<2> {
         let ctx = ctx!(s);
         let (k, idx) = ctx.kern::<2, 4>(&s.parts.x[p], None, s.place.ptile[p]);
         let avg = avg_of::<2>(&s.grid.scat, s.grid.node_vol.len());
@@ -918,7 +942,7 @@ particles_per_cell = 3
         for g in ["mpm", "averaged", "mpmcg"] {
             for face in ["fixed", "slip", "free"] {
                 for (jitter, bc) in [(0.0, false), (0.0, true), (0.6, false), (0.6, true)] {
-                    let (a, b) = powers(g, face, jitter, bc, 12345);
+                    let (a, b) = powers(g, face, jitter, bc, 12345, 0);
                     let rel = (a - b).abs() / a.abs().max(b.abs());
                     assert!(
                         rel < 1e-12,
@@ -929,14 +953,10 @@ particles_per_cell = 3
         }
     }
 
-    /// MPMCG's node stencils in 3D (`force_tiles`, `gradient_tiles`: a row of four
-    /// nodes at a time) on the spinning box of the sparse-grid tests, its particles
-    /// jittered by up to 0.9 cells so that surface cells are partly filled: a linear
-    /// grid velocity gives every particle its gradient `W` to round-off, and the nodal
-    /// forces are the adjoint of the particles' velocity gradients for random
-    /// deformation gradients (neo-Hookean stress) and a random grid velocity.
-    #[test]
-    pub(super) fn stencils_in_3d_are_exact_and_adjoint() {
+    /// The spinning box of the sparse-grid tests in 3D (16³ cells, MPMCG), its
+    /// particles jittered by up to 0.9 cells (partly filled surface cells) and given
+    /// random deformation gradients `I + 0.2 (U − ½)`, with the stream that drew them.
+    pub(in crate::mpm::solver) fn jittered_box_3d(seed: u64) -> (Solver<'static, 3>, Rng) {
         let sc = scene::parse(
             &super::super::setup::sparse_tests::text(3, 1.0, 16, "mpmcg"),
             "s3",
@@ -944,7 +964,7 @@ particles_per_cell = 3
         .unwrap();
         let layout = Layout::choose([16; 3], [false; 3], 1).unwrap();
         let mut s = Solver::<3>::new(&sc, &SerialComm, layout);
-        let mut rng = Rng(31);
+        let mut rng = Rng(seed);
         let h = s.geom.h;
         for p in 0..s.parts.len() {
             for a in 0..3 {
@@ -953,6 +973,27 @@ particles_per_cell = 3
             s.parts.def_grad[p] =
                 Mat::<3>::from_fn(|i, k| f64::from(u8::from(i == k)) + 0.2 * (rng.f64() - 0.5));
         }
+        (s, rng)
+    }
+
+    /// [`gradient_at`] in 3D: particle `p`'s velocity gradient from velocity slot 1,
+    /// with L̄.
+    pub(in crate::mpm::solver) fn gradient_at_3d(s: &Solver<'_, 3>, p: usize) -> Mat<3> {
+        let ctx = ctx!(s);
+        let (k, idx) = ctx.kern::<2, 8>(&s.parts.x[p], None, s.place.ptile[p]);
+        let avg = avg_of::<3>(&s.grid.scat, s.grid.node_vol.len());
+        kernel::velocity_gradient(&k, &idx, &s.grid.vel, avg, 1, true)
+    }
+
+    /// MPMCG's node stencils in 3D (`force_tiles`, `gradient_tiles`: a row of four
+    /// nodes at a time) on the spinning box of the sparse-grid tests, its particles
+    /// jittered by up to 0.9 cells so that surface cells are partly filled: a linear
+    /// grid velocity gives every particle its gradient `W` to round-off, and the nodal
+    /// forces are the adjoint of the particles' velocity gradients for random
+    /// deformation gradients (neo-Hookean stress) and a random grid velocity.
+    #[test]
+    pub(super) fn stencils_in_3d_are_exact_and_adjoint() {
+        let (mut s, mut rng) = jittered_box_3d(31);
         s.scatter(true, true);
         s.averaged_force();
         // The records as the grid update reads them: L̄ is formed in their storage.
@@ -982,18 +1023,9 @@ particles_per_cell = 3
             s.block.ghost_copy(s.comm, &mut vel, 6);
             s.grid.vel = vel;
             s.averaged_velocity_gradient(1);
-            let ctx = ctx!(s);
             let mut work = 0.0;
             for p in 0..s.parts.len() {
-                let (k, idx) = ctx.kern::<2, 8>(&s.parts.x[p], None, s.place.ptile[p]);
-                let l = kernel::velocity_gradient(
-                    &k,
-                    &idx,
-                    &s.grid.vel,
-                    avg_of::<3>(&s.grid.scat, s.grid.node_vol.len()),
-                    1,
-                    true,
-                );
+                let l = gradient_at_3d(&s, p);
                 if linear {
                     for a in 0..3 {
                         for b in 0..3 {
