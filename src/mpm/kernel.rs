@@ -72,20 +72,21 @@ pub struct Ctx<'a, const D: usize> {
     pub walls: bool,
 }
 
-/// Layout of a node's scatter record, `width(two_step)` numbers per node: the mass, the
-/// momentum (D), the force (D), and for two-step schemes the averaged-stress sum
-/// `Σ_p (1 − α_p) v_p σ_p S_j(x_p)` (its upper triangle, [`NodeRecord::SYM`] numbers:
-/// the stress is symmetric, so the lower one is the same sum) and the cover
-/// `Σ_p v_p S_j(x_p)` last. The records are summed over ranks as plain numbers (the
-/// ghost sum).
+/// Layout of a node's scatter record, `width(two_step, moments)` numbers per node: the
+/// mass, the momentum (D), the force (D), and for two-step schemes the averaged-stress
+/// sum `Σ_p (1 − α_p) v_p σ_p S_j(x_p)` (its upper triangle, [`NodeRecord::SYM`]
+/// numbers: the stress is symmetric, so the lower one is the same sum), with the
+/// centroid correction the first moment `Σ_p m_p S_j(x_p) (x̂_p − x_j)` (D), and the
+/// cover `Σ_p v_p S_j(x_p)` last. The records are summed over ranks as plain numbers
+/// (the ghost sum).
 pub struct NodeRecord<const D: usize>;
 
 impl<const D: usize> NodeRecord<D> {
     pub const MASS: usize = 0;
     /// Entries of a symmetric D × D tensor's upper triangle.
     pub const SYM: usize = D * (D + 1) / 2;
-    pub const fn width(two_step: bool) -> usize {
-        1 + 2 * D + if two_step { Self::SYM + 1 } else { 0 }
+    pub const fn width(two_step: bool, moments: bool) -> usize {
+        1 + 2 * D + if two_step { Self::SYM + 1 } else { 0 } + if moments { D } else { 0 }
     }
     pub const fn momentum(a: usize) -> usize {
         1 + a
@@ -96,6 +97,10 @@ impl<const D: usize> NodeRecord<D> {
     /// Entry `(a, b)` of the averaged-stress sum, either triangle.
     pub const fn stress_sum(a: usize, b: usize) -> usize {
         1 + 2 * D + sym_index::<D>(a, b)
+    }
+    /// Component `a` of the first moment (records with moments, two-step schemes).
+    pub const fn moment(a: usize) -> usize {
+        1 + 2 * D + Self::SYM + a
     }
     /// The cover, last in a record of `width`.
     pub const fn cover(width: usize) -> usize {

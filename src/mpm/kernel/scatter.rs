@@ -53,6 +53,10 @@ pub struct ScatterMode {
     /// Momentum of the grid field `src` interpolated at each particle instead of the
     /// particle's velocity (grid → particle → grid in one pass, for XPIC).
     pub from_grid: bool,
+    /// Also accumulate the first moment `Σ_p m_p S_j (x̂_p − x_j)` of each node, with
+    /// `x̂_p = Σ_k S_k x_k` the node positions interpolated at the particle (two-step
+    /// schemes with the centroid correction, [`NodeRecord::moment`]).
+    pub moments: bool,
 }
 
 /// Particle → grid over all particles into `scat` (cleared by the caller), in slab
@@ -100,6 +104,12 @@ pub(super) fn scatter_slab<const D: usize, const NA: usize, const N: usize>(
     let mut run = Run::<D, NA, N>::new();
     let mut cell = CellAt::<D>::new();
     let mut kinds = particles::KindCache::new(ctx.kind_mass, ctx.kind_vol0, ctx.materials);
+    // Each node's position relative to the first node of its particle's stencil: a
+    // moment relative to the node is then the same sum wherever the stencil lies, a
+    // node's image across a periodic seam included.
+    let off: [[f64; N]; D] = std::array::from_fn(|a| {
+        std::array::from_fn(|n| ((n / NA.pow(a as u32)) % NA) as f64 * ctx.geom.h[a])
+    });
     // The arrays every particle has, each as long as the positions: one index check
     // per particle then covers them all.
     let len = parts.x.len();
@@ -159,6 +169,9 @@ pub(super) fn scatter_slab<const D: usize, const NA: usize, const N: usize>(
             Vector::<D>::zeros()
         };
         acc.add(&k, mass, &mv, vol, &vs, &fe, m);
+        if m.moments {
+            acc.add_moment(&k, mass, &off);
+        }
     }
     if run.started() {
         acc.flush(ctx, grid, &run.idx, m);
@@ -189,6 +202,8 @@ pub(super) struct ScatterSums<const D: usize, const N: usize> {
     /// The upper triangle ([`sym_index`]); 6 is the 3D count.
     pub(super) stress: [[f64; N]; 6],
     pub(super) cover: [f64; N],
+    /// The first moment relative to each node ([`ScatterMode::moments`]).
+    pub(super) moment: [[f64; N]; D],
 }
 
 impl<const D: usize, const N: usize> ScatterSums<D, N> {
@@ -200,6 +215,7 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
             pairs: [[[0.0; N]; D]; D],
             stress: [[0.0; N]; 6],
             cover: [0.0; N],
+            moment: [[0.0; N]; D],
         }
     }
 
@@ -270,6 +286,22 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
         }
     }
 
+    /// Add one particle's first moment relative to each of its nodes: the node
+    /// positions `off`, relative to the stencil's first node, interpolated at the
+    /// particle, less each node's own.
+    #[inline(always)]
+    pub(super) fn add_moment(&mut self, k: &Kern<D, N>, mass: f64, off: &[[f64; N]; D]) {
+        for a in 0..D {
+            let mut r = 0.0;
+            for n in 0..N {
+                r += k.s[n] * off[a][n];
+            }
+            for n in 0..N {
+                self.moment[a][n] += mass * k.s[n] * (r - off[a][n]);
+            }
+        }
+    }
+
     /// Add the sums into the records of nodes `idx` and start again from zero.
     #[inline(always)]
     pub(super) fn flush(
@@ -314,6 +346,11 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
             }
             if m.two_step {
                 rec[R::<D>::cover(sw)] += self.cover[n];
+            }
+            if m.moments {
+                for a in 0..D {
+                    rec[R::<D>::moment(a)] += self.moment[a][n];
+                }
             }
             if m.forces {
                 for a in 0..D {

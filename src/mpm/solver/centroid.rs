@@ -17,47 +17,14 @@
 use super::*;
 
 impl<'c, const D: usize> Solver<'c, D> {
-    /// The offsets `d_i` of the owned nodes that carry mass (zero elsewhere), from one
-    /// scatter of the node positions interpolated at the particles: every scheme's
-    /// weights reproduce a linear field, so that scatter's momentum is `Σ_p m_p S_i x_p`.
-    /// Each stored node takes its own position times its mass off its sums before they
-    /// are summed over ranks: a node's image across a periodic seam has its unwrapped
-    /// position, so what it adds to the node is already relative to the node.
-    /// Locates the particles for the step's scatter, which follows.
+    /// The offsets `d_i` of the owned nodes that carry mass (zero elsewhere), from the
+    /// first moments the step's scatter summed: every scheme's weights reproduce a
+    /// linear field, so the node positions interpolated at a particle are its own
+    /// where its weights reach no wall. Each moment is relative to its node, so an
+    /// image across a periodic seam adds to its node what it should.
     pub(super) fn centroid_offsets(&mut self) {
-        self.activate_tiles();
         let nn = self.grid.vel.len() / VelRecord::<D>::WIDTH;
-        let tn = self.tiles.tile_nodes();
-        let h = self.geom.h;
-        // The field a scatter `from_grid` interpolates (XPIC's and the null-space
-        // diagnostic's term; neither runs with the correction within a step).
-        let mut src = std::mem::take(&mut self.grid.xpic_term);
-        src.clear();
-        src.resize(nn * D, 0.0);
-        let nodes = self.nodes();
-        nodes.each_tile(&mut src, D, |slot, x| {
-            for (o, x) in x.chunks_exact_mut(D).enumerate() {
-                if let Some(c) = nodes.tiles.local(slot, o) {
-                    for a in 0..D {
-                        x[a] = (nodes.node_lo[a] + c[a] as i64) as f64 * h[a];
-                    }
-                }
-            }
-        });
-        self.grid.xpic_term = src;
-        self.scatter_local(false, true);
         let sw = self.grid.sw;
-        let (mut scat, x) = (std::mem::take(&mut self.grid.scat), &self.grid.xpic_term);
-        self.nodes().each_tile(&mut scat, sw, |slot, recs| {
-            for (o, rec) in recs.chunks_exact_mut(sw).enumerate() {
-                let x = &x[(slot * tn + o) * D..][..D];
-                for a in 0..D {
-                    rec[NodeRecord::<D>::momentum(a)] -= x[a] * rec[NodeRecord::<D>::MASS];
-                }
-            }
-        });
-        self.grid.scat = scat;
-        self.block.ghost_sum(self.comm, &mut self.grid.scat, sw);
         let mut d = std::mem::take(&mut self.grid.centroid_d);
         d.clear();
         d.resize(nn * D, 0.0);
@@ -67,7 +34,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             let m = rec[NodeRecord::<D>::MASS];
             if m > floor {
                 for a in 0..D {
-                    d[a] = rec[NodeRecord::<D>::momentum(a)] / m;
+                    d[a] = rec[NodeRecord::<D>::moment(a)] / m;
                 }
             }
         });
@@ -218,9 +185,9 @@ mod tests {
                 let rel = (fv - work).abs() / fv.abs().max(work.abs());
                 assert!(rel < 1e-12, "{face} jitter {jitter}: Σ f·v {fv} vs {work}");
                 let (mut s, _) = stressed_beam("mpmcg", face, jitter, 2024);
-                s.centroid_passes = 4;
+                s.set_centroid_passes(4);
+                s.scatter(true, true);
                 s.centroid_offsets();
-                s.scatter(true, false);
                 s.averaged_force();
                 let f0 = forces(&s);
                 s.centroid_force();
@@ -276,9 +243,11 @@ mod tests {
                     let x = s.parts.x[p];
                     s.parts.v[p] = w * Vector::<2>::new(x[0], x[1]) + c;
                 }
-                s.centroid_passes = k;
-                s.centroid_offsets();
-                s.scatter(false, false);
+                s.set_centroid_passes(k);
+                s.scatter(false, true);
+                if k > 0 {
+                    s.centroid_offsets();
+                }
                 s.grid_velocity(0.0);
                 let mass: Vec<f64> = (0..s.grid.node_vol.len())
                     .map(|n| s.grid.scat[n * s.grid.sw + NodeRecord::<2>::MASS])
@@ -335,9 +304,9 @@ mod tests {
     #[test]
     fn force_is_the_adjoint_of_the_corrected_gradient_in_3d() {
         let (mut s, mut rng) = jittered_box_3d(41);
-        s.centroid_passes = 4;
+        s.set_centroid_passes(4);
+        s.scatter(true, true);
         s.centroid_offsets();
-        s.scatter(true, false);
         s.averaged_force();
         let sum = |s: &Solver<'_, 3>| {
             let mut t = [0.0f64; 3];
@@ -457,6 +426,7 @@ particles_per_cell = 2
                     s.parts.x[p][a] = (s.parts.x[p][a] + shift).rem_euclid(len);
                 }
             }
+            s.scatter(false, true);
             s.centroid_offsets();
             let mut offsets = Vec::new();
             let mut seam = 0;

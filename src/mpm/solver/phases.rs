@@ -44,8 +44,8 @@ pub enum Phase {
     /// from the velocity before the force update, by m − 1 grid → particle → grid
     /// passes ([`Solver::xpic_field`]).
     XpicField,
-    /// The centroid correction only, before the step's first scatter (which then
-    /// finds the particles located): the offsets `d_i` of the nodes' mass centroids
+    /// The centroid correction only, right after the step's first scatter, which
+    /// summed the first moments: the offsets `d_i` of the nodes' mass centroids
     /// ([`Solver::centroid_offsets`]).
     CentroidOffsets,
     /// The centroid correction only, after the `AveragedForce`: the grid force becomes
@@ -160,19 +160,12 @@ impl<'c, const D: usize> Solver<'c, D> {
                     },
                 ],
                 Phase::Gather { .. } if self.xpic.is_some() => vec![Phase::XpicField, p],
-                // The correction (MUSL only, checked with the scene) wraps the scatter
-                // of moved particles, the averaged force and the gradient the
+                // The correction (MUSL only, checked with the scene) follows the
+                // scatter of moved particles, the averaged force and the gradient the
                 // particles deform and move with.
-                Phase::Scatter {
-                    forces,
-                    moved: true,
-                } if centroid => vec![
-                    Phase::CentroidOffsets,
-                    Phase::Scatter {
-                        forces,
-                        moved: false,
-                    },
-                ],
+                Phase::Scatter { moved: true, .. } if centroid => {
+                    vec![p, Phase::CentroidOffsets]
+                }
                 Phase::AveragedForce if centroid => vec![p, Phase::CentroidForce],
                 Phase::AveragedGradient { slot } if centroid => {
                     vec![Phase::CentroidVelocity { slot }, p]

@@ -71,6 +71,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             forces,
             two_step: two,
             from_grid,
+            moments: two && self.centroid_passes > 0,
         };
         by_nodes!(
             self.scheme.wide(),

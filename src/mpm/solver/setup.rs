@@ -135,6 +135,15 @@ impl<'c, const D: usize> Solver<'c, D> {
         (block, tiles)
     }
 
+    /// Replace the number of centroid passes (tests), with the step and the scatter
+    /// records that go with it.
+    #[cfg(test)]
+    pub(super) fn set_centroid_passes(&mut self, passes: usize) {
+        self.centroid_passes = passes;
+        self.resolve_phases();
+        self.setup_grid();
+    }
+
     /// Replace the scheme's α (tests: α ≡ 0 is `averaged`, α ≡ 1 is `mpm`).
     pub fn set_alpha(&mut self, alpha: Alpha) {
         self.scheme.alpha = alpha;
@@ -150,7 +159,7 @@ impl<'c, const D: usize> Solver<'c, D> {
 
     pub(super) fn setup_grid(&mut self) {
         let two = self.scheme.two_step();
-        self.grid.sw = NodeRecord::<D>::width(two);
+        self.grid.sw = NodeRecord::<D>::width(two, self.centroid_passes > 0);
         if two {
             for q in 0..(1 << D) {
                 for r in 0..(1 << D) {
@@ -199,7 +208,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         // `avg`).
         const {
             assert!(NodeRecord::<D>::SYM <= VelRecord::<D>::WIDTH);
-            assert!(AvgRecord::<D>::WIDTH <= NodeRecord::<D>::width(true));
+            assert!(AvgRecord::<D>::WIDTH <= NodeRecord::<D>::width(true, false));
         }
         let nx = if self.xpic.is_some() { nn * D } else { 0 };
         fit(&mut self.grid.xpic_add, nx);

@@ -744,11 +744,11 @@ particles_per_cell = 3
         passes: usize,
     ) -> (f64, f64) {
         let (mut s, mut rng) = stressed_beam(gradient, x_lower, jitter, seed);
-        s.centroid_passes = passes;
+        s.set_centroid_passes(passes);
+        s.scatter(true, true);
         if passes > 0 {
             s.centroid_offsets();
         }
-        s.scatter(true, passes == 0);
         if s.scheme.two_step() {
             s.averaged_force();
         }
