@@ -685,7 +685,13 @@ pub(super) mod adjoint_tests {
 
     /// A 4 m × 1 m beam against the `x_lower` face, 3 × 3 particles per cell; linear
     /// elastic, a material that stores its stress, so the tests can set any stress.
+    /// `gradient` names the scheme, at the particle; `mpmcg-domain` is MPMCG's domain
+    /// rule.
     pub(super) fn scene_text(gradient: &str, x_lower: &str) -> String {
+        let (gradient, quadrature) = match gradient.strip_suffix("-domain") {
+            Some(g) => (g, "domain"),
+            None => (gradient, "point"),
+        };
         format!(
             r#"
 name = "adj"
@@ -694,6 +700,7 @@ dim = 2
 end = 1.0
 [method]
 gradient = "{gradient}"
+quadrature = "{quadrature}"
 [grid]
 lower = [0.0, -4.0]
 upper = [5.0, 1.5]
@@ -799,9 +806,18 @@ particles_per_cell = 3
     /// has it), as the particle passes form it.
     pub(super) fn gradient_at(s: &Solver<'_, 2>, p: usize) -> Mat<2> {
         let ctx = ctx!(s);
-        let (k, idx) = ctx.kern::<2, 4>(&s.parts.x[p], None, s.place.ptile[p]);
         let avg = avg_of::<2>(&s.grid.scat, s.grid.node_vol.len());
-        kernel::velocity_gradient(&k, &idx, &s.grid.vel, avg, 1, s.scheme.two_step())
+        let (x, tile, two) = (&s.parts.x[p], s.place.ptile[p], s.scheme.two_step());
+        match ctx.half_width(&s.parts.half, &s.parts.def_grad, p) {
+            Some(half) => {
+                let (k, idx) = ctx.kern::<3, 9>(x, Some(&half), tile);
+                kernel::velocity_gradient(&k, &idx, &s.grid.vel, avg, 1, two)
+            }
+            None => {
+                let (k, idx) = ctx.kern::<2, 4>(x, None, tile);
+                kernel::velocity_gradient(&k, &idx, &s.grid.vel, avg, 1, two)
+            }
+        }
     }
 
     pub(in crate::mpm::solver) fn beam(
