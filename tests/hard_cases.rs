@@ -369,9 +369,9 @@ fn cantilever_family_with_xpic_stays_whole_at_2x2() {
 /// The same three cells under MPMCG's domain rule (`quadrature = "domain"`), whose
 /// particles move with the reconstruction averaged over the domain their gradient is
 /// averaged over, with the centroid correction's four passes that MUSL takes with it by
-/// default (MPMCG's default): whole, and not damped: the energy balance at 3 s (kinetic
-/// + strain − gravity's work) within 3 % of gravity's work (measured −0.5 … +0.7 %;
-/// XPIC(2)'s −48 … −54 %). With the move at the particle's centre the domain rule tore all three
+/// default (MPMCG's default): whole, and not damped: the energy balance at 3 s,
+/// kinetic plus strain less gravity's work, within 3 % of gravity's work (measured
+/// −0.5 … +0.7 %; XPIC(2)'s −48 … −54 %). With the move at the particle's centre the domain rule tore all three
 /// (2, 2 and 4 pieces): where the domain is cut at the clamp, its centre is not the
 /// point whose neighbourhood the gradient describes (docs/hard-cases.md).
 #[test]
