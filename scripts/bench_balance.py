@@ -37,7 +37,7 @@ SIZES = {"full": (256, 20, 200), "small": (128, 20, 400)}  # cells, warm, steps
 
 def scene(cells, balance, steps):
     end = (steps - 0.5) * bench_peers.wave_dt(cells)
-    text = bench_peers.scene(2, cells, 4, "mpmcg-point", "musl", end, name="off_centre")
+    text = bench_peers.scene(2, cells, 4, "mpmcg", "musl", end, name="off_centre")
     text = text.replace("lower = [0.2, 0.2], upper = [0.8, 0.8]",
                         "lower = [0.05, 0.05], upper = [0.45, 0.45]")
     assert "0.05, 0.05" in text, "the block drop's body moved: update bench_balance.py"

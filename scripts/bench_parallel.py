@@ -4,7 +4,7 @@ of `scripts/bench_peers.py` (issue 14: 2 threads >= 1.85x, 2 ranks >= 1.9x).
 
 Usage (after `cargo build --release`):
     /usr/bin/python3 scripts/bench_parallel.py [--mpmcg target/release/mpmcg]
-        [--dims 2,3] [--rounds 3] [--gradient mpmcg-point] [--update musl]
+        [--dims 2,3] [--rounds 3] [--gradient mpmcg] [--update musl]
 
 Per dimension (2D 256^2 cells x 4^2 per cell, 3D 64^3 x 2^3, MUSL, MPMCG) and round,
 four configurations run in turn: 1 thread pinned to core 0 (`taskset -c 0`), 1 rank
@@ -44,7 +44,7 @@ def main():
     ap.add_argument("--mpmcg", default="target/release/mpmcg")
     ap.add_argument("--dims", default="2,3")
     ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--gradient", default="mpmcg-point")
+    ap.add_argument("--gradient", default="mpmcg")
     ap.add_argument("--update", default="musl")
     a = ap.parse_args()
     binary = os.path.abspath(a.mpmcg)

@@ -35,11 +35,10 @@ import time
 YOUNG, NU, RHO, GRAVITY, CFL = 1.0e3, 0.2, 1.0, -9.81, 0.3
 LO, HI = 0.2, 0.8
 
-# (label, gradient, update); `mpmcg-point` is MPMCG at the particle
+# (label, gradient, update)
 MPMCG_SCHEMES = [
-    ("mpmcg, mpmcg default (domain rule, 4 centroid passes), MUSL", "mpmcg", "musl"),
-    ("mpmcg, mpmcg at the particle, MUSL", "mpmcg-point", "musl"),
-    ("mpmcg, mpmcg at the particle, USL", "mpmcg-point", "usl"),
+    ("mpmcg, mpmcg gradient, MUSL", "mpmcg", "musl"),
+    ("mpmcg, mpmcg gradient, USL", "mpmcg", "usl"),
     ("mpmcg, mpm gradient, USL", "mpm", "usl"),
 ]
 WARP_PRECISIONS = [("warp MLS-MPM, f64", "f64"), ("warp MLS-MPM, f32", "f32")]
@@ -60,12 +59,8 @@ def wave_dt(cells):
 
 def scene(dim, cells, ppc, gradient, update, end, lower=0.0, upper=1.0, name=None):
     """The block drop's scene file: the block [LO, HI]^D in the box [lower, upper]^D with
-    `cells` cells per axis (scripts/bench_sparse.py widens the box). `gradient` may be
-    `mpmcg-point`: MPMCG at the particle (`quadrature = "point"`)."""
+    `cells` cells per axis (scripts/bench_sparse.py widens the box)."""
     v = lambda x: "[" + ", ".join(str(x) for _ in range(dim)) + "]"  # noqa: E731
-    method = f'gradient = "{gradient}"'
-    if gradient == "mpmcg-point":
-        method = 'gradient = "mpmcg"\nquadrature = "point"'
     g = [0.0] * dim
     g[1] = GRAVITY
     faces = ", ".join(f'{ax}_{side} = "slip"' for ax in "xyz"[:dim] for side in ("lower", "upper"))
@@ -75,7 +70,7 @@ dim = {dim}
 end = {end!r}
 cfl = {CFL}
 [method]
-{method}
+gradient = "{gradient}"
 update = "{update}"
 [grid]
 lower = {v(lower)}

@@ -52,7 +52,7 @@ def scene(dim, cells, ppc, wide, steps):
     lo, hi, n = (-(k - 1) / 2, (k + 1) / 2, k * cells) if wide else (0.0, 1.0, cells)
     name = f"block_drop_{dim}d_{'wide' if wide else 'tight'}"
     end = (steps - 0.5) * bench_peers.wave_dt(cells)
-    return bench_peers.scene(dim, n, ppc, "mpmcg-point", "musl", end, lo, hi, name)
+    return bench_peers.scene(dim, n, ppc, "mpmcg", "musl", end, lo, hi, name)
 
 
 def run(a, tmp, dim, cells, ppc, wide, steps):

@@ -14,12 +14,9 @@
 #   REFINE=2       divide h by this (same particles per cell, so more particles)
 #   XPIC=2         update particle velocities by XPIC of this order instead of FLIP
 #                  ([method] xpic, README: The cantilever family)
-#   QUADRATURE=domain  MPMCG's domain rule ([method] quadrature; MPM ignores it). The
-#                  script runs MPMCG at the particle (point) unless this says, so that
-#                  the tables' commands keep their meaning; the product's default is
-#                  QUADRATURE=domain CENTROID=4
+#   QUADRATURE=domain  MPMCG's domain rule ([method] quadrature; MPM ignores it)
 #   CENTROID=4     passes of the centroid correction ([method] centroid_passes, MPMCG
-#                  only; MPM ignores it; default 0 here)
+#                  only; MPM ignores it)
 #   SCHEMES=mpmcg  the gradients to run (default "mpm mpmcg")
 #   PPC="2 3 4"   the beams' particles per cell (default "2 3")
 #   REFERENCE=DIR  a run of this script at PPC=4 on the same grid: the free ends' distance
@@ -70,14 +67,16 @@ variant() {
 }
 
 # with_method FILE: the particle velocity update as XPIC=ORDER asks, and MPMCG's
-# quadrature and centroid correction as QUADRATURE and CENTROID ask (written out, the
-# point rule without the correction unless they say).
+# quadrature and centroid correction as QUADRATURE and CENTROID ask.
 with_method() {
     if [ -n "${XPIC:-}" ]; then
         sed -i "s/^\[method\]/[method]\nxpic = $XPIC/" "$1"
     fi
-    if grep -q '^gradient = "mpmcg"' "$1"; then
-        sed -i "s/^\[method\]/[method]\nquadrature = \"${QUADRATURE:-point}\"\ncentroid_passes = ${CENTROID:-0}/" "$1"
+    if [ -n "${QUADRATURE:-}" ] && grep -q '^gradient = "mpmcg"' "$1"; then
+        sed -i "s/^\[method\]/[method]\nquadrature = \"$QUADRATURE\"/" "$1"
+    fi
+    if [ -n "${CENTROID:-}" ] && grep -q '^gradient = "mpmcg"' "$1"; then
+        sed -i "s/^\[method\]/[method]\ncentroid_passes = $CENTROID/" "$1"
     fi
 }
 

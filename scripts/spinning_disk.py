@@ -111,10 +111,8 @@ def main():
     end = 1.0e-3 if a.one_step else a.end
     text = SCENE.format(
         end=end, gradient=a.gradient, ppc=a.ppc,
-        # Written out for MPMCG: the script's defaults (the point rule, no correction)
-        # are not the scene's.
-        quadrature=(f'quadrature = "{a.quadrature}"\ncentroid_passes = {a.centroid}'
-                    if a.gradient == "mpmcg" else ""),
+        quadrature=(f'quadrature = "{a.quadrature}"' if a.quadrature != "point" else "")
+        + (f"\ncentroid_passes = {a.centroid}" if a.centroid else ""),
         every=end if a.one_step else 10.0,
         fields='fields = ["stress"]' if a.one_step else "")
     with tempfile.TemporaryDirectory() as tmp:

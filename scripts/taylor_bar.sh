@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Taylor bar at a finer resolution than the test suite's: inputs/taylor_bar.toml with
-# its cells refined N times per axis (N = 2: 0.4 mm cells, 33 k particles, about 6 min
-# on one core; N = 3: 112 k particles, about 30 min), on RANKS ranks (default 1).
+# its cells refined N times per axis (N = 2: 0.4 mm cells, 33 k particles, about 3 min
+# on one core; N = 3: 112 k particles, about 15 min), on RANKS ranks (default 1).
 # Prints the final length, mushroom radius and peak plastic strain at 80 µs.
 # Usage: scripts/taylor_bar.sh [N] [RANKS]
 set -euo pipefail

@@ -285,7 +285,7 @@ fn domain_study(dim: usize, ppc: usize, cells: &[usize]) -> (Vec<f64>, Vec<f64>)
         let text = mms_text(dim, n, ppc, Gradient::Mpmcg)
             .replace("[method]\n", "[method]\nquadrature = \"domain\"\n");
         let scene = scene::parse(&text, "convergence").expect("valid scene");
-        assert_eq!(scene.method.quadrature(), scene::Quadrature::Domain);
+        assert_eq!(scene.method.quadrature, scene::Quadrature::Domain);
         let ((eu, ev), _) = run_errors(&scene, &format!("domain-{dim}d-{n}"));
         u.push(eu);
         v.push(ev);

@@ -39,10 +39,6 @@ fn default_scene_runs_collides_and_rebounds() {
     assert_eq!(s["scene"], "colliding_disks");
     assert_eq!(s["status"], "completed");
     assert_eq!(s["gradient"], "mpmcg");
-    // MPMCG's default: the domain rule, with the centroid correction under MUSL.
-    assert_eq!(s["quadrature"], "domain");
-    assert_eq!(s["update"], "musl");
-    assert_eq!(s["centroid_passes"], 4);
     assert_eq!(s["mass"]["initial"], s["mass"]["final"]);
     let h = history(&out);
     let ke0 = h[0]["kinetic"];
@@ -70,15 +66,8 @@ fn spinning_disks_keep_their_energy_for_1e5_steps() {
     let spin = |c: f64| {
         format!("velocity_gradient = {{ value = [[0.0, -1.0], [1.0, 0.0]], about = [{c}, {c}] }}")
     };
-    // MPMCG at the particle: the material's energy is the subject, and the default's
-    // domain rule would take three times as long.
     let text = include_str!("../inputs/default.toml")
         .replacen("end = 3.0", "end = 100.0", 1)
-        .replacen(
-            "gradient = \"mpmcg\"",
-            "gradient = \"mpmcg\"\nquadrature = \"point\"",
-            1,
-        )
         .replacen(
             "velocity = [0.1, 0.1]",
             &format!("velocity = [0.1, 0.1]\n{}", spin(0.2)),
@@ -89,7 +78,6 @@ fn spinning_disks_keep_their_energy_for_1e5_steps() {
             &format!("velocity = [-0.1, -0.1]\n{}", spin(0.8)),
             1,
         );
-    assert!(text.contains("quadrature = \"point\""));
     let (s, out) = run_text(&text, "spinning-disks");
     assert_eq!(s.steps, 100_000);
     let h = history(&out);

@@ -205,9 +205,7 @@ fn in_3d(text: &str) -> String {
 /// in 3 and 6; before the continuous domain weights the aligned 4 m beam broke in two.
 /// MPM keeps them all whole too (README, The cantilever family;
 /// `scripts/cantilever_family.sh` measures both schemes at 2 × 2 and 3 × 3, USL, a
-/// finer grid and a hanging bar). MPMCG here is MPMCG at the particle, the cheaper and
-/// less robust one; its default, whole at 3 × 3 as well, is asserted on the harder
-/// 2 × 2 cells (`cantilever_family_with_domain_rule_stays_whole_at_2x2`).
+/// finer grid and a hanging bar).
 #[test]
 fn cantilever_family_stays_whole_at_3x3() {
     let h = 0.25;
@@ -225,7 +223,6 @@ fn cantilever_family_stays_whole_at_3x3() {
         ));
     }
     for (tag, text) in cases {
-        let text = text.replacen("[method]", "[method]\nquadrature = \"point\"", 1);
         let (r, out) = run_scene(&text, &tag);
         let s = r.unwrap_or_else(|e| panic!("{tag}: {e}"));
         let snaps = snapshots(&out, None);
@@ -267,13 +264,11 @@ fn worst_pieces(out: &std::path::Path, h: f64) -> usize {
 /// and 6 m beams on the aligned one. MPM keeps the 4 m beam whole on both grids and the
 /// 3D beam, which it broke in 3 and 4 pieces while its particles moved with the grid
 /// velocity before MUSL's remap: neighbours then drifted a cell apart while their
-/// deformation gradients stayed below 1.6 (docs/hard-cases.md, Why beams tear). MPMCG
-/// here is MPMCG at the particle (`quadrature = "point"`); printed, not asserted: its
-/// aligned 4 m beam and 3D beam, which it tears at the clamp (its first cell column
-/// comes off late in the run); with XPIC they are whole
-/// (`cantilever_family_with_xpic_stays_whole_at_2x2`), and so they are under MPMCG's
-/// default (`cantilever_family_with_domain_rule_stays_whole_at_2x2`). The 5 m beam on
-/// the aligned grid breaks under both (2 pieces each) and is not run here.
+/// deformation gradients stayed below 1.6 (docs/hard-cases.md, Why beams tear). Printed,
+/// not asserted: MPMCG on the aligned 4 m beam and the 3D beam, which it tears at the
+/// clamp (its first cell column comes off late in the run); with XPIC they are whole
+/// (`cantilever_family_with_xpic_stays_whole_at_2x2`). The 5 m beam on the aligned grid
+/// breaks under both (2 pieces each) and is not run here.
 #[test]
 fn cantilever_family_at_2x2() {
     #[derive(Clone, Copy, PartialEq)]
@@ -311,13 +306,7 @@ fn cantilever_family_at_2x2() {
             if e == NotRun {
                 continue;
             }
-            let text = with_gradient(&text, g);
-            let text = if g == "mpmcg" {
-                text.replacen("[method]", "[method]\nquadrature = \"point\"", 1)
-            } else {
-                text
-            };
-            let (r, out) = run_scene(&text, &format!("{tag}-{g}"));
+            let (r, out) = run_scene(&with_gradient(&text, g), &format!("{tag}-{g}"));
             r.unwrap_or_else(|e| panic!("{tag}, {g}: {e}"));
             let pieces = worst_pieces(&out, h);
             eprintln!("{tag}: {g} {pieces} piece(s)");
@@ -352,15 +341,15 @@ fn run_torn_cells_with(tag: &str, line: &str) -> Vec<(String, f64, usize, std::p
         .collect()
 }
 
-/// The three 2 × 2 cells of the family that MPMCG at the particle breaks with FLIP (the
-/// 4 and 5 m beams on the aligned grid, the 3D beam at 2 × 2 × 2) with `xpic = 2`: whole. What
+/// The three 2 × 2 cells of the family that MPMCG breaks with FLIP (the 4 and 5 m
+/// beams on the aligned grid, the 3D beam at 2 × 2 × 2) with `xpic = 2`: whole. What
 /// broke them is velocity noise at the clamp's top corner, in the part of the particle
 /// velocities the grid cannot see, which FLIP keeps and lets grow (up to 7 m/s at
 /// the root by 0.96 s, under MPM too); XPIC removes it every step (README, The
 /// cantilever family, which also gives its price: the swing is damped).
 #[test]
 fn cantilever_family_with_xpic_stays_whole_at_2x2() {
-    for (tag, time, pieces, _) in run_torn_cells_with("xpic", "xpic = 2\nquadrature = \"point\"") {
+    for (tag, time, pieces, _) in run_torn_cells_with("xpic", "xpic = 2") {
         eprintln!("{tag}: MPMCG with XPIC(2) to t = {time}: {pieces} piece(s)");
         assert_eq!(pieces, 1, "{tag}: MPMCG with XPIC(2) separated the beam");
     }
@@ -368,10 +357,9 @@ fn cantilever_family_with_xpic_stays_whole_at_2x2() {
 
 /// The same three cells under MPMCG's domain rule (`quadrature = "domain"`), whose
 /// particles move with the reconstruction averaged over the domain their gradient is
-/// averaged over, with the centroid correction's four passes that MUSL takes with it by
-/// default (MPMCG's default): whole, and not damped: the energy balance at 3 s,
-/// kinetic plus strain less gravity's work, within 3 % of gravity's work (measured
-/// −0.5 … +0.7 %; XPIC(2)'s −48 … −54 %). With the move at the particle's centre the domain rule tore all three
+/// averaged over: whole, and not damped: the energy balance at 3 s (kinetic + strain −
+/// gravity's work) within 3 % of gravity's work (measured −0.5 … +0.9 %; XPIC(2)'s
+/// −48 … −54 %). With the move at the particle's centre the domain rule tore all three
 /// (2, 2 and 4 pieces): where the domain is cut at the clamp, its centre is not the
 /// point whose neighbourhood the gradient describes (docs/hard-cases.md).
 #[test]
@@ -383,13 +371,6 @@ fn cantilever_family_with_domain_rule_stays_whole_at_2x2() {
         eprintln!(
             "{tag}: MPMCG, domain rule, to t = {time}: {pieces} piece(s), energy balance {:+.2} % of the work",
             100.0 * balance
-        );
-        let summary: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap())
-                .unwrap();
-        assert_eq!(
-            summary["centroid_passes"], 4,
-            "{tag}: MUSL's default passes"
         );
         assert_eq!(pieces, 1, "{tag}: MPMCG's domain rule separated the beam");
         assert!(
@@ -750,36 +731,35 @@ velocity_gradient = {{ value = [[0.0, -0.2], [0.2, 0.0]], about = [0.5, 0.5] }}
 
 /// A rigid rotation has no strain, yet the grid velocity of a node at the rim is the
 /// rotation's at its particles' mass centroid, not at the node, and the disk's spin
-/// turns into strain (1.8 % of its kinetic energy in 10 s under MPMCG at the particle).
-/// The centroid correction's four passes move that velocity to the node: under 0.2 %
-/// with the point rule and in MPMCG's default, the domain rule with four passes
-/// (measured 0.09 % and 0.15 %), with the total energy kept to 1e-4 (the force is the
-/// passes' adjoint).
+/// turns into strain (1.8 % of its kinetic energy in 10 s under MPMCG). The centroid
+/// correction's four passes move that velocity to the node: under 0.2 % with either
+/// quadrature (measured 0.09 % with the point rule, 0.15 % with the domain rule), with
+/// the total energy kept to 1e-4 (the force is the passes' adjoint).
 #[test]
 fn centroid_correction_keeps_a_spinning_disk_rigid() {
-    let (plain, drift) = spinning_disk("quadrature = \"point\"", "disk-plain");
+    let (plain, drift) = spinning_disk("", "disk-plain");
     eprintln!(
-        "point rule, no correction: strain {:.3} %, energy {drift:.1e}",
+        "no correction: strain {:.3} %, energy {drift:.1e}",
         100.0 * plain
     );
     assert!(
         plain > 0.01,
         "the uncorrected disk's strain share: {plain:e}"
     );
-    for (variant, line, tag) in [
-        (
-            "point rule, 4 passes",
-            "quadrature = \"point\"\ncentroid_passes = 4",
-            "disk-centroid",
-        ),
-        ("the default", "", "disk-default"),
+    for (quadrature, tag) in [
+        ("point", "disk-centroid"),
+        ("domain", "disk-centroid-domain"),
     ] {
-        let (strain, drift) = spinning_disk(line, tag);
+        let line = format!("quadrature = \"{quadrature}\"\ncentroid_passes = 4");
+        let (strain, drift) = spinning_disk(&line, tag);
         eprintln!(
-            "{variant}: strain {:.3} %, energy {drift:.1e}",
+            "{quadrature} rule, 4 passes: strain {:.3} %, energy {drift:.1e}",
             100.0 * strain
         );
-        assert!(strain < 0.002, "{variant}: strain share {strain:e}");
-        assert!(drift < 1e-4, "{variant}: total energy changed by {drift:e}");
+        assert!(strain < 0.002, "{quadrature}: strain share {strain:e}");
+        assert!(
+            drift < 1e-4,
+            "{quadrature}: total energy changed by {drift:e}"
+        );
     }
 }

@@ -381,7 +381,7 @@ fn version_3_checkpoint_restarts() {
 /// masses its rows hold sum to the restarted run's mass (a mass formed from another
 /// material's density, or a column read out of place, would not); a restart starts
 /// from its rows and continues alike on one and two ranks ([`fixture_restarts`]); the
-/// checkpoints this build writes (version 7) hold no mass.
+/// checkpoints this build writes are of version 6, without the mass.
 #[test]
 fn version_4_checkpoint_restarts() {
     let dir = temp_dir("restart-v4");
@@ -417,14 +417,11 @@ fn starts_from_its_rows(scene: &str, ckpt: &Path) {
     use mpmcg::mpm::particles::{Carries, Kinds};
     use mpmcg::mpm::solver::Solver;
     use mpmcg::output::checkpoint;
-    let header = checkpoint::read_header(ckpt).expect("a header");
-    let mut scene = mpmcg::input::scene::parse(scene, "fixture").expect("the fixture's scene");
-    // As a restart reads a checkpoint from before MPMCG's default changed.
-    assert!(header.version < 7);
-    scene.method.pin_point_defaults();
+    let scene = mpmcg::input::scene::parse(scene, "fixture").expect("the fixture's scene");
     let geom = Solver::<2>::geometry(&scene);
     let cells = [scene.grid.cells[0], scene.grid.cells[1]];
     let layout = decomposition::Layout::choose(cells, geom.periodic, 1).expect("a layout");
+    let header = checkpoint::read_header(ckpt).expect("a header");
     let kinds = Kinds::of_scene(&scene, &geom);
     let carries = Carries::for_scene(&scene);
     let parts = checkpoint::read::<2>(&header, 0, &layout, &geom, carries, &kinds)
@@ -473,11 +470,8 @@ fn fixture(name: &str, version: u64) -> (PathBuf, hdf5::File) {
 /// A restart from fixture `ckpt` (at its step `step`) of `scene` starts from the
 /// fixture's rows ([`starts_from_its_rows`]) and, restarted on 1 and 2 ranks, ends
 /// alike within 1e-12; `scene` run uninterrupted in `dir` writes checkpoints of this
-/// build's format (version 7). An MPMCG scene that leaves out `quadrature` ran the
-/// point rule when the fixture was written, and its restarts continue with it, while
-/// the same scene run now takes the domain rule (and, under MUSL, the centroid
-/// correction). Returns the restarts' folders and the uninterrupted run's first
-/// checkpoint, opened.
+/// build's format (version 6). Returns the restarts' folders and the uninterrupted
+/// run's first checkpoint, opened.
 ///
 /// The restarts are not compared with the uninterrupted run: the fixture's steps were
 /// taken by an older build, whose stepping (the order of the scatter's sums, the
@@ -496,18 +490,7 @@ fn fixture_restarts(dir: &Path, scene: &str, ckpt: &Path, step: u64) -> (Vec<Pat
             n,
             &["run", "--restart", s(ckpt), "--out", s(&out), "--quiet"],
         );
-        let sum = summary(&out);
-        assert_eq!(sum["restarted_from"]["step"], step);
-        let mpmcg = sum["gradient"] == "mpmcg" && !scene.contains("quadrature");
-        if mpmcg {
-            assert_eq!(sum["quadrature"], "point", "{}", ckpt.display());
-            assert!(sum["centroid_passes"].is_null(), "{}", ckpt.display());
-            let now = summary(&full);
-            assert_eq!(now["quadrature"], "domain");
-            if now["update"] == "musl" {
-                assert_eq!(now["centroid_passes"], 4);
-            }
-        }
+        assert_eq!(summary(&out)["restarted_from"]["step"], step);
         if let Some(first) = outs.first() {
             assert_close(first, &out, 1e-12, &format!("{} 1→{n}", ckpt.display()));
         }
@@ -516,7 +499,7 @@ fn fixture_restarts(dir: &Path, scene: &str, ckpt: &Path, step: u64) -> (Vec<Pat
     let c = files(&full, "checkpoint_");
     let f = hdf5::File::open(&c[0]).unwrap();
     let version: u64 = f.attr("version").unwrap().read_scalar().unwrap();
-    assert_eq!(version, 7);
+    assert_eq!(version, 6);
     (outs, f)
 }
 
@@ -530,7 +513,7 @@ fn fixture_restarts(dir: &Path, scene: &str, ckpt: &Path, step: u64) -> (Vec<Pat
 /// as in `version_4_checkpoint_restarts`: the fixture's volumes were updated by each
 /// step's increment, this build's are `det F · V₀`), and every particle keeps its
 /// material (the snapshot's `material` by id against the stored rows); the
-/// checkpoints this build writes (version 7) have no `vol0` and no `vol` (the disks
+/// checkpoints this build writes are of version 6: no `vol0` and no `vol` (the disks
 /// carry `F`), and the kinds as attributes.
 #[test]
 fn version_5_checkpoint_restarts_its_kinds() {
@@ -831,16 +814,10 @@ fn rescue_replays_the_run_to_its_last_good_state() {
     // Snapshots cut steps short, so the replay must keep their schedule too.
     let scene = |every: u64| {
         let p = dir.join(format!("every{every}.toml"));
-        // MPMCG at the particle, whose step this size fails well after step 25.
         let text = crossing_scene(16, 3.0, &format!("every_steps = {every}"))
             .replace("cfl = 0.3", "dt = 0.0596")
-            .replace("every = 3\n", "every = 0.35\n")
-            .replace(
-                "update = \"musl\"",
-                "update = \"musl\"\nquadrature = \"point\"",
-            );
+            .replace("every = 3\n", "every = 0.35\n");
         assert!(text.contains("every = 0.35") && text.contains("dt = 0.0596"));
-        assert!(text.contains("quadrature"));
         std::fs::write(&p, text).unwrap();
         p
     };
@@ -1488,7 +1465,7 @@ fn unusable_checkpoints_are_rejected() {
     mpmcg::output::checkpoint::seal(&future).unwrap();
     run(
         &future,
-        "checkpoint format version 99, but this mpmcg reads versions 3 to 7",
+        "checkpoint format version 99, but this mpmcg reads versions 3 to 6",
     );
     // Particle data changed in the middle of the file: the checksum notices.
     let flipped = put("flipped.h5", &bytes);

@@ -56,7 +56,7 @@ cfl = 0.2
 gradient = "{}"
 update = "{update}"
 flip = {flip:?}
-{}[grid]
+[grid]
 lower = [{}]
 upper = [{}]
 cells = [{}]
@@ -74,13 +74,6 @@ shape = {{ box = {{ lower = [{}], upper = [{}] }} }}
 particles_per_cell = 2
 "#,
         gradient.name(),
-        // MPMCG at the particle, without the centroid correction (which the
-        // reference gradients do not model) unless a test says.
-        if gradient == Gradient::Mpmcg {
-            "quadrature = \"point\"\ncentroid_passes = 0\n"
-        } else {
-            ""
-        },
         v(0.0),
         v(1.0),
         vec![cells.to_string(); dim].join(", "),
@@ -99,9 +92,8 @@ fn neo_hookean(text: &str) -> String {
 
 /// `text` with MPMCG's domain rule in place of the point quadrature.
 fn with_domain(text: &str) -> String {
-    let point = "quadrature = \"point\"\n";
-    assert!(text.contains(point));
-    text.replace(point, "quadrature = \"domain\"\n")
+    assert!(text.contains("gradient = \"mpmcg\""));
+    text.replace("[method]\n", "[method]\nquadrature = \"domain\"\n")
 }
 
 /// The quadratures a scheme runs with: MPMCG's two, one for the others.

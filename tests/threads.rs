@@ -15,13 +15,7 @@ use std::process::Command;
 /// A neo-Hookean block slides along the floor of a box with slip walls, under gravity,
 /// touching the floor's nodes: particles cross cells, slabs and tiles. Enough particles
 /// (about 5 000) that the particle loops split their range.
-/// `gradient` may be `mpmcg-point`: MPMCG at the particle (plain `mpmcg` is its
-/// default, the domain rule, with the centroid correction under MUSL).
 fn scene(dim: usize, gradient: &str, update: &str) -> String {
-    let (gradient, quadrature) = match gradient.strip_suffix("-point") {
-        Some(g) => (g, "quadrature = \"point\"\n"),
-        None => (gradient, ""),
-    };
     let v = |x: f64| vec![format!("{x:?}"); dim].join(", ");
     let (cells, ppc) = if dim == 2 { (32, 4) } else { (16, 2) };
     let faces = ["x", "y", "z"][..dim]
@@ -50,7 +44,7 @@ cfl = 0.3
 [method]
 gradient = "{gradient}"
 update = "{update}"
-{quadrature}[grid]
+[grid]
 lower = [{lo}]
 upper = [{hi}]
 cells = [{cells}]
@@ -107,8 +101,7 @@ fn thread_count_changes_no_bit() {
         (2, "averaged", "usf"),
         (2, "mpmcg", "usl"),
         (2, "mpmcg", "musl"),
-        (2, "mpmcg-point", "musl"),
-        (3, "mpmcg-point", "musl"),
+        (3, "mpmcg", "musl"),
     ] {
         let dir = temp_dir(&format!("threads-{dim}d-{gradient}-{update}"));
         let sc = dir.join("scene.toml");

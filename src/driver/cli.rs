@@ -70,8 +70,8 @@ struct SweepArgs {
     /// Cells along x, comma-separated; other axes keep the scene's proportions.
     #[arg(long, default_value = "8,16,32,64")]
     cells: String,
-    /// Gradient schemes, comma-separated (mpm, gimp, averaged, mpmcg, mpmcg-point: MPMCG
-    /// with its quadrature at the particle instead of the domain rule).
+    /// Gradient schemes, comma-separated (mpm, gimp, averaged, mpmcg, mpmcg-domain: MPMCG
+    /// with the domain rule).
     #[arg(long, default_value = "mpm,gimp,mpmcg")]
     gradient: String,
     /// Particles per cell per direction in every body [default: the scene's].
@@ -238,21 +238,9 @@ fn restart_scene(
     }
     let header = header.expect("agreed");
     let label = format!("{}:/scene", ckpt.display());
-    let mut sc = scene::parse(&header.scene_text, &label).map_err(|e| e.to_string())?;
-    // A scene stored before MPMCG's defaults changed continues as it ran, and the
-    // checkpoints it writes from now on store the method it runs explicitly.
-    let before_domain = header.version < 7;
-    let stored_text = if before_domain {
-        sc.method.pin_point_defaults();
-        toml::to_string(&sc).map_err(|e| format!("cannot write the scene as TOML: {e}"))?
-    } else {
-        header.scene_text.clone()
-    };
+    let sc = scene::parse(&header.scene_text, &label).map_err(|e| e.to_string())?;
     if let Some(path) = scene_file {
-        let (mut given, text) = scene::load(path).map_err(|e| e.to_string())?;
-        if before_domain {
-            given.method.pin_point_defaults();
-        }
+        let (given, text) = scene::load(path).map_err(|e| e.to_string())?;
         if text != header.scene_text {
             if let Some(key) = scene::restart_difference(&sc, &given) {
                 return Err(format!(
@@ -261,16 +249,10 @@ fn restart_scene(
                     ckpt.display()
                 ));
             }
-            let text = if before_domain {
-                toml::to_string(&given)
-                    .map_err(|e| format!("cannot write the scene as TOML: {e}"))?
-            } else {
-                text
-            };
             return Ok((given, text));
         }
     }
-    Ok((sc, stored_text))
+    Ok((sc, header.scene_text))
 }
 
 /// `mpmcg run`.

@@ -76,8 +76,8 @@ pub fn parse_cells(list: &str) -> Result<Vec<usize>, String> {
     Ok(cells)
 }
 
-/// A scheme a sweep runs: a gradient and its quadrature, named by the gradient, and
-/// `mpmcg-point` for MPMCG at the particle (`mpmcg` is its domain rule, the default).
+/// A scheme a sweep runs: a gradient and its quadrature, named `mpmcg-domain` for
+/// MPMCG's domain rule and by the gradient otherwise (MPMCG at the particle).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Scheme {
     pub gradient: Gradient,
@@ -89,11 +89,11 @@ impl Scheme {
         Scheme::point(Gradient::Mpm),
         Scheme::point(Gradient::Gimp),
         Scheme::point(Gradient::Averaged),
+        Scheme::point(Gradient::Mpmcg),
         Scheme {
             gradient: Gradient::Mpmcg,
             quadrature: Quadrature::Domain,
         },
-        Scheme::point(Gradient::Mpmcg),
     ];
 
     pub const fn point(gradient: Gradient) -> Self {
@@ -104,9 +104,9 @@ impl Scheme {
     }
 
     pub fn name(self) -> &'static str {
-        match (self.gradient, self.quadrature) {
-            (Gradient::Mpmcg, Quadrature::Point) => "mpmcg-point",
-            (g, _) => g.name(),
+        match self.quadrature {
+            Quadrature::Domain => "mpmcg-domain",
+            Quadrature::Point => self.gradient.name(),
         }
     }
 }
@@ -181,7 +181,7 @@ pub fn scene_at(
     let mut s = base.clone();
     s.grid.cells = grid_at(&base.grid.cells, n)?;
     s.method.gradient = scheme.gradient;
-    s.method.quadrature = Some(scheme.quadrature);
+    s.method.quadrature = scheme.quadrature;
     if let Some(p) = ppc {
         for b in &mut s.bodies {
             b.particles_per_cell = p;
@@ -643,15 +643,14 @@ mod tests {
         assert_eq!(
             parse_gradients("mpmcg, mpm,gimp").unwrap(),
             vec![
-                Scheme::ALL[3],
+                Scheme::point(Gradient::Mpmcg),
                 Scheme::point(Gradient::Mpm),
                 Scheme::point(Gradient::Gimp)
             ]
         );
-        assert_eq!(Scheme::ALL[3].quadrature, Quadrature::Domain);
         assert_eq!(
-            parse_gradients("mpmcg-point,mpmcg").unwrap(),
-            vec![Scheme::point(Gradient::Mpmcg), Scheme::ALL[3]]
+            parse_gradients("mpmcg-domain,mpmcg").unwrap(),
+            vec![Scheme::ALL[4], Scheme::ALL[3]]
         );
         let e = parse_gradients("mpm,bspline").unwrap_err();
         assert!(
@@ -879,7 +878,7 @@ mod tests {
         let opts = options(
             &dir,
             vec![8, 16],
-            vec![Scheme::point(Gradient::Mpm), Scheme::ALL[3]],
+            vec![Scheme::point(Gradient::Mpm), Scheme::point(Gradient::Mpmcg)],
         );
         let rows = sweep(&bar(), &opts).unwrap();
         assert_eq!(rows.len(), 4);

@@ -345,7 +345,7 @@ impl Carries {
                 || scene
                     .snapshot_plan()
                     .is_some_and(|o| o.fields.contains(&crate::input::scene::Field::Displacement)),
-            half: GradientScheme::of(scene.method.gradient, scene.method.quadrature()).wide(),
+            half: GradientScheme::of(scene.method.gradient, scene.method.quadrature).wide(),
             plastic: laws().any(|l| matches!(l, Law::J2Plastic { .. })),
             damage: laws().any(|l| matches!(l, Law::Brittle { .. })),
             stress_zz: scene.dim == 2 && laws().any(|l| matches!(l, Law::Brittle { .. })),

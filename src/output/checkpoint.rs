@@ -9,9 +9,9 @@
 //! crash during a write leaves the previous checkpoints intact. Then the oldest
 //! checkpoints beyond `keep` of this run's [`Lineage`] are deleted.
 //!
-//! # Format (version 7; versions 3 to 6 are read too)
+//! # Format (version 6; versions 3 to 5 are read too)
 //!
-//! Root attributes: `format` = "mpmcg-checkpoint", `version` = 7, `lineage` (the id
+//! Root attributes: `format` = "mpmcg-checkpoint", `version` = 6, `lineage` (the id
 //! of the run and its restarts; pruning deletes only checkpoints of its own lineage),
 //! `dim`, `step`,
 //! `time`, `dt`, `max_speed` (fastest signal speed over all ranks after the step; the
@@ -80,10 +80,8 @@ pub const FORMAT: &str = "mpmcg-checkpoint";
 /// column `kind` holds the particle's kind (material and reference volume, the
 /// attributes `kind_material` and `kind_vol0`), where before 6 it held the material;
 /// and no `vol` column where the particles carry `F` (`carries_vol` = 0: the volume
-/// is `det F · V₀`). 7: the records are 6's; the stored scene's MPMCG without
-/// `quadrature` and `centroid_passes` is the domain rule with the correction, where
-/// before 7 it was the point rule without it ([`Header::version`]).
-pub const VERSION: u64 = 7;
+/// is `det F · V₀`).
+pub const VERSION: u64 = 6;
 /// The oldest version this build reads: a version 3 record always has the stress
 /// columns, which a scene that does not store the stress drops on reading, records
 /// before version 5 the mass, dropped too, and before 6 the material and `vol0`,
@@ -167,9 +165,6 @@ pub struct Header {
     /// The run (and its restarts) that wrote it; `None` in checkpoints from before
     /// the attribute existed.
     pub lineage: Option<String>,
-    /// The format version: before 7 the stored scene's absent method keys mean the
-    /// defaults of then ([`crate::input::scene::Method::pin_point_defaults`]).
-    pub version: u64,
 }
 
 impl Header {

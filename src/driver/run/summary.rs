@@ -245,12 +245,12 @@ impl<'a, const D: usize> Run<'a, D> {
             dim: D,
             gradient: scene.method.gradient.name().into(),
             quadrature: (scene.method.gradient == crate::input::scene::Gradient::Mpmcg)
-                .then(|| scene.method.quadrature().name().into()),
+                .then(|| scene.method.quadrature.name().into()),
             update: scene.method.update.name().into(),
             flip: scene.method.flip,
             xpic: scene.method.xpic,
-            centroid_passes: (scene.method.centroid_passes() > 0)
-                .then_some(scene.method.centroid_passes()),
+            centroid_passes: (scene.method.centroid_passes > 0)
+                .then_some(scene.method.centroid_passes),
             units: Labels::of::<D>(scene).units,
             status: String::new(),
             message: None,

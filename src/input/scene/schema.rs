@@ -171,56 +171,23 @@ pub struct Method {
     /// cost of m − 1 more particle → grid passes per step. Off when absent.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub xpic: Option<u32>,
-    /// MPMCG's quadrature of the internal force and the velocity gradient, as the
-    /// scene gives it; [`Method::quadrature`] resolves the default.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub quadrature: Option<Quadrature>,
+    /// MPMCG's quadrature of the internal force and the velocity gradient.
+    #[serde(default, skip_serializing_if = "is_point")]
+    pub quadrature: Quadrature,
     /// Passes of the centroid correction (MUSL, two-step schemes): the remapped grid
     /// velocity is the particles' at their mass centroid `x_i + d_i`, and each pass
     /// moves it towards the node, `v ← v₀ − L̄(v) d_i`; the grid force is its adjoint.
-    /// 0 is off: docs/schemes.md, "The centroid correction". As the scene gives it;
-    /// [`Method::centroid_passes`] resolves the default.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub centroid_passes: Option<u32>,
+    /// 0 (the default) is off: docs/schemes.md, "The centroid correction".
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub centroid_passes: u32,
 }
 
-/// The centroid passes MPMCG's domain rule runs under MUSL unless the scene says.
-pub const DEFAULT_CENTROID_PASSES: u32 = 4;
+fn is_zero(n: &u32) -> bool {
+    *n == 0
+}
 
-impl Method {
-    /// The quadrature: the scene's, else MPMCG's domain rule (the other schemes have
-    /// only the point).
-    pub fn quadrature(&self) -> Quadrature {
-        self.quadrature.unwrap_or(match self.gradient {
-            Gradient::Mpmcg => Quadrature::Domain,
-            _ => Quadrature::Point,
-        })
-    }
-
-    /// The centroid passes: the scene's, else [`DEFAULT_CENTROID_PASSES`] for MPMCG's
-    /// domain rule under MUSL without XPIC (with the point rule they tear coarse
-    /// beams the point rule alone keeps whole: docs/hard-cases.md), else 0.
-    pub fn centroid_passes(&self) -> u32 {
-        self.centroid_passes.unwrap_or(
-            if self.gradient == Gradient::Mpmcg
-                && self.quadrature() == Quadrature::Domain
-                && self.update == Update::Musl
-                && self.xpic.is_none()
-            {
-                DEFAULT_CENTROID_PASSES
-            } else {
-                0
-            },
-        )
-    }
-
-    /// Give the quadrature and the centroid passes the values that were the defaults
-    /// before MPMCG's became the domain rule with the correction, where the scene
-    /// leaves them out: the scene of a checkpoint written then continues as it ran.
-    pub fn pin_point_defaults(&mut self) {
-        self.quadrature.get_or_insert(Quadrature::Point);
-        self.centroid_passes.get_or_insert(0);
-    }
+fn is_point(q: &Quadrature) -> bool {
+    *q == Quadrature::Point
 }
 
 fn default_gradient() -> Gradient {
@@ -243,8 +210,8 @@ impl Default for Method {
             update: default_update(),
             flip: default_flip(),
             xpic: None,
-            quadrature: None,
-            centroid_passes: None,
+            quadrature: Quadrature::Point,
+            centroid_passes: 0,
         }
     }
 }

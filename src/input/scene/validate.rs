@@ -210,7 +210,7 @@ fn validate_time(s: &Scene) -> Result<(), Invalid> {
 /// correction.
 fn validate_method(s: &Scene) -> Result<(), Invalid> {
     validate_centroid(s)?;
-    if s.method.quadrature == Some(Quadrature::Domain) && s.method.gradient != Gradient::Mpmcg {
+    if s.method.quadrature == Quadrature::Domain && s.method.gradient != Gradient::Mpmcg {
         return Err((
             "method.quadrature".into(),
             format!(
@@ -254,10 +254,10 @@ fn validate_method(s: &Scene) -> Result<(), Invalid> {
 /// updates read the grid velocity it would change); XPIC's passes reuse the buffers it
 /// fills.
 fn validate_centroid(s: &Scene) -> Result<(), Invalid> {
-    let n = match s.method.centroid_passes {
-        None | Some(0) => return Ok(()),
-        Some(n) => n,
-    };
+    let n = s.method.centroid_passes;
+    if n == 0 {
+        return Ok(());
+    }
     let key = || "method.centroid_passes".to_string();
     if n > MAX_CENTROID_PASSES {
         return Err((

@@ -177,7 +177,7 @@ mod tests {
     /// round-off, where `f` is the force of MPMCG's scatter and node step; the
     /// correction keeps `Σ_i f_i` (momentum) and changes the force by more than a
     /// thousandth, so the identity is not the uncorrected one. At the particle and
-    /// with the domain rule (MPMCG's default).
+    /// with the domain rule.
     #[test]
     fn force_is_the_adjoint_of_the_corrected_gradient_and_keeps_momentum() {
         for (g, face, jitter) in ["mpmcg", "mpmcg-domain"]

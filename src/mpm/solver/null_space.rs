@@ -341,7 +341,6 @@ dim = 2
 end = 1.0
 [method]
 gradient = "{g}"
-quadrature = "point"
 [grid]
 lower = [0.0, 0.0]
 upper = [2.0, 1.0]

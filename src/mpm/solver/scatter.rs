@@ -163,7 +163,6 @@ dim = 2
 end = 1.0
 [method]
 gradient = "{gradient}"
-quadrature = "point"
 {xpic}
 [grid]
 lower = [0.0, 0.0]

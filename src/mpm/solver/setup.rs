@@ -49,7 +49,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                 .gravity
                 .as_ref()
                 .map_or(Vector::<D>::zeros(), |gr| vector::<D>(&gr.value)),
-            scheme: GradientScheme::of(scene.method.gradient, scene.method.quadrature()),
+            scheme: GradientScheme::of(scene.method.gradient, scene.method.quadrature),
             update: scene.method.update,
             phases: Vec::new(),
             flip: scene.method.flip,
@@ -72,7 +72,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             speed_agreed: false,
             tiles,
             xpic: scene.method.xpic.map(|m| m as usize),
-            centroid_passes: scene.method.centroid_passes() as usize,
+            centroid_passes: scene.method.centroid_passes as usize,
             null_space: scene
                 .snapshot_plan()
                 .filter(|o| o.fields.contains(&crate::input::scene::Field::NullVelocity))
@@ -353,7 +353,6 @@ dt = 2.0e-4
 [method]
 gradient = "{gradient}"
 update = "musl"
-quadrature = "point"
 [grid]
 lower = {lo}
 upper = {up}

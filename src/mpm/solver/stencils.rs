@@ -685,12 +685,11 @@ pub(super) mod adjoint_tests {
 
     /// A 4 m × 1 m beam against the `x_lower` face, 3 × 3 particles per cell; linear
     /// elastic, a material that stores its stress, so the tests can set any stress.
-    /// `gradient` names the scheme, at the particle; `mpmcg-domain` is MPMCG's domain
-    /// rule.
+    /// `gradient` names the scheme; `mpmcg-domain` is MPMCG's domain rule.
     pub(super) fn scene_text(gradient: &str, x_lower: &str) -> String {
         let (gradient, quadrature) = match gradient.strip_suffix("-domain") {
-            Some(g) => (g, "domain"),
-            None => (gradient, "point"),
+            Some(g) => (g, "quadrature = \"domain\"\n"),
+            None => (gradient, ""),
         };
         format!(
             r#"
@@ -700,8 +699,7 @@ dim = 2
 end = 1.0
 [method]
 gradient = "{gradient}"
-quadrature = "{quadrature}"
-[grid]
+{quadrature}[grid]
 lower = [0.0, -4.0]
 upper = [5.0, 1.5]
 cells = [20, 22]

@@ -140,7 +140,6 @@ pub fn read_header(path: &Path) -> Result<Header, String> {
         },
         particles: attr_u64(&f, path, "particles")?,
         lineage,
-        version: attr_u64(&f, path, "version")?,
     })
 }
 
