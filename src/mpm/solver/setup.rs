@@ -159,7 +159,7 @@ impl<'c, const D: usize> Solver<'c, D> {
 
     pub(super) fn setup_grid(&mut self) {
         let two = self.scheme.two_step();
-        self.grid.sw = NodeRecord::<D>::width(two, self.centroid_passes > 0);
+        self.grid.sw = NodeRecord::<D>::width(two, two && self.centroid_passes > 0);
         if two {
             for q in 0..(1 << D) {
                 for r in 0..(1 << D) {
