@@ -152,6 +152,7 @@ impl<'c, const D: usize> Solver<'c, D> {
 
 #[cfg(test)]
 mod tests {
+    use super::super::null_space::tests::periodic_box;
     use super::super::stencils::adjoint_tests::{
         beam, gradient_at_3d, jittered_box_3d, powers, stressed_beam,
     };
@@ -474,36 +475,8 @@ mod tests {
     /// corner would put the seam's nodes a box length off.
     #[test]
     fn offsets_are_continuous_across_a_periodic_seam() {
-        use crate::input::scene;
-        use decomposition::{Layout, SerialComm};
-        let text = r#"
-name = "periodic"
-dim = 2
-[time]
-end = 1.0
-[method]
-gradient = "mpmcg"
-centroid_passes = 4
-[grid]
-lower = [0.0, 0.0]
-upper = [2.0, 1.0]
-cells = [8, 4]
-boundary = { x_lower = "periodic", x_upper = "periodic", y_lower = "periodic", y_upper = "periodic" }
-[[materials]]
-name = "m"
-model = "neo_hookean"
-density = 1000.0
-youngs_modulus = 1000.0
-poisson_ratio = 0.3
-[[bodies]]
-material = "m"
-shape = { box = { lower = [0.0, 0.0], upper = [2.0, 1.0] } }
-particles_per_cell = 2
-"#;
-        let sc = scene::parse(text, "periodic").unwrap();
         for shift in [0.0, 0.3 * 0.25] {
-            let layout = Layout::choose([8, 4], [true, true], 1).unwrap();
-            let mut s = Solver::<2>::new(&sc, &SerialComm, layout);
+            let mut s = periodic_box("gradient = \"mpmcg\"\ncentroid_passes = 4", "");
             for p in 0..s.parts.len() {
                 for (a, len) in [2.0, 1.0].into_iter().enumerate() {
                     s.parts.x[p][a] = (s.parts.x[p][a] + shift).rem_euclid(len);

@@ -223,7 +223,7 @@ impl<'c, const D: usize> Solver<'c, D> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     //! The diagnostic against the projection written with dense matrices, and on the
     //! fields whose answer is known without one: a field the grid carries has no
     //! invisible part, and one with no momentum on any node is invisible whole.
@@ -326,21 +326,17 @@ mod tests {
         }
     }
 
-    /// A periodic box filled with 2 × 2 particles per cell, each moving by `±u` as it
-    /// sits in the lower or upper half of its cell along x: every node's momentum
-    /// cancels (the pattern is odd about every node, the weights even), so the whole
-    /// kinetic energy is invisible, for hats and GIMP alike.
-    #[test]
-    fn a_field_without_momentum_is_invisible_whole() {
-        for g in ["mpm", "gimp", "mpmcg"] {
-            let text = format!(
-                r#"
-name = "null"
+    /// The periodic box [0, 2] × [0, 1] of 8 × 4 cells filled with 2 × 2 particles per
+    /// cell as seeded, neo-Hookean, with `method` in `[method]` and `rest` after the body.
+    pub(in crate::mpm::solver) fn periodic_box(method: &str, rest: &str) -> Solver<'static, 2> {
+        let text = format!(
+            r#"
+name = "periodic"
 dim = 2
 [time]
 end = 1.0
 [method]
-gradient = "{g}"
+{method}
 [grid]
 lower = [0.0, 0.0]
 upper = [2.0, 1.0]
@@ -356,13 +352,25 @@ poisson_ratio = 0.3
 material = "m"
 shape = {{ box = {{ lower = [0.0, 0.0], upper = [2.0, 1.0] }} }}
 particles_per_cell = 2
-[output]
-fields = ["null_velocity"]
+{rest}
 "#
+        );
+        let sc = scene::parse(&text, "periodic").unwrap();
+        let layout = Layout::choose([8, 4], [true, true], 1).unwrap();
+        Solver::<2>::new(&sc, &SerialComm, layout)
+    }
+
+    /// A periodic box filled with 2 × 2 particles per cell, each moving by `±u` as it
+    /// sits in the lower or upper half of its cell along x: every node's momentum
+    /// cancels (the pattern is odd about every node, the weights even), so the whole
+    /// kinetic energy is invisible, for hats and GIMP alike.
+    #[test]
+    fn a_field_without_momentum_is_invisible_whole() {
+        for g in ["mpm", "gimp", "mpmcg"] {
+            let mut s = periodic_box(
+                &format!("gradient = \"{g}\""),
+                "[output]\nfields = [\"null_velocity\"]",
             );
-            let sc = scene::parse(&text, "null").unwrap();
-            let layout = Layout::choose([8, 4], [true, true], 1).unwrap();
-            let mut s = Solver::<2>::new(&sc, &SerialComm, layout);
             assert_eq!(s.parts.len(), 128);
             let u = Vector::<2>::new(0.3, -0.2);
             for p in 0..s.parts.len() {
