@@ -472,9 +472,35 @@ pub fn domain<const D: usize>(geom: &Geom<D>, x: &[f64; D], lp: &[f64; D]) -> Do
     d
 }
 
+/// The first of the 3 nodes per axis that GIMP's and the domain rule's weights cover,
+/// for a particle in cell `c` at local coordinate `xi` ([`Geom::locate`]): one below
+/// the cell where ξ < ½ (the domain may reach the cell below), else the cell's own,
+/// kept on the grid's nodes at a bounded end ([`keep_inside`]). Particles with the same
+/// window share their nodes, which the wide passes read and write once per run of them.
+#[inline(always)]
+pub fn window<const D: usize>(geom: &Geom<D>, c: &[i64; D], xi: &[f64; D]) -> [i64; D] {
+    std::array::from_fn(|a| keep_inside(geom, a, c[a] - i64::from(xi[a] < 0.5)))
+}
+
+/// The first node `base` of a window of 3 along axis `a`, moved onto the grid's nodes
+/// at a bounded end (unchanged on a periodic axis).
+#[inline(always)]
+fn keep_inside<const D: usize>(geom: &Geom<D>, a: usize, base: i64) -> i64 {
+    if geom.periodic[a] {
+        base
+    } else if base < 0 {
+        0
+    } else if base + 2 > geom.cells[a] as i64 {
+        base - 1
+    } else {
+        base
+    }
+}
+
 /// Keep a window of 3 nodes from `base` along axis `a` on existing nodes at a bounded
-/// end, moving its per-node `rows` with it (the dropped node has weight zero: the
-/// domain stays inside the grid), so that the stencil never indexes outside the grid.
+/// end ([`keep_inside`]), moving its per-node `rows` with it (the dropped node has
+/// weight zero: the domain stays inside the grid), so that the stencil never indexes
+/// outside the grid.
 #[inline(always)]
 fn shift_inside<const D: usize, const R: usize>(
     geom: &Geom<D>,
@@ -482,20 +508,17 @@ fn shift_inside<const D: usize, const R: usize>(
     base: &mut i64,
     rows: [&mut [f64; 3]; R],
 ) {
-    if geom.periodic[a] {
-        return;
-    }
-    if *base < 0 {
-        *base = 0;
+    let kept = keep_inside(geom, a, *base);
+    if kept > *base {
         for v in rows {
             *v = [v[1], v[2], 0.0];
         }
-    } else if *base + 2 > geom.cells[a] as i64 {
-        *base -= 1;
+    } else if kept < *base {
         for v in rows {
             *v = [0.0, v[0], v[1]];
         }
     }
+    *base = kept;
 }
 
 impl<const D: usize> DomainWeights1<D> {
@@ -744,6 +767,57 @@ mod tests {
                             "{centre} at {p:?}"
                         );
                         assert!(sum(&d.avg_adn[ax]).abs() * h < 1e-14);
+                    }
+                }
+            }
+        }
+    }
+
+    /// [`window`] names the first node of GIMP's and the domain rule's 3 per axis, the
+    /// node the passes key their runs by: at points inside, on and next to bounded faces
+    /// (two-cell axes included), across a periodic seam, at ξ = ½, with
+    /// half-widths from zero to past half a cell.
+    #[test]
+    fn window_is_the_first_node_of_the_wide_weights() {
+        let mut rng = decomposition::splitmix::Rng::new(5);
+        for cells in [[2usize, 2], [2, 9], [7, 3]] {
+            for periodic in [[false, false], [false, true], [true, false]] {
+                let geom = Geom::<2>::new([-0.5, 0.25], [1.5, 1.0], cells, periodic);
+                let mut pts = Vec::new();
+                for _ in 0..400 {
+                    pts.push([-0.5 + 2.0 * rng.f64(), 0.25 + 0.75 * rng.f64()]);
+                }
+                // Faces, cell middles (ξ = ½ exactly) and points a hair from them.
+                for k in 0..=2 * cells[0] {
+                    for j in 0..=2 * cells[1] {
+                        let (x, y) = (
+                            -0.5 + k as f64 * 0.5 * geom.h[0],
+                            0.25 + j as f64 * 0.5 * geom.h[1],
+                        );
+                        pts.extend([[x, y], [x - 1e-13, y + 1e-13], [x + 1e-13, y]]);
+                    }
+                }
+                for x in pts {
+                    let x = std::array::from_fn(|a| x[a].clamp(geom.lower[a], geom.upper[a]));
+                    let (c, xi) = geom.locate(&x);
+                    let w = window(&geom, &c, &xi);
+                    for lp in [
+                        [0.0, 0.0],
+                        [0.1, 0.05],
+                        [0.25 * geom.h[0], 0.5 * geom.h[1]],
+                        [1.0, 1.0],
+                    ] {
+                        let gl = lp.map(|l: f64| l.min(0.5 * geom.h[0]).min(0.5 * geom.h[1]));
+                        assert_eq!(
+                            gimp(&geom, &x, &gl).base,
+                            w,
+                            "GIMP at {x:?}, {cells:?} {periodic:?}"
+                        );
+                        assert_eq!(
+                            domain(&geom, &x, &lp).base,
+                            w,
+                            "domain at {x:?}, {cells:?} {periodic:?}"
+                        );
                     }
                 }
             }
