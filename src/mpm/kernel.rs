@@ -11,7 +11,9 @@
 //! thread count as well.
 //!
 //! Speed: particles sorted by cell come in runs that share their nodes (16 in a row in
-//! 2D at 4 × 4 per cell, 8 in 3D at 2 × 2 × 2). A loop looks the run's nodes up once,
+//! 2D at 4 × 4 per cell, 8 in 3D at 2 × 2 × 2; with 3 nodes per axis they are sorted by
+//! the window of nodes they reach, which particles of up to 2^D cells share, and come
+//! in runs as long). A loop looks the run's nodes up once,
 //! copies the grid data it reads into small node-innermost arrays (`NodeData`) and
 //! sums what it writes in such arrays (`ScatterSums`), so the per-particle work is
 //! arithmetic on fixed places. Hat functions start from the local cell coordinate in
@@ -467,6 +469,37 @@ impl<const D: usize> Ctx<'_, D> {
             };
         }
         idx
+    }
+
+    /// The storage index of the first of a particle's nodes ([`Ctx::node_indices`]'s
+    /// first), whose cell's lower corner is stored at `cell_node` and whose window starts
+    /// `below[a]` cells under it: the key of a run of particles that share their nodes
+    /// (the storage map is injective, so equal first nodes are equal windows).
+    #[inline(always)]
+    pub fn first_node(&self, cell_node: u32, below: [usize; D]) -> usize {
+        let cn = cell_node as usize;
+        let mut t = 0;
+        let mut off = 0;
+        let mut within = true;
+        let mut pow = 1;
+        for a in 0..D {
+            let r = (cn >> (TILE_LOG * a as u32)) & (TILE - 1);
+            let m = r + TILE - below[a];
+            within &= m >= TILE;
+            t += (m >> TILE_LOG) * pow;
+            off |= (m & (TILE - 1)) << (TILE_LOG * a as u32);
+            pow *= 3;
+        }
+        if within {
+            let mut first = cn;
+            for (a, &b) in below.iter().enumerate() {
+                first -= b << (TILE_LOG * a as u32);
+            }
+            first
+        } else {
+            let nb = self.tiles.neighbours(cn / Tiles::<D>::TILE_NODES);
+            nb[t & (NEIGHBOURS - 1)] + off
+        }
     }
 
     /// Per axis, whether the particle gives weight to a node on the lower / upper grid

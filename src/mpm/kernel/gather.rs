@@ -166,8 +166,10 @@ pub fn update_stress<const D: usize, const NA: usize, const N: usize>(
 
 /// One task's particles `s` of a grid → particle pass, in order: with hat functions
 /// [`LANES`], [`HALF`] or [`QUARTER`] particles of a run at a time where as many in a
-/// row share their cell ([`batch_width`]), else one; with GIMP's one at a time (their
-/// nodes depend on the particle, not only its cell). Each run's node data are read once
+/// row share their cell ([`batch_width`]), else one; with 3 nodes per axis one at a
+/// time (their nodes depend on the particle's place in its cell, and particles sorted
+/// by window share them across cells: in batches the pass gained 3 % of the step on
+/// the domain rule's block drop and nothing on GIMP's). Each run's node data are read once
 /// by `load`; then, if the pass reports it, the task's fastest signal speed
 /// ([`signal_speeds`]). Returns the task's tally.
 #[inline(always)]

@@ -187,12 +187,12 @@ impl<const D: usize> CellAt<D> {
     }
 }
 
-/// The nodes of the current run of particles: particles sorted by cell share their
-/// nodes, so a particle loop looks up their storage indices and faces (and reads or
+/// The nodes of the current run of particles: particles sorted by cell (by window with
+/// 3 nodes per axis) share their nodes, so a particle loop looks up their storage indices and faces (and reads or
 /// flushes their grid data) only when the run changes.
 pub(crate) struct Run<const D: usize, const NA: usize, const N: usize> {
-    /// The node set's key: the cell's lower corner in the storage and, per axis,
-    /// whether the first node lies below the cell (GIMP). Equal keys, equal nodes.
+    /// The node set's key: the storage index of its first node (with hat functions the
+    /// cell's lower corner). Equal keys, equal nodes.
     pub(super) key: u64,
     pub idx: [usize; N],
     /// [`Ctx::node_sides`] of the run (all 0 unless [`Ctx::walls`]).
@@ -232,26 +232,28 @@ impl<const D: usize, const NA: usize, const N: usize> Run<D, NA, N> {
         self.key != u64::MAX
     }
 
+    /// Whether a particle of cell node `cell_node` whose window starts `below` cells
+    /// under its cell starts a new run: whether its first node
+    /// ([`Ctx::first_node`]) is not the run's.
     #[inline(always)]
-    pub(super) fn key_of(cell_node: u32, below: [usize; D]) -> u64 {
-        let mut m = 0u64;
-        for (a, &b) in below.iter().enumerate() {
-            m |= (b as u64) << a;
-        }
-        cell_node as u64 | (m << 32)
+    pub fn is_new(&self, ctx: &Ctx<'_, D>, cell_node: u32, below: [usize; D]) -> bool {
+        Self::key_of(ctx, cell_node, below) != self.key
     }
 
-    /// Whether a particle of cell node `cell_node` with `below` starts a new run.
     #[inline(always)]
-    pub fn is_new(&self, cell_node: u32, below: [usize; D]) -> bool {
-        Self::key_of(cell_node, below) != self.key
+    fn key_of(ctx: &Ctx<'_, D>, cell_node: u32, below: [usize; D]) -> u64 {
+        if NA == 2 {
+            u64::from(cell_node)
+        } else {
+            ctx.first_node(cell_node, below) as u64
+        }
     }
 
     /// Enter the run of a particle of cell node `cell_node` with `below` unless it is
     /// the current one; whether it entered (and its nodes' data must be read).
     #[inline(always)]
     pub fn enter_if_new(&mut self, ctx: &Ctx<'_, D>, cell_node: u32, below: [usize; D]) -> bool {
-        let new = self.is_new(cell_node, below);
+        let new = self.is_new(ctx, cell_node, below);
         if new {
             self.enter(ctx, cell_node, below);
         }
@@ -261,8 +263,13 @@ impl<const D: usize, const NA: usize, const N: usize> Run<D, NA, N> {
     /// Enter the run of such a particle: its nodes' indices and faces.
     #[inline(always)]
     pub fn enter(&mut self, ctx: &Ctx<'_, D>, cell_node: u32, below: [usize; D]) {
-        self.key = Self::key_of(cell_node, below);
         self.idx = ctx.node_indices::<NA, N>(cell_node, below);
+        self.key = if NA == 2 {
+            u64::from(cell_node)
+        } else {
+            self.idx[0] as u64
+        };
+        debug_assert_eq!(self.key, Self::key_of(ctx, cell_node, below));
         self.sides = ctx.node_sides::<NA>(cell_node, below);
         self.at_wall = self.sides.iter().flatten().any(|&s| s != 0);
     }

@@ -137,7 +137,7 @@ pub(super) fn scatter_slab<const D: usize, const NA: usize, const N: usize>(
         let c = *cell.of(ctx, tiles[p]);
         let xi = ctx.local(&xs[p], &c);
         let (k, below, _) = ctx.weights::<NA, N>(&xs[p], half.as_ref(), &xi);
-        if run.is_new(tiles[p], below) {
+        if run.is_new(ctx, tiles[p], below) {
             if run.started() {
                 acc.flush(ctx, grid, &run.idx, m);
             }
