@@ -273,11 +273,17 @@ struct Placement<const D: usize> {
     /// Per chunk of [`LOCATE_CHUNK`] particles, whether one left the grid or its block
     /// ([`Solver::wrap_and_flag`]).
     flagged: Vec<bool>,
-    /// How far this rank's particles are from their order by cell after the step's
-    /// move: the runs whose cell comes before the previous run's, and the particles
+    /// How far this rank's particles are from their order by cell (by window with 3
+    /// nodes per axis) after the step's move: the runs whose cell comes before the
+    /// previous run's (the particles whose window comes before the previous one's), and
+    /// the particles
     /// that arrived (appended at the end). A function of the particles' positions
     /// and order alone, so a restart sorts where the uninterrupted run did.
     disorder: usize,
+    /// Per chunk of [`LOCATE_CHUNK`] particles, with 3 nodes per axis, how many
+    /// particles' windows come before the previous particle's in the sort's order
+    /// (their disorder: such particles are sorted by window, [`Solver::sort`]).
+    window_descents: Vec<usize>,
     /// Sorts since the start (or the restart): what the tests ask of the criterion.
     sorts: u64,
 }
@@ -316,6 +322,7 @@ impl<const D: usize> Placement<D> {
             located: false,
             flagged: Vec::new(),
             disorder: 0,
+            window_descents: Vec::new(),
             sorts: 0,
         }
     }
@@ -374,7 +381,13 @@ impl<'c, const D: usize> Solver<'c, D> {
             block.cell_lo,
             block.cell_hi,
         );
-        Self::with_particles(scene, comm, layout, parts)
+        let mut s = Self::with_particles(scene, comm, layout, parts);
+        // Seeded in order by cell; with 3 nodes per axis the passes want them by window
+        // ([`Solver::sort`]) from the first step.
+        if s.scheme.wide() {
+            s.sort();
+        }
+        s
     }
 
     /// What a restart needs besides the particles: this rank's accumulated external

@@ -109,6 +109,13 @@ pub(super) struct ChunkLocator<'a, const D: usize> {
     /// The cell of the particle located last (none at first).
     pub(super) prev: [i64; D],
     pub(super) runs: &'a mut Vec<CellRun<D>>,
+    /// With 3 nodes per axis (GIMP, the domain rule), whose particles are sorted by
+    /// window ([`Solver::sort`]): the window of the particle located last, and how many
+    /// particles' windows came before the previous one's in that order (the chunk's
+    /// disorder, [`Placement::window_descents`]).
+    pub(super) wide: bool,
+    pub(super) prev_window: [i64; D],
+    pub(super) window_descents: usize,
 }
 
 /// The tile pass's runs of one cell as [`kernel::SlabRuns`]: the slab order sorts
@@ -144,14 +151,34 @@ impl<const D: usize> kernel::SlabRuns for RunSlabs<'_, D> {
 }
 
 impl<'a, const D: usize> ChunkLocator<'a, D> {
-    pub(super) fn new(geom: &'a Geom<D>, chunk: usize, runs: &'a mut Vec<CellRun<D>>) -> Self {
+    pub(super) fn new(
+        geom: &'a Geom<D>,
+        chunk: usize,
+        runs: &'a mut Vec<CellRun<D>>,
+        wide: bool,
+    ) -> Self {
         runs.clear();
         ChunkLocator {
             geom,
             base: chunk * LOCATE_CHUNK,
             prev: [i64::MIN; D],
             runs,
+            wide,
+            prev_window: [i64::MIN; D],
+            window_descents: 0,
         }
+    }
+
+    /// Count a particle in cell `c` at local coordinate `xi` whose window
+    /// ([`crate::physics::shape::window`]) comes before the last one's in the sort's
+    /// order (the last
+    /// axis first).
+    #[inline(always)]
+    fn note_window(&mut self, c: &[i64; D], xi: &[f64; D]) {
+        let w = crate::physics::shape::window(self.geom, c, xi);
+        let key = |w: &[i64; D]| std::array::from_fn::<i64, D, _>(|a| w[D - 1 - a]);
+        self.window_descents += usize::from(key(&w) < key(&self.prev_window));
+        self.prev_window = w;
     }
 
     /// Locate the chunk's particle `p`, at `x`, by `Geom::locate` (its floor clamped
@@ -159,7 +186,10 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
     /// [`ChunkLocator::locate`] refuses.
     #[inline(always)]
     pub(super) fn locate_clamped(&mut self, p: usize, x: &Vector<D>) {
-        let (c, _) = self.geom.locate(&std::array::from_fn(|a| x[a]));
+        let (c, xi) = self.geom.locate(&std::array::from_fn(|a| x[a]));
+        if self.wide {
+            self.note_window(&c, &xi);
+        }
         self.store(p, c);
     }
 
@@ -201,6 +231,12 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
         for a in 0..D {
             for l in 0..L {
                 c[a][l] = ((s[a][l].trunc() + TWO_52).to_bits() - TWO_52.to_bits()) as i64;
+            }
+        }
+        if self.wide {
+            for l in 0..L {
+                let cl: [i64; D] = std::array::from_fn(|a| c[a][l]);
+                self.note_window(&cl, &std::array::from_fn(|a| s[a][l] - cl[a] as f64));
             }
         }
         // A run starts where a lane's cell differs from the one before it: a bit per
@@ -263,13 +299,15 @@ impl<'c, const D: usize> Solver<'c, D> {
     pub(super) fn locate_all(&mut self) {
         let chunks = self.begin_locate();
         let (geom, lo, hi) = (&self.geom, &self.block.cell_lo, &self.block.cell_hi);
+        let wide = self.scheme.wide();
         self.parts
             .x
             .par_chunks(LOCATE_CHUNK)
             .zip(self.place.cell_runs.par_iter_mut())
+            .zip(self.place.window_descents.par_iter_mut())
             .enumerate()
-            .for_each(|(k, (xs, runs))| {
-                let mut loc = ChunkLocator::new(geom, k, runs);
+            .for_each(|(k, ((xs, runs), descents))| {
+                let mut loc = ChunkLocator::new(geom, k, runs, wide);
                 // Eight at a time where all eight lie in the block's cells, else one
                 // by one (one on the grid's upper face by `Geom::locate`).
                 let mut p = 0;
@@ -287,6 +325,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                     }
                     p += 1;
                 }
+                *descents = loc.window_descents;
             });
         self.place.cell_runs.truncate(chunks);
     }
@@ -304,6 +343,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         if self.place.cell_runs.len() < chunks {
             self.place.cell_runs.resize_with(chunks, Vec::new);
         }
+        self.place.window_descents.resize(chunks, 0);
         chunks
     }
 
@@ -380,7 +420,9 @@ impl<'c, const D: usize> Solver<'c, D> {
         std::array::from_fn(|a| c[a].rem_euclid(self.geom.cells[a] as i64) as usize)
     }
 
-    /// Reorder particles by cell (then id, for determinism) for cache locality.
+    /// Reorder particles by cell (with 3 nodes per axis by window, [`crate::physics::shape::window`];
+    /// then by id, for determinism), so that the particle loops meet those that share
+    /// their nodes in a row.
     pub fn sort(&mut self) {
         // The wrap's location, if it holds, names every particle's cell; after the
         // sort it is stale.
@@ -394,27 +436,40 @@ impl<'c, const D: usize> Solver<'c, D> {
         // are stale once particles move and rebuilt by the next tile pass before any
         // read, so the keys need no memory of their own.
         // (A scene's grid has at most 2^40 nodes, `MAX_GRID_NODES`: the products fit.)
+        // With 3 nodes per axis (GIMP, the domain rule) by the window of nodes instead
+        // ([`crate::physics::shape::window`]), which starts at most one cell below the block: the
+        // particles of one window, in up to 2^D cells, then come in a row and the
+        // passes read and write their nodes once for all of them.
+        let wide = self.scheme.wide();
         let (lo, hi) = (&self.block.cell_lo, &self.block.cell_hi);
+        let first = |a: usize| lo[a] as i64 - i64::from(wide);
         let mut stride = [0u64; D];
         let mut span = 1u64;
         for a in 0..D {
             stride[a] = span;
-            span *= (hi[a] - lo[a]) as u64;
+            span *= (hi[a] as i64 - first(a)) as u64;
         }
         let geom = &self.geom;
         let block_key = |c: &[i64; D]| {
             let mut key = 0;
             for a in 0..D {
-                let digit = c[a] - lo[a] as i64;
+                let digit = c[a] - first(a);
                 assert!(
-                    (0..(hi[a] - lo[a]) as i64).contains(&digit),
+                    (0..hi[a] as i64 - first(a)).contains(&digit),
                     "a particle in cell {c:?} is outside its block {lo:?} .. {hi:?}"
                 );
                 key += digit as u64 * stride[a];
             }
             key
         };
-        let cell_of = |p: usize| geom.locate(&std::array::from_fn(|a| self.parts.x[p][a])).0;
+        let cell_of = |p: usize| {
+            let (c, xi) = geom.locate(&std::array::from_fn(|a| self.parts.x[p][a]));
+            if wide {
+                crate::physics::shape::window(geom, &c, &xi)
+            } else {
+                c
+            }
+        };
         if span <= 1 << 32 {
             let keys = &mut self.place.ptile;
             particles::reserve(keys, n);
@@ -424,7 +479,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                 .enumerate()
                 .for_each(|(k, keys)| {
                     let base = k * LOCATE_CHUNK;
-                    if !located {
+                    if !located || wide {
                         for (p, key) in keys.iter_mut().enumerate() {
                             *key = block_key(&cell_of(base + p)) as u32;
                         }
@@ -510,9 +565,12 @@ mod locate_tests {
                 xs.push(Vector::<2>::new(f64::NAN, 1.0));
                 xs.push(Vector::<2>::new(0.5, f64::NAN));
                 let (mut runs_a, mut runs_b) = (Vec::new(), Vec::new());
-                let mut la = ChunkLocator::new(&geom, 0, &mut runs_a);
-                let mut lb = ChunkLocator::new(&geom, 0, &mut runs_b);
+                let mut la = ChunkLocator::new(&geom, 0, &mut runs_a, true);
+                let mut lb = ChunkLocator::new(&geom, 0, &mut runs_b, true);
                 let mut inside_count = 0;
+                // The windows' descents in the sort's order (the last axis first),
+                // counted here from `Geom::locate` and `shape::window`.
+                let (mut descents, mut last) = (0, [i64::MIN; 2]);
                 for (p, x) in xs.iter().enumerate() {
                     let inside = block_coordinates(&geom, &lo, &hi, x).1;
                     let on_grid = (0..2).all(|a| on_grid(&geom, a, x[a]));
@@ -524,7 +582,17 @@ mod locate_tests {
                     la.locate_clamped(p, x);
                     assert!(lb.locate(p, std::array::from_ref(x), (&lo, &hi)));
                     assert_eq!(la.prev, lb.prev, "{x:?}");
+                    let (c, xi) = geom.locate(&[x[0], x[1]]);
+                    let w = crate::physics::shape::window(&geom, &c, &xi);
+                    descents += usize::from([w[1], w[0]] < [last[1], last[0]]);
+                    last = w;
+                    assert_eq!((la.prev_window, lb.prev_window), (w, w), "{x:?}");
                 }
+                assert!(descents > 100, "{descents} descents");
+                assert_eq!(
+                    (la.window_descents, lb.window_descents),
+                    (descents, descents)
+                );
                 assert!(inside_count > 1000, "{inside_count} inside");
                 assert_eq!(runs_a, runs_b);
             }
@@ -567,8 +635,8 @@ mod locate_tests {
             xs[outside[1]][D - 1] = f64::NAN;
             xs[outside[2]][0] = geom.lower[0] - 0.01;
             let (mut runs_a, mut runs_b) = (Vec::new(), Vec::new());
-            let mut la = ChunkLocator::new(&geom, 1, &mut runs_a);
-            let mut lb = ChunkLocator::new(&geom, 1, &mut runs_b);
+            let mut la = ChunkLocator::new(&geom, 1, &mut runs_a, true);
+            let mut lb = ChunkLocator::new(&geom, 1, &mut runs_b, true);
             let mut refused = 0;
             for p0 in (0..xs.len()).step_by(LANES) {
                 let batch: &[Vector<D>; LANES] = xs[p0..p0 + LANES].try_into().unwrap();
@@ -585,11 +653,15 @@ mod locate_tests {
                 assert_eq!(ok, all, "batch at {p0}");
                 if ok {
                     assert_eq!(la.prev, lb.prev, "batch at {p0}");
+                    assert_eq!(la.prev_window, lb.prev_window, "batch at {p0}");
                 } else {
                     refused += 1;
                     assert_eq!((la.runs.len(), la.prev), (runs, prev));
+                    assert_eq!(la.window_descents, lb.window_descents);
                 }
             }
+            assert!(la.window_descents > 100, "{} descents", la.window_descents);
+            assert_eq!(la.window_descents, lb.window_descents);
             // The planted ones (random positions at a cell's upper face may round
             // onto the block's upper face too).
             for &p in &outside {
@@ -620,13 +692,19 @@ mod sort_tests {
     use decomposition::{Layout, SerialComm};
 
     pub(super) fn vortex(amplitude: &str) -> Solver<'static, 2> {
+        vortex_with(amplitude, "gradient = \"mpmcg\"")
+    }
+
+    /// The vortex with `gradient` in place of its gradient line.
+    fn vortex_with(amplitude: &str, gradient: &str) -> Solver<'static, 2> {
         let text = std::fs::read_to_string(concat!(
             env!("CARGO_MANIFEST_DIR"),
             "/inputs/generalized_vortex.toml"
         ))
         .unwrap()
         .replace("cells = [64, 64]", "cells = [24, 24]")
-        .replace("amplitude = 0.1", &format!("amplitude = {amplitude}"));
+        .replace("amplitude = 0.1", &format!("amplitude = {amplitude}"))
+        .replace("gradient = \"mpmcg\"", gradient);
         let sc = scene::parse(&text, "vortex").unwrap();
         let layout = Layout::choose([24; 2], [false; 2], 1).unwrap();
         Solver::<2>::new(&sc, &SerialComm, layout)
@@ -685,5 +763,63 @@ mod sort_tests {
             assert_eq!(s.place.disorder, 0);
         }
         assert_eq!(s.place.sorts, 0);
+    }
+
+    /// The windows of particles with 3 nodes per axis, in the sort's order (the last
+    /// axis first), and their ids.
+    fn windows(s: &Solver<'_, 2>) -> Vec<([i64; 2], u64)> {
+        (0..s.parts.len())
+            .map(|p| {
+                let (c, xi) = s.geom.locate(&[s.parts.x[p][0], s.parts.x[p][1]]);
+                let w = crate::physics::shape::window(&s.geom, &c, &xi);
+                ([w[1], w[0]], s.parts.id[p])
+            })
+            .collect()
+    }
+
+    /// With 3 nodes per axis (the domain rule, GIMP) particles are sorted by window, so
+    /// that those sharing their nodes come in a row: seeded, then after the turning
+    /// ring fell out of order, a sort leaves them in order by window and by id within
+    /// one, which the tile pass counts as no descent; the criterion sorts exactly when
+    /// more than `SORT_DISORDER` of them are out of window order; a ring at rest is
+    /// never sorted after its first sort.
+    #[test]
+    pub(super) fn a_sort_restores_window_order() {
+        let methods = [
+            "gradient = \"mpmcg\"\nquadrature = \"domain\"",
+            "gradient = \"gimp\"",
+        ];
+        for method in methods {
+            let in_order = |s: &Solver<'_, 2>| windows(s).windows(2).all(|p| p[0] < p[1]);
+            let mut s = vortex_with("0.1", method);
+            assert!(s.scheme.wide(), "{method}");
+            assert!(in_order(&s), "{method}: seeded particles sorted by window");
+            assert_eq!(s.place.sorts, 1);
+            let mut most = 0.0f64;
+            for _ in 0..25 {
+                let sorts = s.place.sorts;
+                s.advance().unwrap();
+                let out_of_order = s.place.disorder as f64 / s.parts.len() as f64;
+                assert_eq!(s.place.sorts > sorts, out_of_order > SORT_DISORDER);
+                most = most.max(out_of_order);
+            }
+            assert!(s.place.sorts > 1, "{method}: the turning ring was sorted");
+            while s.place.disorder == 0 {
+                s.advance().unwrap();
+            }
+            assert!(!in_order(&s));
+            s.sort();
+            assert!(in_order(&s), "{method}");
+            s.locate_all();
+            assert_eq!(s.place.window_descents.iter().sum::<usize>(), 0, "{method}");
+            assert!(most > 0.0);
+            // At rest: sorted once, when seeded.
+            let mut s = vortex_with("0.0", method);
+            for _ in 0..30 {
+                s.advance().unwrap();
+                assert_eq!(s.place.disorder, 0, "{method}");
+            }
+            assert_eq!(s.place.sorts, 1, "{method}");
+        }
     }
 }

@@ -14,14 +14,16 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.place.flagged.resize(chunks, false);
         let (geom, lo, hi) = (&self.geom, &self.block.cell_lo, &self.block.cell_hi);
         let periodic = geom.periodic.contains(&true);
+        let wide = self.scheme.wide();
         self.parts
             .x
             .par_chunks_mut(LOCATE_CHUNK)
             .zip(self.place.flagged.par_iter_mut())
             .zip(self.place.cell_runs.par_iter_mut())
+            .zip(self.place.window_descents.par_iter_mut())
             .enumerate()
-            .for_each(|(k, ((xs, flag), runs))| {
-                let mut loc = ChunkLocator::new(geom, k, runs);
+            .for_each(|(k, (((xs, flag), runs), descents))| {
+                let mut loc = ChunkLocator::new(geom, k, runs, wide);
                 // One particle: whether it left the block.
                 let one = |loc: &mut ChunkLocator<'_, D>, p: usize, x: &mut Vector<D>| {
                     wrap_periodic(geom, x);
@@ -52,6 +54,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                     }
                     p += b;
                 }
+                *descents = loc.window_descents;
             });
         self.place.cell_runs.truncate(chunks);
     }
@@ -121,7 +124,14 @@ impl<'c, const D: usize> Solver<'c, D> {
                 // The tile pass's location of every particle, done with the wrap, holds
                 // if none left (none was flagged) and none arrived.
                 self.place.located = !self.place.flagged.contains(&true) && recs.is_empty();
-                self.place.disorder = descents(&self.place.cell_runs) + recs.len();
+                // Particles sorted by window (3 nodes per axis) by their windows'
+                // order, the others by their cells'.
+                let out_of_order = if self.scheme.wide() {
+                    self.place.window_descents.iter().sum()
+                } else {
+                    descents(&self.place.cell_runs)
+                };
+                self.place.disorder = out_of_order + recs.len();
                 parts.reserve_total(parts.len() + recs.len(), carries);
                 for r in recs.iter() {
                     parts.unpack(r, carries);
