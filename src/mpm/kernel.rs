@@ -24,7 +24,7 @@ use crate::input::scene::Face;
 use crate::mpm::particles::{self, ParticleSlices};
 use crate::physics::benchmark;
 use crate::physics::material::Material;
-use crate::physics::shape::{self, Alpha, Geom};
+use crate::physics::shape::{self, Alpha, Geom, Reads};
 use crate::physics::tensor::{det, Mat, Vector};
 use decomposition::tiles::{Tiles, NEIGHBOURS, TILE, TILE_LOG};
 use rayon::prelude::*;
@@ -203,7 +203,7 @@ impl<const D: usize> Ctx<'_, D> {
     ) -> (Kern<D, N>, [usize; N]) {
         let xa: [f64; D] = std::array::from_fn(|a| x[a]);
         let xi = self.geom.locate(&xa).1;
-        let (mut k, below, w) = self.weights::<NA, N>(x, half, &xi);
+        let (mut k, below, w) = self.weights::<NA, N>(x, half, &xi, Reads::ALL);
         k.ends = self.wall_ends::<NA>(&self.node_sides::<NA>(cell_node, below), &w);
         (k, self.node_indices::<NA, N>(cell_node, below))
     }
@@ -212,7 +212,9 @@ impl<const D: usize> Ctx<'_, D> {
     /// unset; the nodes' storage indices are the run's), per axis whether its first node
     /// lies one below its cell (GIMP only), and its 1D weights per axis (for
     /// [`Ctx::wall_ends`]). Hat functions take the local coordinate `xi` in the cell
-    /// the tile pass found ([`Ctx::local`]), GIMP the position and half-width. Particles sorted by cell share their nodes in runs: the
+    /// the tile pass found ([`Ctx::local`]), GIMP the position and half-width. Of the
+    /// data besides the shape functions only those `reads` asks for are formed (the
+    /// rest left zero). Particles sorted by cell share their nodes in runs: the
     /// particle loops look the nodes up once per run ([`Run`]).
     #[inline(always)]
     pub fn weights<const NA: usize, const N: usize>(
@@ -220,12 +222,13 @@ impl<const D: usize> Ctx<'_, D> {
         x: &Vector<D>,
         half: Option<&[f64; D]>,
         xi: &[f64; D],
+        reads: Reads,
     ) -> (Kern<D, N>, [usize; D], [[f64; 3]; D]) {
         // Three nodes per axis is GIMP or the domain rule, two hat functions
         // (`by_nodes!`): decided at compile time, so a hat loop carries neither.
         debug_assert_eq!(NA == 3, self.wide);
         if NA == 3 && self.domain {
-            return self.domain_weights(x, half, xi);
+            return self.domain_weights(x, half, xi, reads);
         }
         let w = match half {
             Some(lp) if NA == 3 => {
@@ -265,6 +268,9 @@ impl<const D: usize> Ctx<'_, D> {
                 s *= w.w[a][o[a]];
             }
             for d in 0..D {
+                if !reads.gradients {
+                    break;
+                }
                 let mut p = w.dw[d][o[d]];
                 for e in 0..D {
                     if e != d {
@@ -291,9 +297,11 @@ impl<const D: usize> Ctx<'_, D> {
         x: &Vector<D>,
         half: Option<&[f64; D]>,
         xi: &[f64; D],
+        reads: Reads,
     ) -> (Kern<D, N>, [usize; D], [[f64; 3]; D]) {
         let xa: [f64; D] = std::array::from_fn(|a| x[a]);
-        let d = shape::domain(self.geom, &xa, half.expect("the domain's half-widths"));
+        let half = half.expect("the domain's half-widths");
+        let d = shape::domain(self.geom, &xa, half, reads);
         let below: [usize; D] = std::array::from_fn(|a| (d.cell[a] - d.base[a]) as usize);
         let mut k = Kern {
             s: [0.0; N],
@@ -312,16 +320,21 @@ impl<const D: usize> Ctx<'_, D> {
                 r /= 3;
                 o
             });
-            let (s, at_point, g, c) = d.node(&o);
+            let (s, at_point) = d.node(&o);
             k.s[n] = s;
             k.at_point[n] = at_point;
-            for b in 0..D {
-                k.g[b][n] = g[b];
+            if reads.gradients {
+                let (g, c) = d.gradient(&o, s);
+                for b in 0..D {
+                    k.g[b][n] = g[b];
+                }
+                k.avg_w[n] = c;
             }
-            k.avg_w[n] = c;
-            let m = d.moments(&o);
-            for b in 0..D {
-                k.mom[b][n] = m[b];
+            if reads.moments {
+                let m = d.moments(&o);
+                for b in 0..D {
+                    k.mom[b][n] = m[b];
+                }
             }
         }
         (k, below, d.w)

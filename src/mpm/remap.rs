@@ -15,6 +15,7 @@
 
 use crate::mpm::kernel::lanes::{self, Room, Weights, HALF, LANES, QUARTER};
 use crate::mpm::kernel::{CellAt, Ctx, GridPtr, NodeData, RowPtr, Run, Slab, SlabOrder};
+use crate::physics::shape::Reads;
 use crate::physics::tensor::Vector;
 
 /// Read-only particle arrays of the remap.
@@ -179,7 +180,11 @@ fn remap_slab<const D: usize, const NA: usize, const N: usize>(
         } else {
             let xi = ctx.local(&parts.x[p], &c);
             let half = ctx.half_width(parts.half, parts.def_grad, p);
-            let (mut k, below, w) = ctx.weights::<NA, N>(&parts.x[p], half.as_ref(), &xi);
+            let reads = Reads {
+                gradients: false,
+                moments: false,
+            };
+            let (mut k, below, w) = ctx.weights::<NA, N>(&parts.x[p], half.as_ref(), &xi, reads);
             enter(&mut run, below);
             k.ends = run.ends(ctx, &w);
             room.one.one(&k, run.at_wall(), below);

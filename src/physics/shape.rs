@@ -387,6 +387,24 @@ pub struct DomainWeights1<const D: usize> {
     pub avg_nc: [[f64; 3]; D],
 }
 
+/// Which of a particle's interpolation data a pass reads besides the shape functions
+/// (the weights of mass, momentum and velocity, and the hat functions at the particle):
+/// the gradients (with the weights of the nodes' averages) and the domain rule's first
+/// moments. The others are not formed (left zero): the remap reads neither, the
+/// scatter no moments.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Reads {
+    pub gradients: bool,
+    pub moments: bool,
+}
+
+impl Reads {
+    pub const ALL: Reads = Reads {
+        gradients: true,
+        moments: true,
+    };
+}
+
 /// Two-point Gauss–Legendre abscissa on [−1, 1]: exact for the cubics the domain rule
 /// integrates (`a N_k` per cell), with no difference of primitives to lose digits on a
 /// short piece.
@@ -400,9 +418,15 @@ const GAUSS2: f64 = 0.577_350_269_189_625_8;
 /// keeps `Σ_k avg N_k = 1` and `Σ_k avg N_k' = 0`, so the gradient's identities hold.
 /// The window of 3 nodes starts one below the cell where `ξ < ½` (the domain may reach
 /// the cell below), else at the cell, and at a bounded end is shifted inside the grid
-/// as GIMP's is.
+/// as GIMP's is. Of the averages only those `reads` asks for besides `avg_n` are formed
+/// (the others stay zero).
 #[inline]
-pub fn domain<const D: usize>(geom: &Geom<D>, x: &[f64; D], lp: &[f64; D]) -> DomainWeights1<D> {
+pub fn domain<const D: usize>(
+    geom: &Geom<D>,
+    x: &[f64; D],
+    lp: &[f64; D],
+    reads: Reads,
+) -> DomainWeights1<D> {
     let (c, xi) = geom.locate(x);
     let mut d = DomainWeights1 {
         base: c,
@@ -448,16 +472,20 @@ pub fn domain<const D: usize>(geom: &Geom<D>, x: &[f64; D], lp: &[f64; D]) -> Do
                 ([mid, mid], 0.5)
             };
             for u in points {
-                let au = 4.0 * u * (1.0 - u);
                 d.avg_n[a][s] += wt * (1.0 - u);
                 d.avg_n[a][s + 1] += wt * u;
-                d.avg_an[a][s] += wt * au * (1.0 - u);
-                d.avg_an[a][s + 1] += wt * au * u;
-                d.avg_adn[a][s] -= wt * au * geom.inv_h[a];
-                d.avg_adn[a][s + 1] += wt * au * geom.inv_h[a];
-                let dx = (u + k as f64 - t) * geom.h[a];
-                d.avg_nc[a][s] += wt * (1.0 - u) * dx;
-                d.avg_nc[a][s + 1] += wt * u * dx;
+                if reads.gradients {
+                    let au = 4.0 * u * (1.0 - u);
+                    d.avg_an[a][s] += wt * au * (1.0 - u);
+                    d.avg_an[a][s + 1] += wt * au * u;
+                    d.avg_adn[a][s] -= wt * au * geom.inv_h[a];
+                    d.avg_adn[a][s + 1] += wt * au * geom.inv_h[a];
+                }
+                if reads.moments {
+                    let dx = (u + k as f64 - t) * geom.h[a];
+                    d.avg_nc[a][s] += wt * (1.0 - u) * dx;
+                    d.avg_nc[a][s + 1] += wt * u * dx;
+                }
             }
         }
         let rows = [
@@ -522,15 +550,24 @@ fn shift_inside<const D: usize, const R: usize>(
 }
 
 impl<const D: usize> DomainWeights1<D> {
-    /// Node `o` (its slot per axis): `avg(S)`, the hat function at the particle, the
-    /// α-part of the gradient `avg(α ∇S)` and the weight `avg((1 − α) S)` of the
-    /// node's averages σ̄ and L̄.
+    /// Node `o` (its slot per axis): `avg(S)` and the hat function at the particle.
     #[inline(always)]
-    pub fn node(&self, o: &[usize; D]) -> (f64, f64, [f64; D], f64) {
-        let (mut s, mut n, mut an) = (1.0, 1.0, 1.0);
+    pub fn node(&self, o: &[usize; D]) -> (f64, f64) {
+        let (mut s, mut n) = (1.0, 1.0);
         for a in 0..D {
             s *= self.w[a][o[a]];
             n *= self.avg_n[a][o[a]];
+        }
+        (n, s)
+    }
+
+    /// Node `o`'s α-part of the gradient `avg(α ∇S)` and the weight `avg((1 − α) S)`
+    /// of the node's averages σ̄ and L̄, given its `avg(S)` ([`DomainWeights1::node`]).
+    /// Formed from the averages [`Reads::gradients`] asks for.
+    #[inline(always)]
+    pub fn gradient(&self, o: &[usize; D], avg_s: f64) -> ([f64; D], f64) {
+        let mut an = 1.0;
+        for a in 0..D {
             an *= self.avg_an[a][o[a]];
         }
         let g = std::array::from_fn(|b| {
@@ -542,7 +579,7 @@ impl<const D: usize> DomainWeights1<D> {
             }
             p
         });
-        (n, s, g, n - an)
+        (g, avg_s - an)
     }
 
     /// Node `o`'s centred moments `avg(S (x − x_p))` per axis.
@@ -705,7 +742,7 @@ mod tests {
             for &y in &ys {
                 for lp in &lps {
                     let p = [x, y];
-                    let d = domain(&geom, &p, lp);
+                    let d = domain(&geom, &p, lp, Reads::ALL);
                     for ax in 0..2 {
                         let h = geom.h[ax];
                         let r = lp[ax].min(0.5 * h);
@@ -814,12 +851,40 @@ mod tests {
                             "GIMP at {x:?}, {cells:?} {periodic:?}"
                         );
                         assert_eq!(
-                            domain(&geom, &x, &lp).base,
+                            domain(&geom, &x, &lp, Reads::ALL).base,
                             w,
                             "domain at {x:?}, {cells:?} {periodic:?}"
                         );
                     }
                 }
+            }
+        }
+    }
+
+    /// The domain rule forms what a pass reads and nothing else: with fewer
+    /// [`Reads`] the averages it forms are the same bits as with all, the others zero.
+    #[test]
+    fn domain_forms_only_what_is_read() {
+        let geom = Geom::<2>::new([-0.5, 0.0], [1.5, 1.0], [8, 5], [false, true]);
+        let mut rng = decomposition::splitmix::Rng::new(9);
+        for _ in 0..200 {
+            let x = [-0.5 + 2.0 * rng.f64(), rng.f64()];
+            let lp = [0.2 * rng.f64(), 0.15 * rng.f64()];
+            let all = domain(&geom, &x, &lp, Reads::ALL);
+            for (gradients, moments) in [(false, false), (true, false), (false, true)] {
+                let d = domain(&geom, &x, &lp, Reads { gradients, moments });
+                assert_eq!(
+                    (d.base, d.cell, d.w, d.avg_n),
+                    (all.base, all.cell, all.w, all.avg_n)
+                );
+                let zero = [[0.0; 3]; 2];
+                let (an, adn) = if gradients {
+                    (all.avg_an, all.avg_adn)
+                } else {
+                    (zero, zero)
+                };
+                assert_eq!((d.avg_an, d.avg_adn), (an, adn), "{x:?}");
+                assert_eq!(d.avg_nc, if moments { all.avg_nc } else { zero }, "{x:?}");
             }
         }
     }

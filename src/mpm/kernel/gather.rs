@@ -132,7 +132,11 @@ pub fn interpolate<const D: usize, const NA: usize, const N: usize>(
             let half = ctx.half_width(half, def_grad, p);
             let c = *cell.of(ctx, tile[p]);
             let xi = ctx.local(&x[p], &c);
-            let (w, below, _) = ctx.weights::<NA, N>(&x[p], half.as_ref(), &xi);
+            let reads = Reads {
+                gradients: false,
+                moments: false,
+            };
+            let (w, below, _) = ctx.weights::<NA, N>(&x[p], half.as_ref(), &xi, reads);
             run.enter_if_new(ctx, tile[p], below);
             let mut u = Vector::<D>::zeros();
             for (n, &s) in w.s.iter().enumerate() {
@@ -205,7 +209,8 @@ pub(super) fn by_runs<const D: usize, const NA: usize, const N: usize>(
         } else {
             let xi = ctx.local(&s.parts.x[p], &c);
             let half = ctx.half_width(s.parts.half, s.parts.def_grad, p);
-            let (mut k, below, w) = ctx.weights::<NA, N>(&s.parts.x[p], half.as_ref(), &xi);
+            let (mut k, below, w) =
+                ctx.weights::<NA, N>(&s.parts.x[p], half.as_ref(), &xi, Reads::ALL);
             if run.enter_if_new(ctx, s.tile[p], below) {
                 load(&mut nd, &run.idx);
             }

@@ -136,7 +136,11 @@ pub(super) fn scatter_slab<const D: usize, const NA: usize, const N: usize>(
         // grew 1.13 against ξ kept by the tile pass, here 1.06.)
         let c = *cell.of(ctx, tiles[p]);
         let xi = ctx.local(&xs[p], &c);
-        let (k, below, _) = ctx.weights::<NA, N>(&xs[p], half.as_ref(), &xi);
+        let reads = Reads {
+            gradients: m.forces,
+            moments: false,
+        };
+        let (k, below, _) = ctx.weights::<NA, N>(&xs[p], half.as_ref(), &xi, reads);
         if run.is_new(ctx, tiles[p], below) {
             if run.started() {
                 acc.flush(ctx, grid, &run.idx, m);
