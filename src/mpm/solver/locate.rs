@@ -171,8 +171,7 @@ impl<'a, const D: usize> ChunkLocator<'a, D> {
 
     /// Count a particle in cell `c` at local coordinate `xi` whose window
     /// ([`crate::physics::shape::window`]) comes before the last one's in the sort's
-    /// order (the last
-    /// axis first).
+    /// order (the last axis first).
     #[inline(always)]
     fn note_window(&mut self, c: &[i64; D], xi: &[f64; D]) {
         let w = crate::physics::shape::window(self.geom, c, xi);
@@ -420,9 +419,9 @@ impl<'c, const D: usize> Solver<'c, D> {
         std::array::from_fn(|a| c[a].rem_euclid(self.geom.cells[a] as i64) as usize)
     }
 
-    /// Reorder particles by cell (with 3 nodes per axis by window, [`crate::physics::shape::window`];
-    /// then by id, for determinism), so that the particle loops meet those that share
-    /// their nodes in a row.
+    /// Reorder particles by cell (with 3 nodes per axis by window,
+    /// [`crate::physics::shape::window`]; then by id, for determinism), so that the
+    /// particle loops meet those that share their nodes in a row.
     pub fn sort(&mut self) {
         // The wrap's location, if it holds, names every particle's cell; after the
         // sort it is stale.
@@ -437,7 +436,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         // read, so the keys need no memory of their own.
         // (A scene's grid has at most 2^40 nodes, `MAX_GRID_NODES`: the products fit.)
         // With 3 nodes per axis (GIMP, the domain rule) by the window of nodes instead
-        // ([`crate::physics::shape::window`]), which starts at most one cell below the block: the
+        // (`shape::window`), which starts at most one cell below the block: the
         // particles of one window, in up to 2^D cells, then come in a row and the
         // passes read and write their nodes once for all of them.
         let wide = self.scheme.wide();
