@@ -290,6 +290,70 @@ pub(super) fn descents<const D: usize>(runs: &[Vec<CellRun<D>>]) -> usize {
 /// not depend on the thread count).
 pub(super) const LOCATE_CHUNK: usize = 4096;
 
+/// The order of [`Solver::sort`]: a cell (with 3 nodes per axis a window,
+/// [`sort_place`]) as one number, the last axis first (a number in mixed radix whose
+/// digits are its coordinates counted from the block's first, or one below it for a
+/// window, which starts at most one cell below the block). (A scene's grid has at most
+/// 2^40 nodes, `MAX_GRID_NODES`: the products fit.)
+struct SortKey<'a, const D: usize> {
+    lo: &'a [usize; D],
+    hi: &'a [usize; D],
+    first: [i64; D],
+    stride: [u64; D],
+    /// How many keys there are.
+    span: u64,
+}
+
+impl<'a, const D: usize> SortKey<'a, D> {
+    fn new(lo: &'a [usize; D], hi: &'a [usize; D], wide: bool) -> Self {
+        let first = std::array::from_fn(|a| lo[a] as i64 - i64::from(wide));
+        let mut stride = [0u64; D];
+        let mut span = 1u64;
+        for a in 0..D {
+            stride[a] = span;
+            span *= (hi[a] as i64 - first[a]) as u64;
+        }
+        SortKey {
+            lo,
+            hi,
+            first,
+            stride,
+            span,
+        }
+    }
+
+    /// The key of place `c`, which must lie in the block.
+    #[inline]
+    fn of(&self, c: &[i64; D]) -> u64 {
+        let mut key = 0;
+        for a in 0..D {
+            let digit = c[a] - self.first[a];
+            assert!(
+                (0..self.hi[a] as i64 - self.first[a]).contains(&digit),
+                "a particle in cell {c:?} is outside its block {:?} .. {:?}",
+                self.lo,
+                self.hi
+            );
+            key += digit as u64 * self.stride[a];
+        }
+        key
+    }
+}
+
+/// Where [`Solver::sort`] puts a particle at `x`: its cell, or with 3 nodes per axis
+/// (`wide`: GIMP, the domain rule) its window of nodes ([`crate::physics::shape::window`]),
+/// so that the particles of one window, in up to 2^D cells, come in a row and the passes
+/// read and write their nodes once for all of them.
+#[inline]
+fn sort_place<const D: usize>(geom: &Geom<D>, x: &Vector<D>, wide: bool) -> [i64; D] {
+    let (c, xi) = geom.locate(&std::array::from_fn(|a| x[a]));
+    if wide {
+        crate::physics::shape::window(geom, &c, &xi)
+    } else {
+        c
+    }
+}
+
 impl<'c, const D: usize> Solver<'c, D> {
     /// The tile pass's parallel part: locate every particle and list per chunk of
     /// particles where a run of particles in one cell starts (the chunk's first
@@ -428,48 +492,16 @@ impl<'c, const D: usize> Solver<'c, D> {
         let located = std::mem::take(&mut self.place.located);
         self.place.sorts += 1;
         let n = self.parts.len();
-        // Each particle's cell as one number, the last axis first as the order by
-        // cell is (a number in mixed radix whose digits are the cell's coordinates).
-        // Counted from the block's first cell it mostly fits 32 bits, and is then
-        // kept in `ptile`, with the slab order's array as the radix sort's room: both
-        // are stale once particles move and rebuilt by the next tile pass before any
-        // read, so the keys need no memory of their own.
-        // (A scene's grid has at most 2^40 nodes, `MAX_GRID_NODES`: the products fit.)
-        // With 3 nodes per axis (GIMP, the domain rule) by the window of nodes instead
-        // (`shape::window`), which starts at most one cell below the block: the
-        // particles of one window, in up to 2^D cells, then come in a row and the
-        // passes read and write their nodes once for all of them.
+        // Each particle's place as one number ([`SortKey`]). Counted from the block's
+        // first cell it mostly fits 32 bits, and is then kept in `ptile`, with the slab
+        // order's array as the radix sort's room: both are stale once particles move
+        // and rebuilt by the next tile pass before any read, so the keys need no memory
+        // of their own.
         let wide = self.scheme.wide();
-        let (lo, hi) = (&self.block.cell_lo, &self.block.cell_hi);
-        let first = |a: usize| lo[a] as i64 - i64::from(wide);
-        let mut stride = [0u64; D];
-        let mut span = 1u64;
-        for a in 0..D {
-            stride[a] = span;
-            span *= (hi[a] as i64 - first(a)) as u64;
-        }
+        let order = SortKey::new(&self.block.cell_lo, &self.block.cell_hi, wide);
         let geom = &self.geom;
-        let block_key = |c: &[i64; D]| {
-            let mut key = 0;
-            for a in 0..D {
-                let digit = c[a] - first(a);
-                assert!(
-                    (0..hi[a] as i64 - first(a)).contains(&digit),
-                    "a particle in cell {c:?} is outside its block {lo:?} .. {hi:?}"
-                );
-                key += digit as u64 * stride[a];
-            }
-            key
-        };
-        let cell_of = |p: usize| {
-            let (c, xi) = geom.locate(&std::array::from_fn(|a| self.parts.x[p][a]));
-            if wide {
-                crate::physics::shape::window(geom, &c, &xi)
-            } else {
-                c
-            }
-        };
-        if span <= 1 << 32 {
+        let place_of = |p: usize| sort_place(geom, &self.parts.x[p], wide);
+        if order.span <= 1 << 32 {
             let keys = &mut self.place.ptile;
             particles::reserve(keys, n);
             keys.resize(n, 0);
@@ -480,7 +512,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                     let base = k * LOCATE_CHUNK;
                     if !located || wide {
                         for (p, key) in keys.iter_mut().enumerate() {
-                            *key = block_key(&cell_of(base + p)) as u32;
+                            *key = order.of(&place_of(base + p)) as u32;
                         }
                         return;
                     }
@@ -489,7 +521,7 @@ impl<'c, const D: usize> Solver<'c, D> {
                         let end = runs[k]
                             .get(r + 1)
                             .map_or(keys.len(), |e| e.first as usize - base);
-                        keys[run.first as usize - base..end].fill(block_key(&run.cell()) as u32);
+                        keys[run.first as usize - base..end].fill(order.of(&run.cell()) as u32);
                     }
                 });
             let keys = &self.place.ptile;
@@ -503,7 +535,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         } else {
             // A block of more than 2^32 cells (sparse): each key formed where the sort
             // asks for it, `ptile` the room.
-            let key = |p: u32| block_key(&cell_of(p as usize));
+            let key = |p: u32| order.of(&place_of(p as usize));
             particles::order_by_key_then_id(
                 key,
                 &self.parts.id,
@@ -776,8 +808,7 @@ mod sort_tests {
     fn windows(s: &Solver<'_, 2>) -> Vec<([i64; 2], u64)> {
         (0..s.parts.len())
             .map(|p| {
-                let (c, xi) = s.geom.locate(&[s.parts.x[p][0], s.parts.x[p][1]]);
-                let w = crate::physics::shape::window(&s.geom, &c, &xi);
+                let w = sort_place(&s.geom, &s.parts.x[p], true);
                 ([w[1], w[0]], s.parts.id[p])
             })
             .collect()
