@@ -515,18 +515,25 @@ fn differences(a: &Path, b: &Path) -> (f64, f64) {
 /// on 2, 3 and 4 ranks, the final state equals the 1-rank run's to 1e-12, the same
 /// rank count twice is bit-identical. Restarts across the moved blocks: 3 → 3 ranks from the half-way checkpoint is
 /// bit-identical to the uninterrupted run, 3 → 2 agrees to 1e-12.
+///
+/// By measured time (`balance = "time"`, 2D MPMCG) the cuts follow the clock, so only
+/// the agreement with one rank is asserted, after at least one move.
 #[test]
 fn rebalanced_runs_are_independent_of_rank_count() {
-    for (dim, g) in [
-        (2, "mpm"),
-        (2, "gimp"),
-        (2, "averaged"),
-        (2, "mpmcg"),
-        (3, "mpmcg"),
+    for (dim, g, balance) in [
+        (2, "mpm", "auto"),
+        (2, "gimp", "auto"),
+        (2, "averaged", "auto"),
+        (2, "mpmcg", "auto"),
+        (3, "mpmcg", "auto"),
+        (2, "mpmcg", "time"),
     ] {
-        let dir = temp_dir(&format!("rebalance-{dim}d-{g}"));
+        let dir = temp_dir(&format!("rebalance-{dim}d-{g}-{balance}"));
         let sc = dir.join("scene.toml");
-        std::fs::write(&sc, travelling(dim, g)).unwrap();
+        let text =
+            travelling(dim, g).replace("balance = \"auto\"", &format!("balance = \"{balance}\""));
+        std::fs::write(&sc, text).unwrap();
+        let timed = balance == "time";
         let run = |n: usize, tag: &str| {
             let out = dir.join(format!("{tag}{n}"));
             let (code, err) = mpirun(n, &sc, &out);
@@ -543,12 +550,20 @@ fn rebalanced_runs_are_independent_of_rank_count() {
             let o = run(n, "r");
             let s = summary(&o);
             let moves = s["balance"]["rebalances"].as_u64().unwrap();
-            assert!(moves >= 3, "{dim}D {g} {n} ranks: {moves} rebalances");
+            let least = if timed { 1 } else { 3 };
+            assert!(
+                moves >= least,
+                "{dim}D {g} {balance} {n} ranks: {moves} rebalances"
+            );
             let (dx, dv) = differences(&o, &o1);
             assert!(
                 dx < 1e-12 && dv < 1e-12,
-                "{dim}D {g} {n} ranks: differences {dx:e} {dv:e}"
+                "{dim}D {g} {balance} {n} ranks: differences {dx:e} {dv:e}"
             );
+        }
+        if timed {
+            let _ = std::fs::remove_dir_all(&dir);
+            continue;
         }
         let again = run(3, "again");
         assert!(

@@ -966,7 +966,7 @@ fn other_validation() {
     )
     .key("parallel.balance")
     .at("\"dynamic\"")
-    .says("off");
+    .says("`off`, `static`, `auto`, `time`");
     check(
         "balance_threshold",
         format!("{BAR}\n[parallel]\nimbalance = 0.9\n"),

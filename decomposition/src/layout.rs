@@ -106,12 +106,25 @@ impl<const D: usize> Layout<D> {
     /// zero profile gives equal widths. Deterministic: every rank given the same
     /// costs computes the same cuts.
     pub fn balanced(&self, cost: &[Profile; D]) -> Self {
+        let equal = std::array::from_fn(|a| vec![1.0; self.procs[a]]);
+        self.balanced_shares(cost, &equal)
+    }
+
+    /// [`Layout::balanced`] with unequal shares: block `k` along axis `a` gets the
+    /// fraction `shares[a][k] / Σ_j shares[a][j]` of `cost[a]` (as near as whole slabs
+    /// of cells allow), so that blocks of faster ranks can take more. Equal shares give
+    /// [`Layout::balanced`]'s cuts exactly.
+    pub fn balanced_shares(&self, cost: &[Profile; D], shares: &[Vec<f64>; D]) -> Self {
         let cuts = std::array::from_fn(|a| {
             assert!(
                 cost[a].start + cost[a].cost.len() <= self.cells[a],
                 "a cost profile within the axis"
             );
-            balanced_cuts(&cost[a], self.cells[a], self.procs[a], self.min_width(a))
+            assert!(
+                shares[a].len() == self.procs[a] && shares[a].iter().all(|s| *s > 0.0),
+                "a positive share per block along the axis"
+            );
+            balanced_cuts(&cost[a], self.cells[a], &shares[a], self.min_width(a))
         });
         self.with_cuts(cuts)
             .expect("balanced cuts respect the minimum block width")
@@ -288,9 +301,10 @@ pub struct Profile {
     pub cost: Vec<f64>,
 }
 
-/// Cuts of `n` cells into `blocks` ranges of about equal cost, each at least `min`
-/// cells wide (`blocks * min <= n`).
-fn balanced_cuts(profile: &Profile, n: usize, blocks: usize, min: usize) -> Vec<usize> {
+/// Cuts of `n` cells into `shares.len()` ranges whose costs are in proportion to the
+/// shares, each at least `min` cells wide (`shares.len() * min <= n`).
+fn balanced_cuts(profile: &Profile, n: usize, shares: &[f64], min: usize) -> Vec<usize> {
+    let blocks = shares.len();
     debug_assert!(blocks * min <= n);
     let Profile { start, cost } = profile;
     // prefix[i]: cost of cells below start + i (0 below start, the total past the end).
@@ -300,10 +314,14 @@ fn balanced_cuts(profile: &Profile, n: usize, blocks: usize, min: usize) -> Vec<
         prefix.push(prefix.last().copied().unwrap_or(0.0) + c.max(0.0));
     }
     let total = prefix[cost.len()];
+    let all: f64 = shares.iter().sum();
     let mut cuts: Vec<usize> = (0..=blocks).map(|k| k * n / blocks).collect();
     if total > 0.0 && total.is_finite() {
+        let mut below = 0.0;
         for k in 1..blocks {
-            let target = total * k as f64 / blocks as f64;
+            // Equal shares sum to k and `all` exactly: the target is total · k / blocks.
+            below += shares[k - 1];
+            let target = total * below / all;
             // The cell boundary whose prefix is nearest the target: one inside the
             // profile, as 0 < target < total.
             let hi = prefix.partition_point(|&p| p < target).min(cost.len());

@@ -785,7 +785,8 @@ fn a_panicking_rank_releases_the_others_in_an_exchange() {
 
 /// Balanced cuts give each block of an axis the same share of the cost, to within
 /// the cost of one cell slab (the cuts fall on slab boundaries), keep blocks at least
-/// the minimum width, and the owner of every cell is the block whose range holds it.
+/// the minimum width, and the owner of every cell is the block whose range holds it;
+/// with unequal shares each block gets its fraction of the cost, to the same slab.
 #[test]
 fn balanced_cuts_share_the_cost() {
     let mut rng = Rng::new(11);
@@ -842,6 +843,25 @@ fn balanced_cuts_share_the_cost() {
                 c[k] <= i && i < c[k + 1],
                 "case {case}: cell {i} -> block {k}"
             );
+        }
+        // Unequal shares: each block's cost is within one slab's of its share of the
+        // total where the minimum width does not bind.
+        let shares: Vec<f64> = (0..procs).map(|_| 1.0 + rng.below(4) as f64).collect();
+        let all: f64 = shares.iter().sum();
+        let u = base.balanced_shares(std::array::from_ref(&whole), std::array::from_ref(&shares));
+        let c = u.cuts(0);
+        assert!(c.windows(2).all(|w| w[1] >= w[0] + min));
+        let least = shares.iter().cloned().fold(f64::INFINITY, f64::min);
+        let width = (total * least / all / biggest).floor() as usize;
+        if width > min && lo >= min * procs && cells - hi >= min * procs {
+            for k in 0..procs {
+                let got: f64 = cost[c[k]..c[k + 1]].iter().sum();
+                let want = total * shares[k] / all;
+                assert!(
+                    (got - want).abs() <= biggest + 1e-9,
+                    "case {case}: block {k} has {got}, its share {want} (shares {shares:?}, cuts {c:?})"
+                );
+            }
         }
     }
 }

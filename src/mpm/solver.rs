@@ -99,6 +99,7 @@ pub use clock::{Clock, Part};
 pub use diagnostics::cell_integral;
 pub use grid::FULL_FILL;
 use locate::*;
+pub use migrate::Load;
 pub use null_space::NullSpace;
 use phases::*;
 use scatter::*;
@@ -187,6 +188,10 @@ pub struct Solver<'c, const D: usize> {
     /// The particle imbalance [`Solver::rebalance`] found, or left if it moved the
     /// blocks.
     pub last_imbalance: f64,
+    /// Balance by time: every rank's particles per second of work, averaged over the
+    /// checks so far with the older ones' weight halved at each (empty before the
+    /// first).
+    speeds: Vec<f64>,
     /// Accumulated work of gravity, body forces and walls (this rank's particles).
     external_work: f64,
     /// Maximum of wave speed + particle speed after the last update: this rank's, or

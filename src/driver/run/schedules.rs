@@ -5,19 +5,22 @@ use super::history::DIAG_MIN_STEPS;
 use super::RunError;
 use crate::input::plan::CheckpointEvery;
 use crate::input::scene::{Balance, Scene};
-use crate::mpm::solver::Solver;
+use crate::mpm::solver::{Load, Solver};
 use crate::output::checkpoint::RunState;
 use crate::output::io::{Labels, Snapshots};
 use decomposition::Communicator;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// Every `check_every` steps: the particle imbalance is measured (one reduction), and
-/// under `auto` the blocks move if it passes the threshold. The samples (after any
-/// move) are the summary's record of how balanced the run was.
+/// Every `check_every` steps: the imbalance is measured (one reduction), and under
+/// `auto` or `time` the blocks move if it passes the threshold. The samples (after any
+/// move) are the summary's record of how balanced the run was: of the particles, or
+/// under `time` of the ranks' measured work.
 pub(super) struct BalanceSchedule {
     every: u64,
     auto: Option<f64>,
+    /// Under `time`: this rank's seconds of work since the last check.
+    busy: Option<f64>,
     pub(super) checks: u64,
     pub(super) sum: f64,
     pub(super) max: f64,
@@ -32,7 +35,8 @@ impl BalanceSchedule {
         let p = &scene.parallel;
         Self {
             every: p.check_every,
-            auto: (p.balance == Balance::Auto).then_some(p.imbalance),
+            auto: matches!(p.balance, Balance::Auto | Balance::Time).then_some(p.imbalance),
+            busy: (p.balance == Balance::Time).then_some(0.0),
             checks: 0,
             sum: 0.0,
             max: 0.0,
@@ -40,14 +44,26 @@ impl BalanceSchedule {
         }
     }
 
-    /// Collective at a check step: measure, rebalance under `auto`. Returns whether
-    /// the blocks moved.
+    /// Under `time`: a step's seconds of work on this rank (its wall time less the
+    /// time blocked in collectives and exchanges).
+    pub(super) fn worked(&mut self, seconds: f64) {
+        if let Some(b) = &mut self.busy {
+            *b += seconds.max(0.0);
+        }
+    }
+
+    /// Collective at a check step: measure, rebalance under `auto` or `time`. Returns
+    /// whether the blocks moved.
     pub(super) fn check<const D: usize>(&mut self, solver: &mut Solver<D>) -> bool {
         if !solver.step.is_multiple_of(self.every) {
             return false;
         }
+        let load = match &mut self.busy {
+            Some(b) => Load::Seconds(std::mem::take(b)),
+            None => Load::Particles,
+        };
         let moved = match self.auto {
-            Some(threshold) => solver.rebalance(threshold),
+            Some(threshold) => solver.rebalance(threshold, load),
             None => {
                 solver.last_imbalance = solver.imbalance();
                 false

@@ -6,7 +6,7 @@ use super::summary::{rank_load, RestartSummary};
 use super::{RunError, RunOptions};
 use crate::input::plan::CheckpointEvery;
 use crate::input::scene::{Balance, Scene};
-use crate::mpm::solver::Solver;
+use crate::mpm::solver::{Load, Solver};
 use crate::output::checkpoint::{self, RunState};
 use crate::output::io::agree;
 use decomposition::{Communicator, Layout};
@@ -33,7 +33,7 @@ pub(super) fn set_up<'c, const D: usize>(
         let mut solver = Solver::new(scene, comm, layout.clone());
         // Seeded in equal blocks, then cut for an equal share of the particles.
         if balance != Balance::Off {
-            solver.rebalance(1.0);
+            solver.rebalance(1.0, Load::Particles);
         }
         return Ok((solver, None, None, None));
     };
@@ -87,7 +87,7 @@ pub(super) fn set_up<'c, const D: usize>(
     solver.rebalances = header.rebalances;
     // Another rank count or process grid: read in equal blocks, now cut to the load.
     if rebalanced && balance != Balance::Off {
-        solver.rebalance(1.0);
+        solver.rebalance(1.0, Load::Particles);
     }
     let info = RestartSummary {
         checkpoint: path.display().to_string(),

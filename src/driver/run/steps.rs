@@ -109,10 +109,12 @@ impl<'a, const D: usize> Run<'a, D> {
             // Snapshots at exact output times: the step that would pass one is shortened.
             self.solver.stop_at = self.st.next_snapshot;
             let mut req = Requests::new(signals::pending(), wall_due, self.history.error.is_some());
-            let comm0 = self.timed.stats();
+            let (comm0, t0) = (self.timed.stats(), Instant::now());
             let advanced = self.solver.advance_with(&mut req.0);
             let c = self.timed.stats().since(&comm0);
             self.timing.step_comm = self.timing.step_comm.plus(&c);
+            let blocked = c.collective_seconds + c.exchange_seconds;
+            self.balance.worked(t0.elapsed().as_secs_f64() - blocked);
             if let Err(f) = advanced {
                 return Ok(Ending::Unstable(f));
             }

@@ -32,10 +32,11 @@ pub struct Scene {
 pub struct Parallel {
     /// `off`: equal blocks; `static`: blocks cut once at the start for an equal share
     /// of the particles; `auto`: that, and again whenever the imbalance passes
-    /// `imbalance`.
+    /// `imbalance`; `time`: like `auto`, weighing each rank's work by its measured time.
     #[serde(default = "default_balance")]
     pub balance: Balance,
-    /// The largest rank's particles over the mean above which `auto` rebalances.
+    /// The largest rank's load over the mean above which `auto` and `time` rebalance
+    /// (particles under `auto`, seconds of work under `time`).
     #[serde(default = "default_imbalance")]
     pub imbalance: f64,
     /// Steps between two checks of the imbalance under `auto` (one reduction each).
@@ -49,6 +50,7 @@ pub enum Balance {
     Off,
     Static,
     Auto,
+    Time,
 }
 
 impl Balance {
@@ -57,6 +59,7 @@ impl Balance {
             Balance::Off => "off",
             Balance::Static => "static",
             Balance::Auto => "auto",
+            Balance::Time => "time",
         }
     }
 }

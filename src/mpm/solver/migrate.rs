@@ -151,40 +151,122 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// Collective: the particle imbalance over ranks, the largest rank's particles over
     /// the mean (1 when there are none).
     pub fn imbalance(&self) -> f64 {
-        let n = self.parts.len() as f64;
-        let (mut most, mut sum) = ([n], [n]);
-        self.comm.max_f64(&mut most);
-        self.comm.sum_f64(&mut sum);
-        let mean = sum[0] / self.comm.size() as f64;
-        if mean > 0.0 {
-            most[0] / mean
-        } else {
-            1.0
-        }
+        imbalance_of(&self.rank_counts())
     }
 
-    /// Collective: if the particle imbalance is above `threshold`, move the block
-    /// boundaries so that every slab of blocks holds an equal share of the particles
-    /// ([`Layout::balanced`]), provided that removes at least a fifth of the excess
-    /// over a perfect balance (the cuts of a process grid cannot balance every
+    /// Collective: every rank's particle count, in one reduction.
+    fn rank_counts(&self) -> Vec<f64> {
+        let mut n = vec![0.0; self.comm.size()];
+        n[self.comm.rank()] = self.parts.len() as f64;
+        self.comm.sum_f64(&mut n);
+        n
+    }
+
+    /// Collective: if the imbalance of `load` is above `threshold`, move the block
+    /// boundaries so that every slab of blocks holds its share of the particles
+    /// ([`Layout::balanced_shares`]), provided that removes at least a fifth of the
+    /// excess over a perfect balance (the cuts of a process grid cannot balance every
     /// distribution, and a rebalance that gains little is not worth its particle
-    /// exchange). Returns whether the layout changed. Deterministic: every rank takes
-    /// the same decision from the same sums.
+    /// exchange). Returns whether the layout changed. Every rank takes the same
+    /// decision from the same sums.
     ///
-    /// The cost is the particle count: the grid nodes a rank stores are those of the
-    /// tiles its particles touch, so their share of a step follows the particles.
-    pub fn rebalance(&mut self, threshold: f64) -> bool {
+    /// By particles the shares are equal: the grid nodes a rank stores are those of
+    /// the tiles its particles touch, so their share of a step follows the particles.
+    /// By seconds a rank's speed is its particles per second of its measured work, and
+    /// a slab of blocks gets the sum of its ranks' speeds as its share, so a slower
+    /// core (or one whose particles cost more) gets fewer particles. The cuts then
+    /// follow the clock, and so do the bits of the run: the physics agrees with any
+    /// other cuts to round-off only.
+    pub fn rebalance(&mut self, threshold: f64, load: Load) -> bool {
         let ranks = self.comm.size();
         if ranks == 1 {
             return false;
         }
-        let now = self.imbalance();
+        let counts = self.rank_counts();
+        let speed = self.speeds(&counts, load);
+        // What a rank would take under the cuts in seconds (or particles).
+        let times = |particles: &[f64]| -> Vec<f64> {
+            particles.iter().zip(&speed).map(|(n, s)| n / s).collect()
+        };
+        let now = imbalance_of(&times(&counts));
         self.last_imbalance = now;
         if now <= threshold {
             return false;
         }
-        // The slabs the particles occupy along every axis, over all ranks: the cost
-        // profiles cover those alone, so the empty space around a body costs nothing.
+        let Some(cost) = self.particle_profiles() else {
+            return false; // no particles anywhere
+        };
+        let shares: [Vec<f64>; D] = std::array::from_fn(|a| {
+            let mut s = vec![0.0; self.layout.procs[a]];
+            for (r, v) in speed.iter().enumerate() {
+                s[self.layout.block_coords(r)[a]] += v;
+            }
+            s
+        });
+        let next = self.layout.balanced_shares(&cost, &shares);
+        let then = imbalance_of(&times(&self.rank_particles(&next)));
+        if next == self.layout || then - 1.0 > 0.8 * (now - 1.0) {
+            return false;
+        }
+        self.relayout(next);
+        self.last_imbalance = then;
+        true
+    }
+
+    /// Collective: every rank's speed under `load` given every rank's particles `n`, the
+    /// same on every rank. By
+    /// particles all are 1. By seconds a rank's particles per second of work, averaged
+    /// with the earlier checks' ([`Solver::speeds`]: a window of 20 steps of a core
+    /// shared with another process measures its speed to about 10 %); a rank without
+    /// particles or time takes the mean of the others (1 if none has both).
+    fn speeds(&mut self, n: &[f64], load: Load) -> Vec<f64> {
+        let ranks = self.comm.size();
+        let Load::Seconds(busy) = load else {
+            return vec![1.0; ranks];
+        };
+        let mut t = vec![0.0; ranks];
+        t[self.comm.rank()] = busy;
+        self.comm.sum_f64(&mut t);
+        let known: Vec<f64> = (0..ranks)
+            .filter(|&r| n[r] > 0.0 && t[r] > 0.0)
+            .map(|r| n[r] / t[r])
+            .collect();
+        let mean = if known.is_empty() {
+            1.0
+        } else {
+            known.iter().sum::<f64>() / known.len() as f64
+        };
+        let now = (0..ranks).map(|r| {
+            if n[r] > 0.0 && t[r] > 0.0 {
+                n[r] / t[r]
+            } else {
+                mean
+            }
+        });
+        if self.speeds.len() == ranks {
+            for (s, v) in self.speeds.iter_mut().zip(now) {
+                *s = 0.5 * (*s + v);
+            }
+        } else {
+            self.speeds = now.collect();
+        }
+        self.speeds.clone()
+    }
+
+    /// Collective: the particles every rank would hold under `layout`.
+    fn rank_particles(&self, layout: &Layout<D>) -> Vec<f64> {
+        let mut per_rank = vec![0.0; self.comm.size()];
+        for p in 0..self.parts.len() {
+            per_rank[layout.cell_owner(self.cell_of(p))] += 1.0;
+        }
+        self.comm.sum_f64(&mut per_rank);
+        per_rank
+    }
+
+    /// Collective: the particles per cell slab along every axis, summed over ranks,
+    /// over the slabs the particles occupy (so the empty space around a body costs
+    /// nothing); `None` without particles.
+    fn particle_profiles(&mut self) -> Option<[Profile; D]> {
         let mut reach = [f64::NEG_INFINITY; 6];
         for p in 0..self.parts.len() {
             let c = self.cell_of(p);
@@ -195,17 +277,16 @@ impl<'c, const D: usize> Solver<'c, D> {
         }
         self.comm.max_f64(&mut reach[..2 * D]);
         if reach[1] == f64::NEG_INFINITY {
-            return false; // no particles anywhere
+            return None;
         }
         // reach[2a] is minus the first slab along axis a, reach[2a + 1] the last.
         let first: [usize; D] = std::array::from_fn(|a| (-reach[2 * a]) as usize);
         let len: [usize; D] =
             std::array::from_fn(|a| (reach[2 * a + 1] + reach[2 * a]) as usize + 1);
-        // Particles per cell slab along every axis, summed over ranks.
         let total: usize = len.iter().sum();
         let mut slab = std::mem::take(&mut self.scratch.buf);
         slab.clear();
-        slab.resize(total + ranks, 0.0);
+        slab.resize(total, 0.0);
         for p in 0..self.parts.len() {
             let c = self.cell_of(p);
             let mut at = 0;
@@ -214,9 +295,9 @@ impl<'c, const D: usize> Solver<'c, D> {
                 at += len[a];
             }
         }
-        self.comm.sum_f64(&mut slab[..total]);
+        self.comm.sum_f64(&mut slab);
         let mut at = 0;
-        let cost: [Profile; D] = std::array::from_fn(|a| {
+        let cost = std::array::from_fn(|a| {
             let cost = slab[at..at + len[a]].to_vec();
             at += len[a];
             Profile {
@@ -224,22 +305,8 @@ impl<'c, const D: usize> Solver<'c, D> {
                 cost,
             }
         });
-        let next = self.layout.balanced(&cost);
-        // Particles per rank under the new cuts.
-        let per_rank = &mut slab[total..];
-        for p in 0..self.parts.len() {
-            per_rank[next.cell_owner(self.cell_of(p))] += 1.0;
-        }
-        self.comm.sum_f64(per_rank);
-        let mean = per_rank.iter().sum::<f64>() / ranks as f64;
-        let then = per_rank.iter().cloned().fold(0.0, f64::max) / mean;
         self.scratch.buf = slab;
-        if next == self.layout || then - 1.0 > 0.8 * (now - 1.0) {
-            return false;
-        }
-        self.relayout(next);
-        self.last_imbalance = then;
-        true
+        Some(cost)
     }
 
     /// Collective: hand every particle to its owner under `layout` (another layout of
@@ -284,6 +351,26 @@ impl<'c, const D: usize> Solver<'c, D> {
         // Arrival order depends on the old owners: sort for the same order as a run
         // that never had them.
         self.sort();
+    }
+}
+
+/// What the load balance weighs a rank's work by.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Load {
+    /// Its particles.
+    Particles,
+    /// Its measured work since the last check: the seconds of its steps not spent
+    /// blocked in communication.
+    Seconds(f64),
+}
+
+/// The largest of `loads` over their mean (1 when they are all zero).
+fn imbalance_of(loads: &[f64]) -> f64 {
+    let mean = loads.iter().sum::<f64>() / loads.len() as f64;
+    if mean > 0.0 {
+        loads.iter().cloned().fold(0.0, f64::max) / mean
+    } else {
+        1.0
     }
 }
 
@@ -419,12 +506,12 @@ particles_per_cell = 2
             let layout = Layout::choose([cells; D], [false; D], ranks).unwrap();
             let mut s = Solver::<D>::new(&sc, comm, layout);
             let before = s.imbalance();
-            let moved = s.rebalance(1.0);
+            let moved = s.rebalance(1.0, Load::Particles);
             let after = s.imbalance();
             let home = (0..s.parts.len()).all(|p| s.layout.cell_owner(s.cell_of(p)) == comm.rank());
             let total = s.totals().particles;
             // Balanced now: a threshold above the imbalance leaves the blocks alone.
-            let again = s.rebalance(after + 1e-9);
+            let again = s.rebalance(after + 1e-9, Load::Particles);
             (before, after, moved, home, total, again)
         })
     }
@@ -452,5 +539,77 @@ particles_per_cell = 2
         };
         check("2D", balance::<2>(4, 64), 4.0);
         check("3D", balance::<3>(8, 40), 8.0);
+    }
+
+    /// By measured time: with the particles shared equally, a rank that reports twice
+    /// the seconds per particle of the other is given a third of them (to within one
+    /// cell slab), the predicted imbalance of the work falls within 5 %, and times in
+    /// proportion to the new shares leave the cuts alone. Moving the cuts changes no
+    /// result: 20 steps later the particles agree with one rank's to 1e-12.
+    #[test]
+    pub(super) fn a_slower_rank_gets_fewer_particles() {
+        type Moved = Vec<(u64, [f64; 2], [f64; 2])>;
+        let sc = scene::parse(&corner_body(2, 64), "corner").unwrap();
+        let steps = |s: &mut Solver<2>| -> Moved {
+            for p in 0..s.parts.len() {
+                s.parts.v[p] = Vector::<2>::new(0.3, -0.2);
+            }
+            for _ in 0..20 {
+                s.advance().unwrap();
+            }
+            (0..s.parts.len())
+                .map(|p| {
+                    let (x, v) = (s.parts.x[p], s.parts.v[p]);
+                    (s.parts.id[p], [x[0], x[1]], [v[0], v[1]])
+                })
+                .collect()
+        };
+        let seconds =
+            |s: &Solver<2>, rank: usize| s.parts.len() as f64 * if rank == 1 { 2e-6 } else { 1e-6 };
+        let out = LocalComm::run(2, |comm| {
+            let layout = Layout::choose([64; 2], [false; 2], 2).unwrap();
+            let mut s = Solver::<2>::new(&sc, comm, layout);
+            assert!(s.rebalance(1.0, Load::Particles));
+            let even = s.parts.len();
+            let moved = s.rebalance(1.05, Load::Seconds(seconds(&s, comm.rank())));
+            let predicted = s.last_imbalance;
+            let again = s.rebalance(1.05, Load::Seconds(seconds(&s, comm.rank())));
+            (even, s.parts.len(), moved, predicted, again, steps(&mut s))
+        });
+        let total = (out[0].1 + out[1].1) as f64;
+        // The particles in one cell slab across the cut: 2 × 2 per cell over the
+        // corner body's 0.35 · 64 cells along the other axis.
+        let slab = 4.0 * 0.35 * 64.0;
+        assert!(out.iter().all(|o| o.2), "no rebalance by time");
+        assert!(
+            (out[0].0 as f64 - total / 2.0).abs() <= slab,
+            "not even at first"
+        );
+        let third = out[1].1 as f64 - total / 3.0;
+        assert!(
+            third.abs() <= slab,
+            "the slow rank holds {} of {total}",
+            out[1].1
+        );
+        assert!(out[0].3 <= 1.05, "predicted imbalance {}", out[0].3);
+        assert!(out.iter().all(|o| !o.4), "balanced times moved the cuts");
+        let one = LocalComm::run(1, |comm| {
+            let layout = Layout::choose([64; 2], [false; 2], 1).unwrap();
+            steps(&mut Solver::<2>::new(&sc, comm, layout))
+        });
+        let mut two: Moved = out.into_iter().flat_map(|o| o.5).collect();
+        two.sort_by_key(|r| r.0);
+        let mut one = one.into_iter().next().unwrap();
+        one.sort_by_key(|r| r.0);
+        assert_eq!(one.len(), two.len());
+        let worst = one
+            .iter()
+            .zip(&two)
+            .flat_map(|(a, b)| (0..2).flat_map(move |k| [a.1[k] - b.1[k], a.2[k] - b.2[k]]))
+            .fold(0.0f64, |m, d| m.max(d.abs()));
+        assert!(
+            worst < 1e-12,
+            "two ranks after the move differ by {worst:e}"
+        );
     }
 }

@@ -67,6 +67,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             clock: Clock::default(),
             traffic_before: Default::default(),
             last_imbalance: 1.0,
+            speeds: Vec::new(),
             external_work: 0.0,
             max_speed: 0.0,
             speed_agreed: false,
