@@ -876,6 +876,53 @@ fn rescue_replays_the_run_to_its_last_good_state() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Under `balance = "time"` the cuts follow the clock, which a replay does not
+/// reproduce: the replay makes the run's own moves again. On 2 ranks and on 3 (more
+/// than the cores) every unstable run's replay reaches the last good state (it checks
+/// the step, time, step size, work and signal speed to the bit) and checkpoints it;
+/// runs are repeated (at most 5 times) until one moved the blocks after the checkpoint
+/// its replay starts from, as the clock decides whether they move.
+#[test]
+fn rescue_replays_the_moves_of_a_time_balanced_run() {
+    let dir = temp_dir("replay-time");
+    let p = dir.join("time.toml");
+    let text = crossing_scene(16, 3.0, "every_steps = 25")
+        .replace("cfl = 0.3", "dt = 0.0596")
+        .replace("every = 3\n", "every = 0.35\n")
+        + "[parallel]\nbalance = \"time\"\nimbalance = 1.0\ncheck_every = 2\n";
+    std::fs::write(&p, text).unwrap();
+    let rebalances = |path: &Path| -> u64 {
+        let f = hdf5::File::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        f.attr("rebalances").unwrap().read_scalar().unwrap()
+    };
+    for n in [2, 3] {
+        let covered = (0..5).any(|attempt| {
+            let out = dir.join(format!("time{n}_{attempt}"));
+            let o = mpirun(n, &["run", s(&p), "--out", s(&out)]);
+            let err = String::from_utf8_lossy(&o.stderr).into_owned();
+            assert_eq!(
+                o.status.code(),
+                Some(3),
+                "exit status 3 when unstable: {err}"
+            );
+            let j = summary(&out);
+            let failed = j["steps"].as_u64().unwrap();
+            let good = (failed - 1) / 10 * 10;
+            let last = out.join(format!("checkpoint_{good:06}.h5"));
+            assert!(good > 25, "{n} ranks: failed at step {failed}");
+            assert!(
+                err.contains(&format!("replaying from step 25 to step {good}"))
+                    && err.contains("(replayed from step 25 in"),
+                "{n} ranks: {err}"
+            );
+            assert_eq!(j["last_checkpoint"], s(&last));
+            rebalances(&last) > rebalances(&out.join("checkpoint_000025.h5"))
+        });
+        assert!(covered, "{n} ranks: no run moved its blocks after step 25");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// A stop signal during the replay ends it: the run still ends as unstable (exit 3),
 /// writes no checkpoint of a state it did not reach, and says so and where it stopped.
 /// A disk drifting out through a free face fails after about 2000 steps, with no

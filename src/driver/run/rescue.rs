@@ -1,7 +1,7 @@
 //! The rescue of an unstable run: the newest state known good, kept every few steps,
 //! replayed and checkpointed when a step fails.
 
-use super::schedules::{BalanceSchedule, Requests};
+use super::schedules::Requests;
 use super::setup::set_up;
 use super::{layout_for, Run, RunError, RunOptions};
 use crate::driver::signals;
@@ -21,6 +21,8 @@ pub(super) const RESCUE_EVERY: u64 = 10;
 #[derive(Default)]
 pub(super) struct Rescue {
     solver: SolverState,
+    /// This rank's [`Solver::fingerprint`] at the kept step: the replay must reach it.
+    fingerprint: u64,
     run: Option<RunState>,
     history_len: usize,
 }
@@ -41,6 +43,7 @@ impl Rescue {
             external_work,
             max_speed,
         };
+        self.fingerprint = solver.fingerprint();
         match &mut self.run {
             Some(r) => r.clone_from(st),
             None => self.run = Some(st.clone()),
@@ -79,7 +82,8 @@ impl<'a, const D: usize> Run<'a, D> {
         if self.checkpoints.last_step != Some(good.step) {
             let t0 = Instant::now();
             let from = self.checkpoints.last_step.unwrap_or(0);
-            if let Err(why) = self.replay(&good) {
+            let fingerprint = self.rescue.fingerprint;
+            if let Err(why) = self.replay(&good, fingerprint) {
                 return Ok(format!(
                     "{reason}; {why}, so no checkpoint of the last good state (step {}) was \
                      written; the newest checkpoint is {}",
@@ -110,12 +114,14 @@ impl<'a, const D: usize> Run<'a, D> {
 
     /// Collective: the solver set up again from the newest checkpoint (or the scene)
     /// and stepped, writing nothing, to the rescue's state `good`. A run is
-    /// deterministic on a given rank and thread count, and a restart continues it bit
-    /// for bit, so this is the state the run had: kept this way rather than as a copy,
-    /// which held as much memory as the particles themselves. `Err` says why
-    /// the state was not reached (a stop signal, or a replay that did not reproduce
-    /// the run, which would be a bug, or a set-up that failed).
-    fn replay(&mut self, good: &SolverState) -> Result<(), String> {
+    /// deterministic on a given rank and thread count once its block moves are made
+    /// again as they were (under `balance = "time"` they follow the clock), and a
+    /// restart continues it bit for bit, so this is the state the run had: kept this
+    /// way rather than as a copy, which held as much memory as the particles
+    /// themselves, and checked against `good` and this rank's particle `fingerprint`.
+    /// `Err` says why the state was not reached (a stop signal, or a replay that did
+    /// not reproduce the run, which would be a bug, or a set-up that failed).
+    fn replay(&mut self, good: &SolverState, fingerprint: u64) -> Result<(), String> {
         let from = self.checkpoints.last.clone();
         let opts = RunOptions {
             // A checkpoint of this run holds this scene text: none of its output is
@@ -151,8 +157,6 @@ impl<'a, const D: usize> Run<'a, D> {
             (None, Some(sn)) => sn.every,
             (None, None) => f64::INFINITY,
         };
-        // Its own tally: the summary's is of the run.
-        let mut balance = BalanceSchedule::of(self.scene);
         while self.solver.step < good.step {
             // The loop of `steps`, for what changes the state: the steps cut at
             // snapshot times, and the rebalancing.
@@ -164,7 +168,17 @@ impl<'a, const D: usize> Run<'a, D> {
                     self.solver.step
                 ));
             }
-            balance.check(&mut self.solver);
+            // The run's own moves, not new decisions: under `time` those would follow
+            // the replay's clock.
+            let step = self.solver.step;
+            if let Some((_, cuts)) = self.balance.moves.iter().find(|m| m.0 == step) {
+                let next = self
+                    .solver
+                    .layout
+                    .with_cuts(std::array::from_fn(|a| cuts[a].clone()))
+                    .expect("the cuts of one of this run's layouts");
+                self.solver.relayout(next);
+            }
             if let Some(sn) = &self.snaps {
                 if sn.due(&self.solver, next_snapshot) {
                     let s = &self.solver;
@@ -185,7 +199,8 @@ impl<'a, const D: usize> Run<'a, D> {
             && s.t.to_bits() == good.t.to_bits()
             && s.dt.to_bits() == good.dt.to_bits()
             && external_work.to_bits() == good.external_work.to_bits()
-            && max_speed.to_bits() == good.max_speed.to_bits();
+            && max_speed.to_bits() == good.max_speed.to_bits()
+            && s.fingerprint() == fingerprint;
         let mut differs = [f64::from(u8::from(!same))];
         self.comm.max_f64(&mut differs);
         if differs[0] > 0.0 {

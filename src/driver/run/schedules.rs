@@ -21,6 +21,10 @@ pub(super) struct BalanceSchedule {
     auto: Option<f64>,
     /// Under `time`: this rank's seconds of work since the last check.
     busy: Option<f64>,
+    /// The moves since the newest checkpoint: the step and the new cuts per axis, which
+    /// a replay ([`super::Run::rescue`]) makes again instead of deciding anew (under
+    /// `time` the decisions follow the clock, which a replay does not reproduce).
+    pub(super) moves: Vec<(u64, Vec<Vec<usize>>)>,
     pub(super) checks: u64,
     pub(super) sum: f64,
     pub(super) max: f64,
@@ -37,6 +41,7 @@ impl BalanceSchedule {
             every: p.check_every,
             auto: matches!(p.balance, Balance::Auto | Balance::Time).then_some(p.imbalance),
             busy: (p.balance == Balance::Time).then_some(0.0),
+            moves: Vec::new(),
             checks: 0,
             sum: 0.0,
             max: 0.0,
@@ -69,6 +74,10 @@ impl BalanceSchedule {
                 false
             }
         };
+        if moved {
+            let cuts = (0..D).map(|a| solver.layout.cuts(a).to_vec()).collect();
+            self.moves.push((solver.step, cuts));
+        }
         let i = solver.last_imbalance;
         self.checks += 1;
         self.sum += i;

@@ -200,6 +200,8 @@ impl<'a, const D: usize> Run<'a, D> {
         self.st.snapshots = self.snapshot_entries();
         let path = self.write_checkpoint()?;
         self.checkpoints.written(path, self.solver.step);
+        // A replay starts from this checkpoint, which holds the cuts of the moves so far.
+        self.balance.moves.clear();
         Ok(())
     }
 

@@ -57,6 +57,31 @@ pub fn cell_integral<const D: usize>(h: &[f64; D], j: usize, i: usize) -> [f64; 
 }
 
 impl<'c, const D: usize> Solver<'c, D> {
+    /// A hash of this rank's particles in storage order (ids, positions and velocities
+    /// to the bit): the same for a state reached again bit for bit, and almost surely
+    /// not for one that differs in any bit. Per fixed chunk on threads, the chunks'
+    /// hashes (each seeded with its index) added, so any thread count gives the same.
+    pub fn fingerprint(&self) -> u64 {
+        use decomposition::splitmix::mix;
+        const CHUNK: usize = 4096;
+        let p = &self.parts;
+        let chunks = p.len().div_ceil(CHUNK);
+        (0..chunks)
+            .into_par_iter()
+            .map(|k| {
+                let mut h = mix(k as u64);
+                for i in k * CHUNK..p.len().min((k + 1) * CHUNK) {
+                    h = mix(h ^ p.id[i]);
+                    for a in 0..D {
+                        h = mix(h ^ p.x[i][a].to_bits());
+                        h = mix(h ^ p.v[i][a].to_bits());
+                    }
+                }
+                h
+            })
+            .reduce(|| mix(p.len() as u64), u64::wrapping_add)
+    }
+
     /// Totals over all ranks.
     pub fn totals(&self) -> Totals {
         let (parts, materials, kinds) = (&self.parts, &self.materials, &self.kinds);
