@@ -169,12 +169,12 @@ fn the_profile_names_the_schemes_parts_and_counts_the_same_synchronisations_on_a
                 + h["migration"]["exchanges_per_step"].as_f64().unwrap();
             let ex = p["step_exchanges"].as_f64().unwrap();
             assert!((ex - halo).abs() < 1e-9, "{ex} against {halo}: {s}");
-            // Two collectives a step: the step's check (which carries the signal speed
-            // of the next step size) and the migration's; the first step size needs
-            // one more.
+            // One collective a step: the step's check, which carries the signal speed
+            // of the next step size and the migration's verdict; the first step size
+            // needs one more.
             let coll = p["step_collectives"].as_f64().unwrap();
             let steps = p["steps"].as_f64().unwrap();
-            assert_eq!(coll, (2.0 * steps + 1.0) / steps, "{p}");
+            assert_eq!(coll, (steps + 1.0) / steps, "{p}");
             per_rank_count.push((coll, ex));
             // The table, then the last line naming the output folder.
             for part in expected {

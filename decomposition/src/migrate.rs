@@ -197,26 +197,42 @@ impl<const D: usize> Migrator<D> {
     ///
     /// If any rank recorded an error with [`Migrator::fail`], nothing is exchanged and
     /// every rank returns an error: its own, or [`Error::MigrationFailedElsewhere`]
-    /// naming the lowest failing rank. This costs one scalar reduction per step, and
-    /// is what keeps a rank that fails alone from leaving the others blocked.
+    /// naming the lowest failing rank. This costs one scalar reduction, and is what
+    /// keeps a rank that fails alone from leaving the others blocked; a caller that
+    /// agrees on [`Migrator::failed`] in a reduction of its own calls
+    /// [`Migrator::exchange_agreed`] instead.
     pub fn exchange(&mut self, comm: &dyn Communicator) -> Result<Records<'_>, Error> {
-        let mut failed = [if self.error.is_some() {
+        let mut failed = [if self.failed() {
             self.rank as f64
         } else {
             f64::INFINITY
         }];
         comm.min_f64(&mut failed);
+        let first = failed[0].is_finite().then_some(failed[0] as usize);
+        self.exchange_agreed(comm, first)
+    }
+
+    /// Whether this rank recorded an error with [`Migrator::fail`].
+    pub fn failed(&self) -> bool {
+        self.error.is_some()
+    }
+
+    /// [`Migrator::exchange`] once every rank knows the lowest rank that recorded an
+    /// error (`None`: none did), agreed by the caller: the same on every rank.
+    pub fn exchange_agreed(
+        &mut self,
+        comm: &dyn Communicator,
+        failed: Option<usize>,
+    ) -> Result<Records<'_>, Error> {
         self.received.clear();
-        if failed[0].is_finite() {
+        if let Some(rank) = failed {
             for s in &mut self.send {
                 s.clear();
             }
             return Err(self
                 .error
                 .take()
-                .unwrap_or(Error::MigrationFailedElsewhere {
-                    rank: failed[0] as usize,
-                }));
+                .unwrap_or(Error::MigrationFailedElsewhere { rank }));
         }
         self.traffic.record(self.rank, &self.peers, &self.send);
         comm.exchange(&self.peers, &self.send, &mut self.recv);

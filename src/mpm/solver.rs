@@ -337,6 +337,8 @@ impl<const D: usize> Placement<D> {
 struct Scratch<const D: usize> {
     /// Which particles stay on this rank in a migration.
     keep: Vec<bool>,
+    /// The particles that left the block and their new owners ([`Solver::route`]).
+    routes: Vec<(usize, usize)>,
     /// A particle's record, packed for migration.
     record: Vec<f64>,
     /// The sort's permutation and its in-place application's marks.
@@ -359,6 +361,7 @@ impl<const D: usize> Scratch<D> {
     fn new() -> Self {
         Scratch {
             keep: Vec::new(),
+            routes: Vec::new(),
             record: Vec::new(),
             perm: Vec::new(),
             permuted: Vec::new(),
@@ -466,16 +469,24 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.scratch.accel.clear();
         self.t += dt;
         self.step += 1;
-        // One reduction: the verdict, the caller's flags and the signal speed the next
+        let t0 = Instant::now();
+        let left = self.route();
+        self.clock.add(Part::Migrate, t0);
+        // One reduction: the verdict, the caller's flags, the signal speed the next
         // step size follows from (migration and rebalancing move particles between
-        // ranks but do not change the fastest one).
+        // ranks but do not change the fastest one) and the lowest rank whose particles
+        // cannot be handed over (as `size - rank`, so that the maximum finds it).
         let n = flags.len();
-        let mut agree = [0.0; 5];
+        let size = self.comm.size();
+        let mut agree = [0.0; 6];
         agree[0] = if ok { 0.0 } else { 1.0 };
         agree[1..1 + n].copy_from_slice(flags);
         agree[1 + n] = self.max_speed;
+        if self.migrator.failed() {
+            agree[2 + n] = (size - self.comm.rank()) as f64;
+        }
         let t0 = Instant::now();
-        self.comm.max_f64(&mut agree[..2 + n]);
+        self.comm.max_f64(&mut agree[..3 + n]);
         self.clock.add(Part::Check, t0);
         flags.copy_from_slice(&agree[1..1 + n]);
         self.max_speed = agree[1 + n];
@@ -486,8 +497,9 @@ impl<'c, const D: usize> Solver<'c, D> {
                 self.step, self.t
             )));
         }
+        let failed = (agree[2 + n] > 0.0).then(|| size - agree[2 + n] as usize);
         let t0 = Instant::now();
-        self.relocate()?;
+        self.hand_over(failed, left)?;
         self.clock.add(Part::Migrate, t0);
         if self.place.disorder as f64 > SORT_DISORDER * self.parts.len() as f64 {
             let t0 = Instant::now();

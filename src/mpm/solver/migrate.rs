@@ -59,16 +59,18 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.place.cell_runs.truncate(chunks);
     }
 
-    /// Wrap periodic coordinates, check bounded ones, and hand particles that left the
-    /// block to their new owner.
-    pub(super) fn relocate(&mut self) -> Result<(), Failure> {
+    /// Before the step's closing reduction: wrap periodic coordinates, check bounded
+    /// ones, and find the particles that left the block and their new owners, moving
+    /// none yet (a step that fails keeps its particles). Returns why this rank cannot
+    /// hand them over, if it cannot: a particle off the grid (its message) or a routing
+    /// error, recorded in the migrator. [`Solver::hand_over`] moves them once the
+    /// ranks agreed.
+    pub(super) fn route(&mut self) -> Option<String> {
         let mut left = None;
         let me = self.comm.rank();
         let n = self.parts.len();
-        self.scratch.keep.clear();
-        self.scratch.keep.resize(n, true);
+        self.scratch.routes.clear();
         self.wrap_and_flag();
-        let mut leaving = 0usize;
         let flagged = self.place.flagged.iter().enumerate().filter(|f| *f.1);
         for p in flagged.flat_map(|(k, _)| k * LOCATE_CHUNK..n.min((k + 1) * LOCATE_CHUNK)) {
             let x = &self.parts.x[p];
@@ -97,16 +99,10 @@ impl<'c, const D: usize> Solver<'c, D> {
             }
             match self.migrator.destination(cell) {
                 Ok(d) if d.rank == me => {}
-                Ok(d) => {
-                    self.parts.pack(p, self.carries, &mut self.scratch.record);
-                    self.migrator.push(d.rank, &self.scratch.record);
-                    self.scratch.keep[p] = false;
-                    leaving += 1;
-                }
+                Ok(d) => self.scratch.routes.push((p, d.rank)),
                 Err(e) => self.migrator.fail(e),
             }
         }
-        // Every rank takes part in the exchange, so an error anywhere reaches all.
         if left.is_some() {
             self.migrator.fail(decomposition::Error::OutsideGrid {
                 rank: me,
@@ -114,12 +110,32 @@ impl<'c, const D: usize> Solver<'c, D> {
                 cells: self.geom.cells.to_vec(),
             });
         }
-        if leaving > 0 {
+        left
+    }
+
+    /// Collective, after [`Solver::route`] and a reduction that agreed on the lowest
+    /// rank whose routing failed (`failed`, the same on every rank): hand the routed
+    /// particles to their new owners, or report the failure on every rank (`left`:
+    /// this rank's own message, from [`Solver::route`]).
+    pub(super) fn hand_over(
+        &mut self,
+        failed: Option<usize>,
+        left: Option<String>,
+    ) -> Result<(), Failure> {
+        let n = self.parts.len();
+        if failed.is_none() && !self.scratch.routes.is_empty() {
+            self.scratch.keep.clear();
+            self.scratch.keep.resize(n, true);
+            for &(p, to) in &self.scratch.routes {
+                self.parts.pack(p, self.carries, &mut self.scratch.record);
+                self.migrator.push(to, &self.scratch.record);
+                self.scratch.keep[p] = false;
+            }
             self.parts.retain(&self.scratch.keep);
         }
         let carries = self.carries;
         let parts = &mut self.parts;
-        match self.migrator.exchange(self.comm) {
+        match self.migrator.exchange_agreed(self.comm, failed) {
             Ok(recs) => {
                 // The tile pass's location of every particle, done with the wrap, holds
                 // if none left (none was flagged) and none arrived.
