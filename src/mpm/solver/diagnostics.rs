@@ -57,29 +57,9 @@ pub fn cell_integral<const D: usize>(h: &[f64; D], j: usize, i: usize) -> [f64; 
 }
 
 impl<'c, const D: usize> Solver<'c, D> {
-    /// A hash of this rank's particles in storage order (ids, positions and velocities
-    /// to the bit): the same for a state reached again bit for bit, and almost surely
-    /// not for one that differs in any bit. Per fixed chunk on threads, the chunks'
-    /// hashes (each seeded with its index) added, so any thread count gives the same.
+    /// A hash of this rank's particles ([`fingerprint`]).
     pub fn fingerprint(&self) -> u64 {
-        use decomposition::splitmix::mix;
-        const CHUNK: usize = 4096;
-        let p = &self.parts;
-        let chunks = p.len().div_ceil(CHUNK);
-        (0..chunks)
-            .into_par_iter()
-            .map(|k| {
-                let mut h = mix(k as u64);
-                for i in k * CHUNK..p.len().min((k + 1) * CHUNK) {
-                    h = mix(h ^ p.id[i]);
-                    for a in 0..D {
-                        h = mix(h ^ p.x[i][a].to_bits());
-                        h = mix(h ^ p.v[i][a].to_bits());
-                    }
-                }
-                h
-            })
-            .reduce(|| mix(p.len() as u64), u64::wrapping_add)
+        fingerprint(&self.parts)
     }
 
     /// Totals over all ranks.
@@ -212,5 +192,88 @@ impl<'c, const D: usize> Solver<'c, D> {
         let sums = &self.scratch.error_sums;
         let s = tree_sum(0, chunks, &|k| sums[k]);
         Some(self.error_norms(s))
+    }
+}
+
+/// A hash of this rank's particles (ids, positions and velocities to the bit): the
+/// same for a state reached again bit for bit, and almost surely not for one that
+/// differs in any bit. The particles' hashes are added, so the hash does not
+/// depend on their order, the thread count or the reduction's grouping.
+pub fn fingerprint<const D: usize>(p: &Particles<D>) -> u64 {
+    use decomposition::splitmix::mix;
+    const ODD: [u64; 6] = [
+        0x9e37_79b9_7f4a_7c15,
+        0xbf58_476d_1ce4_e5b9,
+        0x94d0_49bb_1331_11eb,
+        0xd6e8_feb8_6659_fd93,
+        0xa076_1d64_78bd_642f,
+        0xe703_7ed1_a0b4_28db,
+    ];
+    (0..p.len())
+        .into_par_iter()
+        .with_min_len(4096)
+        .map(|i| {
+            // Each value's bits multiplied by its own odd constant: a change in
+            // one value changes the sum, and one mix spreads it.
+            let mut h = p.id[i];
+            for a in 0..D {
+                h = h.wrapping_add(p.x[i][a].to_bits().wrapping_mul(ODD[2 * a]));
+                h = h.wrapping_add(p.v[i][a].to_bits().wrapping_mul(ODD[2 * a + 1]));
+            }
+            mix(h)
+        })
+        .reduce(|| 0, u64::wrapping_add)
+        .wrapping_add(mix(p.len() as u64))
+}
+
+#[cfg(test)]
+mod fingerprint_tests {
+    use super::*;
+    use crate::input::scene;
+    use decomposition::{Layout, LocalComm};
+
+    /// The fingerprint is the same on 1 and 3 threads and with the particles in
+    /// another order, and changes when one bit of one position or velocity does.
+    #[test]
+    fn fingerprint_sees_every_bit_and_not_the_order() {
+        // More particles than one thread's share (4096), so that 3 threads split them.
+        let text = super::super::setup::sparse_tests::text(2, 1.0, 256, "mpmcg");
+        let sc = scene::parse(&text, "sparse").unwrap();
+        LocalComm::run(1, |comm| {
+            let layout = Layout::choose([256; 2], [false; 2], 1).unwrap();
+            let mut s = Solver::<2>::new(&sc, comm, layout);
+            s.advance().unwrap();
+            let on = |threads: usize, s: &Solver<2>| {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let parts = &s.parts;
+                pool.install(|| fingerprint(parts))
+            };
+            let h = on(1, &s);
+            assert_eq!(on(3, &s), h, "thread count");
+            let n = s.parts.len();
+            assert!(n > 3 * 4096, "{n} particles");
+            let last = n - 1;
+            s.parts.x.swap(0, last);
+            s.parts.v.swap(0, last);
+            s.parts.id.swap(0, last);
+            assert_eq!(on(2, &s), h, "order");
+            for (field, a) in [(0, 0), (0, 1), (1, 0), (1, 1)] {
+                let bits = |s: &mut Solver<2>| {
+                    let w = if field == 0 {
+                        &mut s.parts.x[7][a]
+                    } else {
+                        &mut s.parts.v[7][a]
+                    };
+                    *w = f64::from_bits(w.to_bits() ^ 1);
+                };
+                bits(&mut s);
+                assert_ne!(on(1, &s), h, "last bit of field {field}, axis {a}");
+                bits(&mut s);
+                assert_eq!(on(1, &s), h);
+            }
+        });
     }
 }
