@@ -802,6 +802,17 @@ fn checkpoint_bits(path: &Path) -> Vec<(String, Vec<u64>)> {
     out
 }
 
+/// The crossing disks with a fixed step a little above the stable one, so that the run
+/// fails after some 40 steps, with checkpoints every `every` steps and snapshots that
+/// cut steps short.
+fn failing_crossing(every: u64) -> String {
+    let text = crossing_scene(16, 3.0, &format!("every_steps = {every}"))
+        .replace("cfl = 0.3", "dt = 0.0596")
+        .replace("every = 3\n", "every = 0.35\n");
+    assert!(text.contains("every = 0.35") && text.contains("dt = 0.0596"));
+    text
+}
+
 /// The last good state of an unstable run is replayed, not copied: the run is set up
 /// again from its newest checkpoint and stepped to the last tenth step before the
 /// failure, and what it checkpoints there is bit for bit what a run that checkpoints
@@ -814,11 +825,7 @@ fn rescue_replays_the_run_to_its_last_good_state() {
     // Snapshots cut steps short, so the replay must keep their schedule too.
     let scene = |every: u64| {
         let p = dir.join(format!("every{every}.toml"));
-        let text = crossing_scene(16, 3.0, &format!("every_steps = {every}"))
-            .replace("cfl = 0.3", "dt = 0.0596")
-            .replace("every = 3\n", "every = 0.35\n");
-        assert!(text.contains("every = 0.35") && text.contains("dt = 0.0596"));
-        std::fs::write(&p, text).unwrap();
+        std::fs::write(&p, failing_crossing(every)).unwrap();
         p
     };
     let unstable = |n: usize, every: u64, out: &Path| {
@@ -879,17 +886,16 @@ fn rescue_replays_the_run_to_its_last_good_state() {
 /// Under `balance = "time"` the cuts follow the clock, which a replay does not
 /// reproduce: the replay makes the run's own moves again. On 2 ranks and on 3 (more
 /// than the cores) every unstable run's replay reaches the last good state (it checks
-/// the step, time, step size, work and signal speed to the bit) and checkpoints it;
+/// the step, time, step size, work, signal speed and a hash of every rank's particles
+/// to the bit) and checkpoints it;
 /// runs are repeated (at most 5 times) until one moved the blocks after the checkpoint
 /// its replay starts from, as the clock decides whether they move.
 #[test]
 fn rescue_replays_the_moves_of_a_time_balanced_run() {
     let dir = temp_dir("replay-time");
     let p = dir.join("time.toml");
-    let text = crossing_scene(16, 3.0, "every_steps = 25")
-        .replace("cfl = 0.3", "dt = 0.0596")
-        .replace("every = 3\n", "every = 0.35\n")
-        + "[parallel]\nbalance = \"time\"\nimbalance = 1.0\ncheck_every = 2\n";
+    let text =
+        failing_crossing(25) + "[parallel]\nbalance = \"time\"\nimbalance = 1.0\ncheck_every = 2\n";
     std::fs::write(&p, text).unwrap();
     let rebalances = |path: &Path| -> u64 {
         let f = hdf5::File::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
