@@ -185,8 +185,8 @@ pub struct Solver<'c, const D: usize> {
     pub clock: Clock,
     /// Halo and migration traffic of the blocks and migrators a rebalance replaced.
     traffic_before: (Traffic, Traffic),
-    /// The particle imbalance [`Solver::rebalance`] found, or left if it moved the
-    /// blocks.
+    /// The imbalance [`Solver::rebalance`] found (of the particles, or by time of the
+    /// ranks' measured work), or left if it moved the blocks.
     pub last_imbalance: f64,
     /// Balance by time: every rank's particles per second of work, averaged over the
     /// checks so far with the older ones' weight halved at each (empty before the
