@@ -61,10 +61,11 @@ impl<'c, const D: usize> Solver<'c, D> {
 
     /// Before the step's closing reduction: wrap periodic coordinates, check bounded
     /// ones, and find the particles that left the block and their new owners, moving
-    /// none yet (a step that fails keeps its particles). Returns why this rank cannot
-    /// hand them over, if it cannot: a particle off the grid (its message) or a routing
-    /// error, recorded in the migrator. [`Solver::hand_over`] moves them once the
-    /// ranks agreed.
+    /// none yet (a step that fails keeps its particles). Returns the message of a
+    /// particle off the grid, if there is one; that and any routing error are recorded
+    /// in the migrator, whose verdict the step's reduction carries
+    /// ([`decomposition::Migrator::failed`]). [`Solver::hand_over`] moves the particles
+    /// once the ranks agreed.
     pub(super) fn route(&mut self) -> Option<String> {
         let mut left = None;
         let me = self.comm.rank();
