@@ -19,7 +19,7 @@ pub enum Part {
     TimeStep,
     /// Every rank's verdict on its particles' state, agreed over ranks.
     Check,
-    /// Particles moved to the ranks that own their cells ([`super::Solver::relocate`]).
+    /// Particles moved to the ranks that own their cells ([`super::Solver::route`], [`super::Solver::hand_over`]).
     Migrate,
     /// The sort by cell, when the particles fell out of order.
     Sort,

@@ -57,7 +57,10 @@ pub fn cell_integral<const D: usize>(h: &[f64; D], j: usize, i: usize) -> [f64; 
 }
 
 impl<'c, const D: usize> Solver<'c, D> {
-    /// A hash of this rank's particles ([`fingerprint`]).
+    /// A hash of this rank's particles (ids, positions and velocities to the bit): the
+    /// same for a state reached again bit for bit, and almost surely not for one that
+    /// differs in any bit. The particles' hashes are added, so the hash does not
+    /// depend on their order, the thread count or the reduction's grouping.
     pub fn fingerprint(&self) -> u64 {
         fingerprint(&self.parts)
     }
@@ -195,10 +198,7 @@ impl<'c, const D: usize> Solver<'c, D> {
     }
 }
 
-/// A hash of this rank's particles (ids, positions and velocities to the bit): the
-/// same for a state reached again bit for bit, and almost surely not for one that
-/// differs in any bit. The particles' hashes are added, so the hash does not
-/// depend on their order, the thread count or the reduction's grouping.
+/// [`Solver::fingerprint`] of the particles `p`.
 pub fn fingerprint<const D: usize>(p: &Particles<D>) -> u64 {
     use decomposition::splitmix::mix;
     const ODD: [u64; 6] = [

@@ -5,7 +5,7 @@ use super::*;
 impl<'c, const D: usize> Solver<'c, D> {
     /// In parallel over fixed chunks of particles: wrap periodic coordinates into the
     /// period, and flag the chunks ([`Placement::flagged`]) that hold a particle outside
-    /// the grid or its block, the only ones [`Solver::relocate`] then visits. The
+    /// the grid or its block, the only ones [`Solver::route`] then visits. The
     /// others' particles are located for the next tile pass as in
     /// [`Solver::locate_all`], while their positions are at hand.
     pub(super) fn wrap_and_flag(&mut self) {
