@@ -244,22 +244,17 @@ impl<'c, const D: usize> Solver<'c, D> {
         let mut t = vec![0.0; ranks];
         t[self.comm.rank()] = busy;
         self.comm.sum_f64(&mut t);
-        let known: Vec<f64> = (0..ranks)
-            .filter(|&r| n[r] > 0.0 && t[r] > 0.0)
-            .map(|r| n[r] / t[r])
+        // A rank's measured speed, if it has particles and time to measure it by.
+        let measured: Vec<Option<f64>> = (0..ranks)
+            .map(|r| (n[r] > 0.0 && t[r] > 0.0).then(|| n[r] / t[r]))
             .collect();
-        let mean = if known.is_empty() {
+        let known = measured.iter().flatten().count();
+        let mean = if known == 0 {
             1.0
         } else {
-            known.iter().sum::<f64>() / known.len() as f64
+            measured.iter().flatten().sum::<f64>() / known as f64
         };
-        let now = (0..ranks).map(|r| {
-            if n[r] > 0.0 && t[r] > 0.0 {
-                n[r] / t[r]
-            } else {
-                mean
-            }
-        });
+        let now = measured.iter().map(|m| m.unwrap_or(mean));
         if self.speeds.len() == ranks {
             for (s, v) in self.speeds.iter_mut().zip(now) {
                 *s = 0.5 * (*s + v);
