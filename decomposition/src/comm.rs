@@ -5,6 +5,7 @@
 //! one process, so unit tests exercise multi-rank logic without `mpirun`).
 
 use mpi::collective::SystemOperation;
+use mpi::datatype::Equivalence as _;
 use mpi::traits::{
     Communicator as _, CommunicatorCollectives as _, Destination as _, Root as _, Source as _,
 };
@@ -31,7 +32,8 @@ pub trait Communicator {
     fn exclusive_scan_u64(&self, x: u64) -> u64;
     /// Send `sends[k]` to `peers[k]` and receive into `recvs[k]` from `peers[k]`.
     /// Receive buffers are resized to the incoming length (no reallocation once their
-    /// capacity suffices). `peers` must be symmetric: if A lists B, B lists A.
+    /// capacity suffices). `peers` must be symmetric (if A lists B, B lists A) and list
+    /// each rank at most once.
     fn exchange(&self, peers: &[usize], sends: &[Vec<f64>], recvs: &mut [Vec<f64>]);
     /// True on every rank if `flag` is true on any rank: how a local error reaches all.
     fn any(&self, flag: bool) -> bool {
@@ -155,59 +157,41 @@ impl Communicator for MpiComm {
         }
     }
     fn exchange(&self, peers: &[usize], sends: &[Vec<f64>], recvs: &mut [Vec<f64>]) {
-        // Lengths first (they differ for particle migration), then the data. Messages
-        // between a pair are matched in order, and a self-peer is served by a copy.
+        // One message per peer: a receive is sized by probing the message that arrived,
+        // and messages are taken in the order they arrive. Messages between a pair are
+        // matched in order, so a message probed from a peer is the one of this exchange
+        // (each peer is listed once), and a self-peer is served by a copy.
+        const TAG: i32 = 2;
         let me = self.rank();
-        let mut lens = vec![0u64; peers.len()];
-        let send_lens: Vec<u64> = sends.iter().map(|s| s.len() as u64).collect();
-        mpi::request::scope(|scope| {
-            let mut reqs = Vec::new();
-            for (k, &p) in peers.iter().enumerate() {
-                if p != me {
-                    reqs.push(
-                        self.world
-                            .process_at_rank(p as i32)
-                            .immediate_send_with_tag(scope, &send_lens[k..k + 1], 1),
-                    );
-                }
-            }
-            for (k, &p) in peers.iter().enumerate() {
-                if p != me {
-                    self.world
-                        .process_at_rank(p as i32)
-                        .receive_into_with_tag(&mut lens[k..k + 1], 1);
-                } else {
-                    lens[k] = sends[k].len() as u64;
-                }
-            }
-            for r in reqs {
-                r.wait();
-            }
-        });
-        for (k, r) in recvs.iter_mut().enumerate() {
-            r.resize(lens[k] as usize, 0.0);
+        debug_assert!(peers.iter().enumerate().all(|(k, p)| !peers[..k].contains(p)));
+        let mut pending: Vec<usize> = (0..peers.len()).filter(|&k| peers[k] != me).collect();
+        for (k, _) in peers.iter().enumerate().filter(|&(_, &p)| p == me) {
+            recvs[k].clear();
+            recvs[k].extend_from_slice(&sends[k]);
         }
         mpi::request::scope(|scope| {
-            let mut reqs = Vec::new();
-            for (k, &p) in peers.iter().enumerate() {
-                if p != me {
-                    reqs.push(
-                        self.world
-                            .process_at_rank(p as i32)
-                            .immediate_send_with_tag(scope, &sends[k][..], 2),
-                    );
-                }
-            }
-            for (k, &p) in peers.iter().enumerate() {
-                if p != me {
+            let sent: Vec<_> = pending
+                .iter()
+                .map(|&k| {
                     self.world
-                        .process_at_rank(p as i32)
-                        .receive_into_with_tag(&mut recvs[k][..], 2);
-                } else {
-                    recvs[k].copy_from_slice(&sends[k]);
-                }
+                        .process_at_rank(peers[k] as i32)
+                        .immediate_send_with_tag(scope, &sends[k][..], TAG)
+                })
+                .collect();
+            while !pending.is_empty() {
+                pending.retain(|&k| {
+                    let from = self.world.process_at_rank(peers[k] as i32);
+                    let Some((message, status)) = from.immediate_matched_probe_with_tag(TAG)
+                    else {
+                        return true;
+                    };
+                    let n = status.count(f64::equivalent_datatype()) as usize;
+                    recvs[k].resize(n, 0.0);
+                    message.matched_receive_into(&mut recvs[k][..]);
+                    false
+                });
             }
-            for r in reqs {
+            for r in sent {
                 r.wait();
             }
         });

@@ -1,15 +1,17 @@
-//! Checks [`MpiComm`] on real MPI ranks with the same properties the unit tests check on
-//! `LocalComm`: ghost sum, ghost copy, collectives and particle migration. Unit tests
-//! cannot own MPI (it initialises once per process), so this runs under mpirun:
+//! [`MpiComm`] on real MPI ranks, with the same properties the unit tests check on
+//! `LocalComm`: exchanges, ghost sum, ghost copy, collectives and particle migration.
+//! A process initialises MPI once, so the checks are one ignored test that this file's
+//! other tests run under mpirun on 2 ranks and on 4 (more ranks than this machine's
+//! cores, so that ranks wait for ranks that are not running):
 //!
 //! ```sh
-//! cargo build -p decomposition --example mpi_check
-//! mpirun --oversubscribe --timeout 60 -n 4 target/debug/examples/mpi_check
+//! cargo test -p decomposition --test mpi_ranks
 //! ```
-//!
-//! Exits non-zero (via a panic, which makes mpirun abort the job) on any mismatch.
 
-#![forbid(unsafe_code)]
+use std::io::Read;
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
 
 use std::collections::HashMap;
 
@@ -111,8 +113,44 @@ fn check<const D: usize>(comm: &MpiComm, cells: [usize; D], periodic: [bool; D])
     }
 }
 
-fn main() {
-    let universe = mpi::initialize().expect("MPI initialises once");
+/// What rank `from` sends rank `to` in exchange `round`: a length from 0 to 4 that
+/// differs between pairs and rounds, and values that name all three.
+fn message(from: usize, to: usize, round: usize) -> Vec<f64> {
+    let len = (from * 7 + to * 3 + round) % 5;
+    (0..len)
+        .map(|i| (from * 1_000_000 + to * 10_000 + round * 10 + i) as f64)
+        .collect()
+}
+
+/// Many exchanges in a row with every rank (itself included), without a collective
+/// between them, in an order that differs between ranks, empty messages among them,
+/// and one rank late to each (long enough that the others nap while they wait):
+/// each receive holds what its peer sent it in the same exchange.
+fn check_exchange(comm: &MpiComm) {
+    let (me, n) = (comm.rank(), comm.size());
+    let mut peers: Vec<usize> = (0..n).collect();
+    if me % 2 == 1 {
+        peers.reverse();
+    }
+    let mut recvs = vec![Vec::new(); n];
+    for round in 0..40 {
+        if round % n == me {
+            std::thread::sleep(std::time::Duration::from_millis(2));
+        }
+        let sends: Vec<Vec<f64>> = peers.iter().map(|&p| message(me, p, round)).collect();
+        comm.exchange(&peers, &sends, &mut recvs);
+        for (k, &p) in peers.iter().enumerate() {
+            assert_eq!(recvs[k], message(p, me, round), "from {p} in round {round}");
+        }
+    }
+}
+
+/// Every check, on each rank of the mpirun that started this process (on its own, one
+/// rank). Panics on any mismatch, which makes mpirun end the job with an error.
+#[test]
+#[ignore = "runs on each rank under mpirun, started by the tests below"]
+fn on_each_rank() {
+    let universe = mpi::initialize().expect("MPI initialises once per process");
     let comm = MpiComm::new(universe.world());
     let r = comm.rank() as u64;
     assert_eq!(comm.exclusive_scan_u64(r + 1), r * (r + 1) / 2);
@@ -127,6 +165,7 @@ fn main() {
     if r == 0 {
         assert_eq!(g.len(), comm.size());
     }
+    check_exchange(&comm);
 
     check(&comm, [24], [true]);
     check(&comm, [24], [false]);
@@ -136,4 +175,69 @@ fn main() {
     if comm.rank() == 0 {
         println!("mpi_check passed on {} ranks", comm.size());
     }
+}
+
+/// Run [`on_each_rank`] of this test binary under `mpirun -n ranks`.
+fn run(ranks: usize) {
+    let mut c = Command::new("mpirun");
+    c.args([
+        "--oversubscribe",
+        "--timeout",
+        "120",
+        "-n",
+        &ranks.to_string(),
+    ]);
+    if Command::new("id")
+        .arg("-u")
+        .output()
+        .is_ok_and(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
+    {
+        c.arg("--allow-run-as-root");
+    }
+    let me = std::env::current_exe().expect("a test knows its binary");
+    let mut child = c
+        .arg(Path::new(&me))
+        .args(["on_each_rank", "--exact", "--ignored", "--nocapture"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("mpirun starts");
+    // mpirun's own timeout has been seen to hang with its ranks ended, so the test
+    // keeps the time itself: a check that deadlocks fails instead of stalling the suite.
+    let start = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("mpirun can be waited for") {
+            break Some(status);
+        }
+        if start.elapsed() > Duration::from_secs(180) {
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let (mut stdout, mut stderr) = (String::new(), String::new());
+    let _ = child
+        .stdout
+        .take()
+        .map(|mut o| o.read_to_string(&mut stdout));
+    let _ = child
+        .stderr
+        .take()
+        .map(|mut e| e.read_to_string(&mut stderr));
+    assert!(
+        status.is_some_and(|s| s.success())
+            && stdout.contains(&format!("mpi_check passed on {ranks} ranks")),
+        "{ranks} ranks ({status:?}):\n{stdout}\n{stderr}"
+    );
+}
+
+#[test]
+fn exchanges_collectives_halo_and_migration_on_two_ranks() {
+    run(2);
+}
+
+#[test]
+fn exchanges_collectives_halo_and_migration_on_more_ranks_than_cores() {
+    run(4);
 }
