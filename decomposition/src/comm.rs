@@ -163,7 +163,10 @@ impl Communicator for MpiComm {
         // (each peer is listed once), and a self-peer is served by a copy.
         const TAG: i32 = 2;
         let me = self.rank();
-        debug_assert!(peers.iter().enumerate().all(|(k, p)| !peers[..k].contains(p)));
+        debug_assert!(peers
+            .iter()
+            .enumerate()
+            .all(|(k, p)| !peers[..k].contains(p)));
         let mut pending: Vec<usize> = (0..peers.len()).filter(|&k| peers[k] != me).collect();
         for (k, _) in peers.iter().enumerate().filter(|&(_, &p)| p == me) {
             recvs[k].clear();
@@ -181,8 +184,7 @@ impl Communicator for MpiComm {
             while !pending.is_empty() {
                 pending.retain(|&k| {
                     let from = self.world.process_at_rank(peers[k] as i32);
-                    let Some((message, status)) = from.immediate_matched_probe_with_tag(TAG)
-                    else {
+                    let Some((message, status)) = from.immediate_matched_probe_with_tag(TAG) else {
                         return true;
                     };
                     let n = status.count(f64::equivalent_datatype()) as usize;

@@ -17,7 +17,7 @@ pub struct ScatterParts<'a, const D: usize> {
     /// Storage index of each particle's cell's lower corner node.
     pub tile: &'a [u32],
     /// A grid field of D numbers per node whose interpolation at the particle replaces
-    /// its velocity in the momentum ([`ScatterMode::from_grid`]; XPIC's `S⁺S`).
+    /// its velocity in the momentum ([`Sums::FromGrid`]; XPIC's `S⁺S`).
     pub src: &'a [f64],
     /// The external force per unit mass of each particle where the scene has a body
     /// force ([`external_accel`]), else empty.
@@ -40,6 +40,20 @@ pub fn external_accel<const D: usize>(ctx: &Ctx<'_, D>, x0: &[Vector<D>], out: &
         });
 }
 
+/// What a scatter sums into the nodes' mass and momentum.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Sums {
+    /// `Σ m S` and `Σ m S v`: the particles' mass and momentum.
+    Particles,
+    /// `Σ m S` and `Σ m S u`, `u` the grid field `src` interpolated at each particle
+    /// (grid → particle → grid in one pass: XPIC's `S⁺S`, the consistent mass matrix
+    /// times a field).
+    FromGrid,
+    /// `Σ m S²` in the mass, the particles' momentum: the consistent mass matrix's
+    /// diagonal (the null-space diagnostic's preconditioner).
+    MassSquares,
+}
+
 /// How the scatter lays out its node record.
 #[derive(Clone, Copy, Debug)]
 pub struct ScatterMode {
@@ -50,9 +64,8 @@ pub struct ScatterMode {
     /// Also accumulate Σ(1−α) v σ S and the nodes' covered volume Σ v S (two-step
     /// schemes).
     pub two_step: bool,
-    /// Momentum of the grid field `src` interpolated at each particle instead of the
-    /// particle's velocity (grid → particle → grid in one pass, for XPIC).
-    pub from_grid: bool,
+    /// What the mass and momentum sums are of.
+    pub sums: Sums,
     /// Also accumulate the first moment `Σ_p m_p S_j (x̂_p − x_j)` of each node, with
     /// `x̂_p = Σ_k S_k x_k` the node positions interpolated at the particle (two-step
     /// schemes with the centroid correction, [`NodeRecord::moment`]).
@@ -155,7 +168,7 @@ pub(super) fn scatter_slab<const D: usize, const NA: usize, const N: usize>(
         }
         let idx = &run.idx;
         let mass = at.mass;
-        let mv = if m.from_grid {
+        let mv = if m.sums == Sums::FromGrid {
             let mut u = Vector::<D>::zeros();
             for n in 0..N {
                 let at = idx[n] * D;
@@ -239,8 +252,14 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
         m: ScatterMode,
     ) {
         // Node-innermost loops over fixed arrays: each is a few vector operations.
-        for n in 0..N {
-            self.mass[n] += mass * k.s[n];
+        if m.sums == Sums::MassSquares {
+            for n in 0..N {
+                self.mass[n] += mass * k.s[n] * k.s[n];
+            }
+        } else {
+            for n in 0..N {
+                self.mass[n] += mass * k.s[n];
+            }
         }
         for a in 0..D {
             for n in 0..N {

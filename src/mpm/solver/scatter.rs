@@ -19,24 +19,24 @@ impl<'c, const D: usize> Solver<'c, D> {
         if moved {
             self.activate_tiles();
         }
-        self.scatter_pass(forces, false);
+        self.scatter_pass(forces, kernel::Sums::Particles);
         if two {
             self.domain_weights();
         }
     }
 
-    /// The scatter proper, into `scat`, summed over ranks. `from_grid`: momentum of the
-    /// field `xpic_term` interpolated at the particles instead of their velocities.
-    pub(super) fn scatter_pass(&mut self, forces: bool, from_grid: bool) {
-        self.scatter_local(forces, from_grid);
+    /// The scatter proper, into `scat`, summed over ranks, of `sums` (the field it
+    /// takes from the grid is `xpic_term`).
+    pub(super) fn scatter_pass(&mut self, forces: bool, sums: kernel::Sums) {
+        self.scatter_local(forces, sums);
         self.block
             .ghost_sum(self.comm, &mut self.grid.scat, self.grid.sw);
     }
 
     /// [`scatter_pass`](Solver::scatter_pass) into this rank's stored nodes, before
     /// the sum over ranks and periodic images.
-    pub(super) fn scatter_local(&mut self, forces: bool, from_grid: bool) {
-        let two = self.scheme.two_step() && !from_grid;
+    pub(super) fn scatter_local(&mut self, forces: bool, sums: kernel::Sums) {
+        let two = self.scheme.two_step() && sums == kernel::Sums::Particles;
         zero(&mut self.grid.scat);
         let ctx = ctx!(self);
         // The forces' scatter has each particle's body force formed before it, and it
@@ -70,7 +70,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             sw: self.grid.sw,
             forces,
             two_step: two,
-            from_grid,
+            sums,
             moments: two && self.centroid_passes > 0,
         };
         by_nodes!(
@@ -110,7 +110,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             }
         }
         for r in 2..=m {
-            self.scatter_pass(false, true);
+            self.scatter_pass(false, kernel::Sums::FromGrid);
             let f = (mf - r as f64 + 1.0) / r as f64;
             let mut term = std::mem::take(&mut self.grid.xpic_term);
             self.for_owned(|n, c| {
