@@ -49,8 +49,8 @@ pub enum Sums {
     /// (grid → particle → grid in one pass: XPIC's `S⁺S`, the consistent mass matrix
     /// times a field).
     FromGrid,
-    /// `Σ m S²` in the mass, the particles' momentum: the consistent mass matrix's
-    /// diagonal (the null-space diagnostic's preconditioner).
+    /// `Σ m S²` in the mass: the consistent mass matrix's diagonal (the null-space
+    /// diagnostic's preconditioner); the momentum sums are not read.
     MassSquares,
 }
 
