@@ -166,20 +166,8 @@ pub(super) fn scatter_slab<const D: usize, const NA: usize, const N: usize>(
                 grid.prefetch(n * m.sw, m.sw);
             }
         }
-        let idx = &run.idx;
         let mass = at.mass;
-        let mv = if m.sums == Sums::FromGrid {
-            let mut u = Vector::<D>::zeros();
-            for n in 0..N {
-                let at = idx[n] * D;
-                for a in 0..D {
-                    u[a] += k.s[n] * parts.src[at + a];
-                }
-            }
-            u * mass
-        } else {
-            vels[p] * mass
-        };
+        let mv = momentum(m.sums, &k.s, &run.idx, parts.src, &vels[p]) * mass;
         let fe = if m.forces {
             ctx.accel_kept(parts.accel, parts.x0, p) * mass
         } else {
@@ -200,6 +188,29 @@ pub(super) fn scatter_slab<const D: usize, const NA: usize, const N: usize>(
     if run.started() {
         acc.flush(ctx, grid, &run.idx, m);
     }
+}
+
+/// The velocity whose momentum a particle scatters: its own, or under
+/// [`Sums::FromGrid`] the grid field `src` interpolated with its weights `s` at its
+/// nodes `idx`.
+#[inline(always)]
+fn momentum<const D: usize, const N: usize>(
+    sums: Sums,
+    s: &[f64; N],
+    idx: &[usize; N],
+    src: &[f64],
+    v: &Vector<D>,
+) -> Vector<D> {
+    if sums != Sums::FromGrid {
+        return *v;
+    }
+    let mut u = Vector::<D>::zeros();
+    for n in 0..N {
+        for a in 0..D {
+            u[a] += s[n] * src[idx[n] * D + a];
+        }
+    }
+    u
 }
 
 /// A scatter's sums over one run of particles that share their nodes (particles sorted
