@@ -888,21 +888,22 @@ fn rescue_replays_the_run_to_its_last_good_state() {
 /// than the cores) every unstable run's replay reaches the last good state (it checks
 /// the step, time, step size, work, signal speed and a hash of every rank's particles
 /// to the bit) and checkpoints it;
-/// runs are repeated (at most 5 times) until one moved the blocks after the checkpoint
-/// its replay starts from, as the clock decides whether they move.
+/// runs are repeated (at most 10 times) until one moved the blocks after the checkpoint
+/// its replay starts from, as the clock decides whether they move (a check every step
+/// gives it the most chances).
 #[test]
 fn rescue_replays_the_moves_of_a_time_balanced_run() {
     let dir = temp_dir("replay-time");
     let p = dir.join("time.toml");
     let text =
-        failing_crossing(25) + "[parallel]\nbalance = \"time\"\nimbalance = 1.0\ncheck_every = 2\n";
+        failing_crossing(25) + "[parallel]\nbalance = \"time\"\nimbalance = 1.0\ncheck_every = 1\n";
     std::fs::write(&p, text).unwrap();
     let rebalances = |path: &Path| -> u64 {
         let f = hdf5::File::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         f.attr("rebalances").unwrap().read_scalar().unwrap()
     };
     for n in [2, 3] {
-        let covered = (0..5).any(|attempt| {
+        let covered = (0..10).any(|attempt| {
             let out = dir.join(format!("time{n}_{attempt}"));
             let o = mpirun(n, &["run", s(&p), "--out", s(&out)]);
             let err = String::from_utf8_lossy(&o.stderr).into_owned();
