@@ -405,10 +405,50 @@ impl Reads {
     };
 }
 
-/// Two-point Gauss–Legendre abscissa on [−1, 1]: exact for the cubics the domain rule
-/// integrates (`a N_k` per cell), with no difference of primitives to lose digits on a
-/// short piece.
-const GAUSS2: f64 = 0.577_350_269_189_625_8;
+/// One piece of a particle's domain along an axis, the part of it in one cell: its
+/// share of the domain's averages over the cell's lower and upper node (`[lower,
+/// upper]` per row). Each average is a polynomial of degree at most 3 in the cell's
+/// coordinate u, so it follows from the piece's centre `m`, its half-length's square
+/// `q` (so that `avg (u − m)² = q/3` and `avg (u − m)³ = 0`) and `mu`, the centre's
+/// offset from the particle in cells. Every term is written in these centred
+/// quantities, so that nothing is a difference of nearly equal numbers: an interior
+/// domain's moments, of order `q`, are formed from `q`, not from positions of order 1.
+#[derive(Clone, Copy, Default)]
+struct Piece {
+    n: [f64; 2],
+    an: [f64; 2],
+    adn: [f64; 2],
+    nc: [f64; 2],
+}
+
+impl Piece {
+    /// The piece `[u0, u1]` of a cell (its own coordinates) holding the share `f` of
+    /// the domain, whose centre lies `mu` cells from the particle; `h` the cell size and
+    /// `inv_h` its inverse.
+    #[inline(always)]
+    fn new(u0: f64, u1: f64, f: f64, mu: f64, [h, inv_h]: [f64; 2], reads: Reads) -> Piece {
+        let m = 0.5 * (u0 + u1);
+        let half = 0.5 * (u1 - u0);
+        let q = half * half;
+        let mut p = Piece {
+            n: [f * (1.0 - m), f * m],
+            ..Piece::default()
+        };
+        if reads.gradients {
+            // avg a(u) (1 − u) and avg a(u) u, a = 4u(1 − u).
+            let lower = 4.0 * (m * (1.0 - m) * (1.0 - m) + q * (m - 2.0 / 3.0));
+            let upper = 4.0 * (m * m * (1.0 - m) + q * (1.0 / 3.0 - m));
+            p.an = [f * lower, f * upper];
+            let slope = f * (lower + upper) * inv_h;
+            p.adn = [-slope, slope];
+        }
+        if reads.moments {
+            // avg (1 − u) (x − x_p) and avg u (x − x_p), x − x_p = (mu + u − m) h.
+            p.nc = [f * h * (mu * (1.0 - m) - q / 3.0), f * h * (mu * m + q / 3.0)];
+        }
+        p
+    }
+}
 
 /// The domain rule's per-axis data ([`DomainWeights1`]) of a particle at `x` with
 /// half-widths `lp` (each taken at most half a cell, so that the domain meets at most
@@ -419,8 +459,9 @@ const GAUSS2: f64 = 0.577_350_269_189_625_8;
 /// The window of 3 nodes starts one below the cell where `ξ < ½` (the domain may reach
 /// the cell below), else at the cell, and at a bounded end is shifted inside the grid
 /// as GIMP's is. Of the averages only those `reads` asks for besides `avg_n` are formed
-/// (the others stay zero).
-#[inline]
+/// (the others stay zero). Inlined, so that the data stay in registers and a pass's
+/// `reads` is a constant.
+#[inline(always)]
 pub fn domain<const D: usize>(
     geom: &Geom<D>,
     x: &[f64; D],
@@ -439,10 +480,8 @@ pub fn domain<const D: usize>(
     };
     for a in 0..D {
         let t = xi[a];
-        let below = usize::from(t < 0.5);
-        d.base[a] = c[a] - below as i64;
-        d.w[a][below] = 1.0 - t;
-        d.w[a][below + 1] = t;
+        let below = t < 0.5;
+        d.base[a] = c[a] - i64::from(below);
         // The domain in the cell's coordinates, cut at the grid's faces.
         let r = (lp[a] * geom.inv_h[a]).min(0.5);
         let (mut lo, mut hi) = (t - r, t + r);
@@ -451,43 +490,44 @@ pub fn domain<const D: usize>(
             hi = hi.min((geom.cells[a] as i64 - c[a]) as f64);
         }
         let len = hi - lo;
-        // Pieces per cell: the cell below, the particle's, the cell above (at most two
-        // are not empty).
-        for k in -1i64..=1 {
-            let (p0, p1) = (lo.max(k as f64), hi.min(k as f64 + 1.0));
-            // (A domain of zero width is its point, in the particle's cell.)
-            let empty = if len > 0.0 { p1 <= p0 } else { k != 0 };
-            if empty {
-                continue;
-            }
-            // The slot of the piece's lower node.
-            let s = (k + below as i64) as usize;
-            let (mid, rad) = (0.5 * (p0 + p1) - k as f64, 0.5 * (p1 - p0));
-            let (points, wt) = if len > 0.0 {
-                (
-                    [mid - GAUSS2 * rad, mid + GAUSS2 * rad],
-                    0.5 * (p1 - p0) / len,
-                )
+        let share = |u0: f64, u1: f64| if len > 0.0 { (u1 - u0) / len } else { 0.0 };
+        let h = [geom.h[a], geom.inv_h[a]];
+        // The piece in the particle's cell (a domain of zero width is its point there),
+        // and the one in the neighbour it reaches: the cell below where ξ < ½, above
+        // where not (a half-width of at most half a cell reaches no further).
+        let (u0, u1) = (lo.max(0.0), hi.min(1.0));
+        let own_share = if len > 0.0 { share(u0, u1) } else { 1.0 };
+        let own = Piece::new(u0, u1, own_share, 0.5 * (u0 + u1) - t, h, reads);
+        let rows: [[f64; 3]; 5] = if below {
+            let other = if lo < 0.0 {
+                Piece::new(lo + 1.0, 1.0, share(lo, 0.0), 0.5 * lo - t, h, reads)
             } else {
-                ([mid, mid], 0.5)
+                Piece::default()
             };
-            for u in points {
-                d.avg_n[a][s] += wt * (1.0 - u);
-                d.avg_n[a][s + 1] += wt * u;
-                if reads.gradients {
-                    let au = 4.0 * u * (1.0 - u);
-                    d.avg_an[a][s] += wt * au * (1.0 - u);
-                    d.avg_an[a][s + 1] += wt * au * u;
-                    d.avg_adn[a][s] -= wt * au * geom.inv_h[a];
-                    d.avg_adn[a][s + 1] += wt * au * geom.inv_h[a];
-                }
-                if reads.moments {
-                    let dx = (u + k as f64 - t) * geom.h[a];
-                    d.avg_nc[a][s] += wt * (1.0 - u) * dx;
-                    d.avg_nc[a][s + 1] += wt * u * dx;
-                }
-            }
-        }
+            let join = |o: [f64; 2], p: [f64; 2]| [o[0], o[1] + p[0], p[1]];
+            [
+                [0.0, 1.0 - t, t],
+                join(other.n, own.n),
+                join(other.an, own.an),
+                join(other.adn, own.adn),
+                join(other.nc, own.nc),
+            ]
+        } else {
+            let other = if hi > 1.0 {
+                Piece::new(0.0, hi - 1.0, share(1.0, hi), 0.5 * (1.0 + hi) - t, h, reads)
+            } else {
+                Piece::default()
+            };
+            let join = |p: [f64; 2], o: [f64; 2]| [p[0], p[1] + o[0], o[1]];
+            [
+                [1.0 - t, t, 0.0],
+                join(own.n, other.n),
+                join(own.an, other.an),
+                join(own.adn, other.adn),
+                join(own.nc, other.nc),
+            ]
+        };
+        [d.w[a], d.avg_n[a], d.avg_an[a], d.avg_adn[a], d.avg_nc[a]] = rows;
         let rows = [
             &mut d.w[a],
             &mut d.avg_n[a],
@@ -726,8 +766,8 @@ mod tests {
         }
     }
 
-    /// The domain rule's per-axis averages against a fine midpoint sum over the
-    /// domain cut at the grid's faces, at points inside, next to and on bounded faces,
+    /// The domain rule's per-axis averages (the moments included) against a fine
+    /// midpoint sum over the domain cut at the grid's faces, at points inside, next to and on bounded faces,
     /// on a periodic axis across its seam, with short and clamped half-widths; and the
     /// sums its identities rest on: `Σ avg N = 1`, `Σ avg N x_k` the domain's centre,
     /// `Σ avg(a N') = 0`.
@@ -751,7 +791,8 @@ mod tests {
                             lo = lo.max(geom.lower[ax]);
                             hi = hi.min(geom.upper[ax]);
                         }
-                        let (mut n, mut an, mut adn) = ([0.0; 3], [0.0; 3], [0.0; 3]);
+                        let (mut n, mut an, mut adn, mut nc) =
+                            ([0.0; 3], [0.0; 3], [0.0; 3], [0.0; 3]);
                         let m = 20_000;
                         for i in 0..m {
                             let xq = if hi > lo {
@@ -771,6 +812,7 @@ mod tests {
                                 n[k] += (1.0 - t.abs()) / m as f64;
                                 an[k] += au * (1.0 - t.abs()) / m as f64;
                                 adn[k] -= au * t.signum() / h / m as f64;
+                                nc[k] += (1.0 - t.abs()) * (xq - p[ax]) / m as f64;
                             }
                         }
                         for k in 0..3 {
@@ -790,6 +832,11 @@ mod tests {
                                 (d.avg_adn[ax][k] - adn[k]).abs() * h < tol,
                                 "aN' {at}: {:?} vs {adn:?}",
                                 d.avg_adn[ax]
+                            );
+                            assert!(
+                                (d.avg_nc[ax][k] - nc[k]).abs() < tol * h,
+                                "N (x - x_p) {at}: {:?} vs {nc:?}",
+                                d.avg_nc[ax]
                             );
                         }
                         let sum = |v: &[f64; 3]| v.iter().sum::<f64>();
