@@ -115,6 +115,84 @@ impl MpiComm {
     pub fn abort(&self, code: i32) -> ! {
         self.world.abort(code)
     }
+    /// [`Communicator::exchange`] with its bookkeeping (the peers not yet heard from,
+    /// the send requests) on the stack for up to `INLINE` peers other than this rank,
+    /// so that an exchange allocates nothing, and on the heap beyond. The trait's
+    /// exchange keeps 32; public so that a test on a few ranks can take the heap path.
+    pub fn exchange_inline<const INLINE: usize>(
+        &self,
+        peers: &[usize],
+        sends: &[Vec<f64>],
+        recvs: &mut [Vec<f64>],
+    ) {
+        // One message per peer: a receive is sized by probing the message that arrived,
+        // and messages are taken in the order they arrive. Messages between a pair are
+        // matched in order, so a message probed from a peer is the one of this exchange
+        // (each peer is listed once), and a self-peer is served by a copy.
+        const TAG: i32 = 2;
+        let me = self.rank();
+        debug_assert!(peers
+            .iter()
+            .enumerate()
+            .all(|(k, p)| !peers[..k].contains(p)));
+        for (k, _) in peers.iter().enumerate().filter(|&(_, &p)| p == me) {
+            recvs[k].clear();
+            recvs[k].extend_from_slice(&sends[k]);
+        }
+        let remote = peers.iter().filter(|&&p| p != me).count();
+        let (mut pending_inline, mut pending_heap) = ([0usize; INLINE], Vec::new());
+        let pending: &mut [usize] = if remote <= INLINE {
+            &mut pending_inline[..remote]
+        } else {
+            pending_heap.resize(remote, 0);
+            &mut pending_heap
+        };
+        for (slot, k) in pending
+            .iter_mut()
+            .zip((0..peers.len()).filter(|&k| peers[k] != me))
+        {
+            *slot = k;
+        }
+        mpi::request::scope(|scope| {
+            let (mut sent_inline, mut sent_heap): ([Option<_>; INLINE], _) =
+                (std::array::from_fn(|_| None), Vec::new());
+            let sent = if remote <= INLINE {
+                &mut sent_inline[..remote]
+            } else {
+                sent_heap.resize_with(remote, || None);
+                &mut sent_heap[..]
+            };
+            for (slot, &k) in sent.iter_mut().zip(pending.iter()) {
+                *slot = Some(
+                    self.world
+                        .process_at_rank(peers[k] as i32)
+                        .immediate_send_with_tag(scope, &sends[k][..], TAG),
+                );
+            }
+            // The first `left` entries of `pending` are the peers not yet heard from.
+            let mut left = remote;
+            while left > 0 {
+                let mut i = 0;
+                while i < left {
+                    let k = pending[i];
+                    let from = self.world.process_at_rank(peers[k] as i32);
+                    if let Some((message, status)) = from.immediate_matched_probe_with_tag(TAG) {
+                        let n = status.count(f64::equivalent_datatype()) as usize;
+                        recvs[k].resize(n, 0.0);
+                        message.matched_receive_into(&mut recvs[k][..]);
+                        left -= 1;
+                        pending.swap(i, left);
+                    } else {
+                        i += 1;
+                    }
+                }
+            }
+            for r in sent.iter_mut().filter_map(Option::take) {
+                r.wait();
+            }
+        });
+    }
+
     /// Collective: the ranks that share this rank's node (its memory), as a
     /// communicator of their own.
     pub fn node(&self) -> Self {
@@ -157,46 +235,9 @@ impl Communicator for MpiComm {
         }
     }
     fn exchange(&self, peers: &[usize], sends: &[Vec<f64>], recvs: &mut [Vec<f64>]) {
-        // One message per peer: a receive is sized by probing the message that arrived,
-        // and messages are taken in the order they arrive. Messages between a pair are
-        // matched in order, so a message probed from a peer is the one of this exchange
-        // (each peer is listed once), and a self-peer is served by a copy.
-        const TAG: i32 = 2;
-        let me = self.rank();
-        debug_assert!(peers
-            .iter()
-            .enumerate()
-            .all(|(k, p)| !peers[..k].contains(p)));
-        let mut pending: Vec<usize> = (0..peers.len()).filter(|&k| peers[k] != me).collect();
-        for (k, _) in peers.iter().enumerate().filter(|&(_, &p)| p == me) {
-            recvs[k].clear();
-            recvs[k].extend_from_slice(&sends[k]);
-        }
-        mpi::request::scope(|scope| {
-            let sent: Vec<_> = pending
-                .iter()
-                .map(|&k| {
-                    self.world
-                        .process_at_rank(peers[k] as i32)
-                        .immediate_send_with_tag(scope, &sends[k][..], TAG)
-                })
-                .collect();
-            while !pending.is_empty() {
-                pending.retain(|&k| {
-                    let from = self.world.process_at_rank(peers[k] as i32);
-                    let Some((message, status)) = from.immediate_matched_probe_with_tag(TAG) else {
-                        return true;
-                    };
-                    let n = status.count(f64::equivalent_datatype()) as usize;
-                    recvs[k].resize(n, 0.0);
-                    message.matched_receive_into(&mut recvs[k][..]);
-                    false
-                });
-            }
-            for r in sent {
-                r.wait();
-            }
-        });
+        // A 3D block has at most 26 neighbours; a rebalance, which may send to every
+        // rank, takes the heap beyond 32.
+        self.exchange_inline::<32>(peers, sends, recvs);
     }
     fn gather_bytes(&self, data: &[u8]) -> Vec<Vec<u8>> {
         let n = self.size();

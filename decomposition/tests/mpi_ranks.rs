@@ -17,6 +17,31 @@ use std::collections::HashMap;
 
 use decomposition::{Block, Communicator, Layout, Migrator, MpiComm, GHOST};
 
+thread_local! {
+    /// Allocations made by this thread so far ([`Counting`]).
+    static ALLOCATIONS: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+}
+
+/// The system allocator, counting each thread's allocations, so that a check can
+/// show an exchange allocates nothing.
+struct Counting;
+
+// SAFETY: every call is passed on to `System` with the same arguments, so the memory
+// handed out and its layout are `System`'s; the count is a const-initialised
+// thread-local `Cell`, which neither allocates nor needs a destructor.
+unsafe impl std::alloc::GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: std::alloc::Layout) -> *mut u8 {
+        ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        std::alloc::System.alloc(layout)
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: std::alloc::Layout) {
+        std::alloc::System.dealloc(ptr, layout)
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
 fn wrapped<const D: usize>(l: &Layout<D>, b: &Block<D>, i: usize) -> [usize; D] {
     l.wrap_node(b.global(b.coords(i))).unwrap()
 }
@@ -125,23 +150,42 @@ fn message(from: usize, to: usize, round: usize) -> Vec<f64> {
 /// Many exchanges in a row with every rank (itself included), without a collective
 /// between them, in an order that differs between ranks, empty messages among them,
 /// and one rank late to each (long enough that the others nap while they wait):
-/// each receive holds what its peer sent it in the same exchange.
-fn check_exchange(comm: &MpiComm) {
+/// each receive holds what its peer sent it in the same exchange, and the exchange
+/// allocates nothing once the receive buffers have room. `spill`: through
+/// [`MpiComm::exchange_inline`] with room for one peer on the stack, so that more than
+/// one other rank takes the heap's bookkeeping.
+fn check_exchange(comm: &MpiComm, spill: bool) {
     let (me, n) = (comm.rank(), comm.size());
     let mut peers: Vec<usize> = (0..n).collect();
     if me % 2 == 1 {
         peers.reverse();
     }
-    let mut recvs = vec![Vec::new(); n];
-    for round in 0..40 {
+    let rounds = 40;
+    let sends: Vec<Vec<Vec<f64>>> = (0..rounds)
+        .map(|round| peers.iter().map(|&p| message(me, p, round)).collect())
+        .collect();
+    let mut recvs: Vec<Vec<f64>> = (0..n).map(|_| Vec::with_capacity(4)).collect();
+    let mut allocations = 0;
+    for (round, sends) in sends.iter().enumerate() {
         if round % n == me {
             std::thread::sleep(std::time::Duration::from_millis(2));
         }
-        let sends: Vec<Vec<f64>> = peers.iter().map(|&p| message(me, p, round)).collect();
-        comm.exchange(&peers, &sends, &mut recvs);
+        let before = ALLOCATIONS.with(|c| c.get());
+        if spill {
+            comm.exchange_inline::<1>(&peers, sends, &mut recvs);
+        } else {
+            comm.exchange(&peers, sends, &mut recvs);
+        }
+        allocations += ALLOCATIONS.with(|c| c.get()) - before;
         for (k, &p) in peers.iter().enumerate() {
             assert_eq!(recvs[k], message(p, me, round), "from {p} in round {round}");
         }
+    }
+    if !spill {
+        assert_eq!(
+            allocations, 0,
+            "allocations in {rounds} exchanges on rank {me}"
+        );
     }
 }
 
@@ -165,7 +209,8 @@ fn on_each_rank() {
     if r == 0 {
         assert_eq!(g.len(), comm.size());
     }
-    check_exchange(&comm);
+    check_exchange(&comm, false);
+    check_exchange(&comm, true);
 
     check(&comm, [24], [true]);
     check(&comm, [24], [false]);

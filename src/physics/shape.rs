@@ -444,7 +444,10 @@ impl Piece {
         }
         if reads.moments {
             // avg (1 − u) (x − x_p) and avg u (x − x_p), x − x_p = (mu + u − m) h.
-            p.nc = [f * h * (mu * (1.0 - m) - q / 3.0), f * h * (mu * m + q / 3.0)];
+            p.nc = [
+                f * h * (mu * (1.0 - m) - q / 3.0),
+                f * h * (mu * m + q / 3.0),
+            ];
         }
         p
     }
@@ -514,7 +517,14 @@ pub fn domain<const D: usize>(
             ]
         } else {
             let other = if hi > 1.0 {
-                Piece::new(0.0, hi - 1.0, share(1.0, hi), 0.5 * (1.0 + hi) - t, h, reads)
+                Piece::new(
+                    0.0,
+                    hi - 1.0,
+                    share(1.0, hi),
+                    0.5 * (1.0 + hi) - t,
+                    h,
+                    reads,
+                )
             } else {
                 Piece::default()
             };
