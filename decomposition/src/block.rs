@@ -328,25 +328,42 @@ impl<const D: usize> Block<D> {
 
     /// Copy every owned node's value to all its ghost copies on all ranks.
     pub fn ghost_copy(&mut self, comm: &dyn Communicator, field: &mut [f64], ncomp: usize) {
+        self.ghost_copy_slots(comm, field, ncomp, 0..ncomp);
+    }
+
+    /// [`Block::ghost_copy`] of the entries `slots` of every node's record of `width`
+    /// numbers in `field`, the others left alone: after a [`Block::ghost_sum_slots`],
+    /// the ghosts of a field that shares its records get the sums of those slots.
+    pub fn ghost_copy_slots(
+        &mut self,
+        comm: &dyn Communicator,
+        field: &mut [f64],
+        width: usize,
+        slots: std::ops::Range<usize>,
+    ) {
+        debug_assert!(slots.end <= width);
         self.dense_lists();
+        let (lo, hi) = (slots.start, slots.end);
+        let ncomp = hi - lo;
         let h = &mut self.halo;
         for (k, nodes) in h.copy_send.iter().enumerate() {
             let buf = &mut h.send[k];
             buf.clear();
             for &n in nodes {
-                buf.extend_from_slice(&field[n * ncomp..(n + 1) * ncomp]);
+                buf.extend_from_slice(&field[n * width + lo..n * width + hi]);
             }
         }
         h.traffic.record(self.rank, &h.peers, &h.send);
         comm.exchange(&h.peers, &h.send, &mut h.recv);
         for &n in &h.ghost_stored {
-            field[n * ncomp..(n + 1) * ncomp].fill(0.0);
+            field[n * width + lo..n * width + hi].fill(0.0);
         }
         for (k, nodes) in h.copy_recv.iter().enumerate() {
             let buf = &h.recv[k];
             debug_assert_eq!(buf.len(), nodes.len() * ncomp);
             for (j, &n) in nodes.iter().enumerate() {
-                field[n * ncomp..(n + 1) * ncomp].copy_from_slice(&buf[j * ncomp..(j + 1) * ncomp]);
+                field[n * width + lo..n * width + hi]
+                    .copy_from_slice(&buf[j * ncomp..(j + 1) * ncomp]);
             }
         }
     }

@@ -67,12 +67,12 @@ impl<'c, const D: usize> Solver<'c, D> {
         let col = NodeRecord::<D>::cover(sw);
         let mut fill = std::mem::take(&mut self.grid.fill);
         let (nodes, scat) = (self.nodes(), &self.grid.scat);
-        nodes.par_owned(&mut fill, 1, |n, c, fill| {
+        // On the ghosts too, from the summed cover the scatter copied to them.
+        nodes.par_near(&mut fill, 1, decomposition::GHOST, |n, c, fill| {
             let g: [i64; D] = std::array::from_fn(|a| nodes.node_lo[a] + c[a] as i64);
             let support = nodes.geom.node_volume(g);
             fill[0] = (scat[n * sw + col] / (FULL_FILL * support)).min(1.0);
         });
-        self.block.ghost_copy(self.comm, &mut fill, 1);
         self.grid.fill = fill;
         // Cells whose corners all lie in the local box (the others are never visited),
         // over the active tiles: a cell with its lower corner in a tile that is not
@@ -114,7 +114,8 @@ impl<'c, const D: usize> Solver<'c, D> {
         let share = self.geom.cell_volume() / (1 << D) as f64;
         let mut vol = std::mem::take(&mut self.grid.node_vol);
         let (nodes, cell_w) = (self.nodes(), &self.grid.cell_w);
-        nodes.par_owned(&mut vol, 1, |n, c, vol| {
+        // Out to the first ghost layer, whose σ̄ the averaged force reads.
+        nodes.par_near(&mut vol, 1, 1, |n, c, vol| {
             // The cells around the node, corners in order (as `NodeView::row_cells`).
             let mut cells = [0; 8];
             nodes.tiles.octant(n, false, &mut cells);
@@ -133,13 +134,14 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// assembled cell by cell over the weighted cells around each owned node.
     pub(super) fn averaged_force(&mut self) {
         let (sw, sym) = (self.grid.sw, NodeRecord::<D>::SYM);
-        // σ̄_j = T_j / V_j on owned nodes, then to the ghosts: its upper triangle, in
-        // the grid velocities' storage, which the grid update after this rewrites
-        // (SYM numbers fit in its 2 D a node).
+        // σ̄_j = T_j / V_j on the owned nodes and the first ghost layer (the ghosts hold
+        // the summed T_j and their own V_j, so the same bits as the owner's): its upper
+        // triangle, in the grid velocities' storage, which the grid update after this
+        // rewrites (SYM numbers fit in its 2 D a node).
         let mut vel = std::mem::take(&mut self.grid.vel);
         let sigma = &mut vel[..self.grid.node_vol.len() * sym];
         let (nodes, scat, node_vol) = (self.nodes(), &self.grid.scat, &self.grid.node_vol);
-        nodes.par_owned(sigma, sym, |n, _, rec| {
+        nodes.par_near(sigma, sym, 1, |n, _, rec| {
             let v = node_vol[n];
             // One division per entry: σ̄ is symmetric to the bit, which `force_tiles`
             // relies on.
@@ -153,7 +155,6 @@ impl<'c, const D: usize> Solver<'c, D> {
                 }
             }
         });
-        self.block.ghost_copy(self.comm, sigma, sym);
         let mut scat = std::mem::take(&mut self.grid.scat);
         let nodes = self.nodes();
         by_pad!(D, nodes, force_tiles, &mut scat, sw, sigma);

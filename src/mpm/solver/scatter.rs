@@ -21,6 +21,13 @@ impl<'c, const D: usize> Solver<'c, D> {
         }
         self.scatter_pass(forces, kernel::Sums::Particles);
         if two {
+            // The ghosts get the summed averaged-stress sums and cover (and the moments
+            // between them), from which they form their own fill and σ̄ as their owners
+            // do: one exchange where copying the fill and then σ̄ took two.
+            let sw = self.grid.sw;
+            let first = NodeRecord::<D>::stress_sum(0, 0);
+            self.block
+                .ghost_copy_slots(self.comm, &mut self.grid.scat, sw, first..sw);
             self.domain_weights();
         }
     }

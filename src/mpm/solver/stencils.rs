@@ -206,6 +206,30 @@ impl<const D: usize> NodeView<'_, D> {
         });
     }
 
+    /// [`NodeView::par_owned`] over the stored nodes within `reach` nodes of the owned
+    /// box (the ghost layers out to `reach`): for passes that can form a ghost's value
+    /// from what the ghost holds, the same bits as its owner's, instead of copying it.
+    pub(super) fn par_near(
+        &self,
+        out: &mut [f64],
+        width: usize,
+        reach: usize,
+        f: impl Fn(usize, [usize; D], &mut [f64]) + Sync,
+    ) {
+        let tn = self.tiles.tile_nodes();
+        self.each_tile(out, width, |slot, recs| {
+            for (o, rec) in recs.chunks_exact_mut(width).enumerate() {
+                if let Some(c) = self.tiles.local(slot, o) {
+                    if (0..D)
+                        .all(|a| c[a] + reach >= self.own_lo[a] && c[a] < self.own_hi[a] + reach)
+                    {
+                        f(slot * tn + o, c, rec);
+                    }
+                }
+            }
+        });
+    }
+
     /// `f(slot, recs)` for every active tile with its records of `width` numbers in
     /// `out`, on rayon threads (in order on one).
     pub(super) fn each_tile(
