@@ -285,6 +285,34 @@ impl<const D: usize> Block<D> {
         h.lists = Lists::Dense;
     }
 
+    /// The exchange of a ghost sum (`copy` false: the ghosts' entries `slots` to their
+    /// owners) or a ghost copy (`copy` true: the owned nodes' to their ghosts), of
+    /// records of `width` numbers in `field`: what the peers sent lands in the halo's
+    /// receive buffers, in the order of the matching receive lists.
+    fn exchange_slots(
+        &mut self,
+        comm: &dyn Communicator,
+        field: &[f64],
+        width: usize,
+        slots: std::ops::Range<usize>,
+        copy: bool,
+    ) {
+        debug_assert!(slots.end <= width);
+        self.dense_lists();
+        let (lo, hi) = (slots.start, slots.end);
+        let h = &mut self.halo;
+        let lists = if copy { &h.copy_send } else { &h.sum_send };
+        for (k, nodes) in lists.iter().enumerate() {
+            let buf = &mut h.send[k];
+            buf.clear();
+            for &n in nodes {
+                buf.extend_from_slice(&field[n * width + lo..n * width + hi]);
+            }
+        }
+        h.traffic.record(self.rank, &h.peers, &h.send);
+        comm.exchange(&h.peers, &h.send, &mut h.recv);
+    }
+
     /// Add every ghost node's value into its owner's node, then leave ghosts as they were
     /// (call [`Block::ghost_copy`] if they must hold the sum too).
     pub fn ghost_sum(&mut self, comm: &dyn Communicator, field: &mut [f64], ncomp: usize) {
@@ -301,20 +329,9 @@ impl<const D: usize> Block<D> {
         width: usize,
         slots: std::ops::Range<usize>,
     ) {
-        debug_assert!(slots.end <= width);
-        self.dense_lists();
-        let (lo, hi) = (slots.start, slots.end);
-        let ncomp = hi - lo;
-        let h = &mut self.halo;
-        for (k, nodes) in h.sum_send.iter().enumerate() {
-            let buf = &mut h.send[k];
-            buf.clear();
-            for &n in nodes {
-                buf.extend_from_slice(&field[n * width + lo..n * width + hi]);
-            }
-        }
-        h.traffic.record(self.rank, &h.peers, &h.send);
-        comm.exchange(&h.peers, &h.send, &mut h.recv);
+        let (lo, ncomp) = (slots.start, slots.len());
+        self.exchange_slots(comm, field, width, slots, false);
+        let h = &self.halo;
         for (k, nodes) in h.sum_recv.iter().enumerate() {
             let buf = &h.recv[k];
             debug_assert_eq!(buf.len(), nodes.len() * ncomp);
@@ -341,20 +358,9 @@ impl<const D: usize> Block<D> {
         width: usize,
         slots: std::ops::Range<usize>,
     ) {
-        debug_assert!(slots.end <= width);
-        self.dense_lists();
-        let (lo, hi) = (slots.start, slots.end);
-        let ncomp = hi - lo;
-        let h = &mut self.halo;
-        for (k, nodes) in h.copy_send.iter().enumerate() {
-            let buf = &mut h.send[k];
-            buf.clear();
-            for &n in nodes {
-                buf.extend_from_slice(&field[n * width + lo..n * width + hi]);
-            }
-        }
-        h.traffic.record(self.rank, &h.peers, &h.send);
-        comm.exchange(&h.peers, &h.send, &mut h.recv);
+        let (lo, hi, ncomp) = (slots.start, slots.end, slots.len());
+        self.exchange_slots(comm, field, width, slots, true);
+        let h = &self.halo;
         for &n in &h.ghost_stored {
             field[n * width + lo..n * width + hi].fill(0.0);
         }
