@@ -106,6 +106,22 @@ where
     }
 }
 
+/// The first `n` entries of `inline`, or `heap` grown to `n` (with `fill`) where
+/// `inline` is too short: a scratch slice on the stack in the common case.
+fn first_n<'a, T>(
+    inline: &'a mut [T],
+    heap: &'a mut Vec<T>,
+    n: usize,
+    fill: impl FnMut() -> T,
+) -> &'a mut [T] {
+    if n <= inline.len() {
+        &mut inline[..n]
+    } else {
+        heap.resize_with(n, fill);
+        heap
+    }
+}
+
 impl MpiComm {
     /// Wrap a world communicator.
     pub fn new(world: mpi::topology::SimpleCommunicator) -> Self {
@@ -141,12 +157,7 @@ impl MpiComm {
         }
         let remote = peers.iter().filter(|&&p| p != me).count();
         let (mut pending_inline, mut pending_heap) = ([0usize; INLINE], Vec::new());
-        let pending: &mut [usize] = if remote <= INLINE {
-            &mut pending_inline[..remote]
-        } else {
-            pending_heap.resize(remote, 0);
-            &mut pending_heap
-        };
+        let pending = first_n(&mut pending_inline, &mut pending_heap, remote, || 0);
         for (slot, k) in pending
             .iter_mut()
             .zip((0..peers.len()).filter(|&k| peers[k] != me))
@@ -156,12 +167,7 @@ impl MpiComm {
         mpi::request::scope(|scope| {
             let (mut sent_inline, mut sent_heap): ([Option<_>; INLINE], _) =
                 (std::array::from_fn(|_| None), Vec::new());
-            let sent = if remote <= INLINE {
-                &mut sent_inline[..remote]
-            } else {
-                sent_heap.resize_with(remote, || None);
-                &mut sent_heap[..]
-            };
+            let sent = first_n(&mut sent_inline, &mut sent_heap, remote, || None);
             for (slot, &k) in sent.iter_mut().zip(pending.iter()) {
                 *slot = Some(
                     self.world

@@ -493,7 +493,8 @@ pub fn domain<const D: usize>(
             hi = hi.min((geom.cells[a] as i64 - c[a]) as f64);
         }
         let len = hi - lo;
-        let share = |u0: f64, u1: f64| if len > 0.0 { (u1 - u0) / len } else { 0.0 };
+        // (A piece in a neighbour exists only where the domain has a width.)
+        let share = |u0: f64, u1: f64| (u1 - u0) / len;
         let h = [geom.h[a], geom.inv_h[a]];
         // The piece in the particle's cell (a domain of zero width is its point there),
         // and the one in the neighbour it reaches: the cell below where ξ < ½, above
@@ -777,8 +778,8 @@ mod tests {
     }
 
     /// The domain rule's per-axis averages (the moments included) against a fine
-    /// midpoint sum over the domain cut at the grid's faces, at points inside, next to and on bounded faces,
-    /// on a periodic axis across its seam, with short and clamped half-widths; and the
+    /// midpoint sum over the domain cut at the grid's faces, at points inside, next to
+    /// and on bounded faces, on a periodic axis across its seam, with short and clamped half-widths; and the
     /// sums its identities rest on: `Σ avg N = 1`, `Σ avg N x_k` the domain's centre,
     /// `Σ avg(a N') = 0`.
     #[test]
