@@ -62,14 +62,18 @@ fn last_snapshot(out: &Path) -> PathBuf {
 /// Two bodies on a collision course in a periodic box: they move diagonally across
 /// every block boundary and through the periodic faces, then meet.
 /// `gradient` may end in `+xpic2`: that scheme with the XPIC(2) velocity update, or in
-/// `+domain`: MPMCG's domain rule.
+/// `+domain`: MPMCG's domain rule, or in `+centroid`: the domain rule with the centroid
+/// correction and sharpened averages.
 fn scene(dim: usize, gradient: &str) -> String {
     let (gradient, xpic) = match gradient.strip_suffix("+xpic2") {
         Some(g) => (g, "xpic = 2"),
         None => match gradient.strip_suffix("+domain") {
             Some(g) => (g, "quadrature = \"domain\""),
             None => match gradient.strip_suffix("+centroid") {
-                Some(g) => (g, "quadrature = \"domain\"\ncentroid_passes = 4"),
+                Some(g) => (
+                    g,
+                    "quadrature = \"domain\"\ncentroid_passes = 4\nsharpen = 2.0",
+                ),
                 None => (gradient, ""),
             },
         },
@@ -146,7 +150,8 @@ fn summary(out: &Path) -> serde_json::Value {
 /// For every scheme in 2D and 3D, MPMCG's domain rule (its particles reach a node
 /// further, as GIMP's do), the domain rule with the centroid correction (its passes
 /// copy velocities and tensors to the ghosts, its offsets are summed across the
-/// periodic faces) and MPMCG with XPIC(2) in 2D (its extra scatters are summed over ranks
+/// periodic faces) and sharpened averages (each sharpening reads the neighbours' values
+/// on the first ghost layer and copies its result to the ghosts) and MPMCG with XPIC(2) in 2D (its extra scatters are summed over ranks
 /// too): 2, 3 and 4 ranks reproduce the 1-rank final state to
 /// 1e-12 (relative to the domain size for positions and to the initial speed for
 /// velocities); the same rank count twice is bit-identical; mass and momentum agree.

@@ -226,8 +226,8 @@ fields = ["velocity", "stress", "displacement"]
 /// uninterrupted run, 2→1 and 1→3 within 1e-12; for the MMS, the crossing disks (with
 /// the null-space diagnostic's history column), the same disks under MPMCG's domain
 /// rule (its domains follow the restarted `F` and half-widths), with the centroid
-/// correction as well (its offsets are formed afresh each step, from the restarted
-/// positions) and brittle (failing, so their stored σ_zz matters).
+/// correction and sharpened averages as well (its offsets are formed afresh each step,
+/// from the restarted positions) and brittle (failing, so their stored σ_zz matters).
 #[test]
 fn restart_continues_the_run() {
     // The brittle crossing fails particles where the disks meet: their stored
@@ -254,7 +254,7 @@ fn restart_continues_the_run() {
             "centroid",
             crossing_scene(16, 1.2, "every = 0.6").replace(
                 "update = \"musl\"",
-                "update = \"musl\"\nquadrature = \"domain\"\ncentroid_passes = 4",
+                "update = \"musl\"\nquadrature = \"domain\"\ncentroid_passes = 4\nsharpen = 2.0",
             ),
         ),
         ("brittle", brittle),

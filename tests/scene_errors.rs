@@ -954,6 +954,18 @@ fn other_validation() {
     .key("method.centroid_passes")
     .says("cannot be combined: drop one of method.xpic and method.centroid_passes");
     check(
+        "sharpen_without_averages",
+        edit(BAR, "flip = 1.0", "flip = 1.0\nsharpen = 2.0"),
+    )
+    .key("method.sharpen")
+    .says("sharpening acts on the averaged gradient's nodal averages: use it with gradient = \"mpmcg\" or \"averaged\" (got \"mpm\")");
+    check(
+        "sharpen_out_of_range",
+        edit(DISKS, "flip = 1.0", "flip = 1.0\nsharpen = -1.0"),
+    )
+    .key("method.sharpen")
+    .says("must be a number in [0, 4] (0 = off), got -1");
+    check(
         "quadrature_name",
         edit(BAR, "flip = 1.0", "flip = 1.0\nquadrature = \"gauss\""),
     )

@@ -76,16 +76,19 @@ pub fn parse_cells(list: &str) -> Result<Vec<usize>, String> {
     Ok(cells)
 }
 
-/// A scheme a sweep runs: a gradient and its quadrature, named `mpmcg-domain` for
-/// MPMCG's domain rule and by the gradient otherwise (MPMCG at the particle).
+/// A scheme a sweep runs: a gradient, its quadrature and the sharpening of its nodal
+/// averages, named `mpmcg-domain` for MPMCG's domain rule, `mpmcg-sharp` for the domain
+/// rule with `sharpen = 2` and by the gradient otherwise (MPMCG at the particle).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Scheme {
     pub gradient: Gradient,
     pub quadrature: Quadrature,
+    /// β of `[method] sharpen`; 0 keeps the scene's own (off for one-step schemes).
+    pub sharpen: f64,
 }
 
 impl Scheme {
-    pub const ALL: [Scheme; 5] = [
+    pub const ALL: [Scheme; 6] = [
         Scheme::point(Gradient::Mpm),
         Scheme::point(Gradient::Gimp),
         Scheme::point(Gradient::Averaged),
@@ -93,6 +96,12 @@ impl Scheme {
         Scheme {
             gradient: Gradient::Mpmcg,
             quadrature: Quadrature::Domain,
+            sharpen: 0.0,
+        },
+        Scheme {
+            gradient: Gradient::Mpmcg,
+            quadrature: Quadrature::Domain,
+            sharpen: 2.0,
         },
     ];
 
@@ -100,13 +109,15 @@ impl Scheme {
         Scheme {
             gradient,
             quadrature: Quadrature::Point,
+            sharpen: 0.0,
         }
     }
 
     pub fn name(self) -> &'static str {
-        match self.quadrature {
-            Quadrature::Domain => "mpmcg-domain",
-            Quadrature::Point => self.gradient.name(),
+        match (self.quadrature, self.sharpen > 0.0) {
+            (Quadrature::Domain, true) => "mpmcg-sharp",
+            (Quadrature::Domain, false) => "mpmcg-domain",
+            (Quadrature::Point, _) => self.gradient.name(),
         }
     }
 }
@@ -182,6 +193,11 @@ pub fn scene_at(
     s.grid.cells = grid_at(&base.grid.cells, n)?;
     s.method.gradient = scheme.gradient;
     s.method.quadrature = scheme.quadrature;
+    if scheme.sharpen > 0.0 {
+        s.method.sharpen = scheme.sharpen;
+    } else if !matches!(scheme.gradient, Gradient::Mpmcg | Gradient::Averaged) {
+        s.method.sharpen = 0.0;
+    }
     if let Some(p) = ppc {
         for b in &mut s.bodies {
             b.particles_per_cell = p;

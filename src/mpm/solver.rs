@@ -206,6 +206,9 @@ pub struct Solver<'c, const D: usize> {
     xpic: Option<usize>,
     /// Passes of the centroid correction; 0 is off ([`Solver::centroid_velocity`]).
     centroid_passes: usize,
+    /// β of the sharpening of the nodal averages L̄ and σ̄ toward their consistent-mass
+    /// projection; 0 is off ([`NodeView::sharpen`]).
+    sharpen: f64,
     /// The null-space diagnostic's state, if the scene asks for its field.
     pub null_space: Option<NullSpace<D>>,
     grid: GridFields<D>,
@@ -245,6 +248,9 @@ struct GridFields<const D: usize> {
     cell_w: Vec<f64>,
     /// Per owned node: `V_j = ∫ w S_j dv`.
     node_vol: Vec<f64>,
+    /// Under sharpening, a copy of the averages being sharpened (`D²` or σ̄'s upper
+    /// triangle per node), which the pass reads its neighbours from; else empty.
+    sharp: Vec<f64>,
     /// `∫_c S_j ∇S_i dv` over one cell for its corners j (first index) and i (second).
     cell_k: [[[f64; D]; CORNERS]; CORNERS],
     /// `∫_c S_j S_i dv` over one cell for its corners j and i.
@@ -308,6 +314,7 @@ impl<const D: usize> GridFields<D> {
             fill: Vec::new(),
             cell_w: Vec::new(),
             node_vol: Vec::new(),
+            sharp: Vec::new(),
             cell_k: [[[0.0; D]; CORNERS]; CORNERS],
             cell_m: [[0.0; CORNERS]; CORNERS],
             cell_md: [[0.0; D]; CORNERS],

@@ -123,6 +123,9 @@ pub struct Summary {
     /// Passes of the centroid correction, when it is on.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub centroid_passes: Option<u32>,
+    /// β of the sharpening of the nodal averages, when it is on.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sharpen: Option<f64>,
     /// `SI`, or `dimensionless` for benchmark scenes (as in the snapshots).
     pub units: String,
     /// `completed`, `unstable` or `interrupted`.
@@ -251,6 +254,7 @@ impl<'a, const D: usize> Run<'a, D> {
             xpic: scene.method.xpic,
             centroid_passes: (scene.method.centroid_passes > 0)
                 .then_some(scene.method.centroid_passes),
+            sharpen: (scene.method.sharpen > 0.0).then_some(scene.method.sharpen),
             units: Labels::of::<D>(scene).units,
             status: String::new(),
             message: None,

@@ -183,6 +183,15 @@ pub struct Method {
     /// 0 (the default) is off: docs/schemes.md, "The centroid correction".
     #[serde(default, skip_serializing_if = "is_zero")]
     pub centroid_passes: u32,
+    /// β of the sharpening of the two-step schemes' nodal averages L̄ and σ̄,
+    /// `φ ← (1 + β) φ − β S φ` with `S` the consistent mass's smoothing: it cancels most
+    /// of their phase error. 0 (the default) is off: docs/schemes.md, "Sharpening".
+    #[serde(default, skip_serializing_if = "is_off")]
+    pub sharpen: f64,
+}
+
+fn is_off(x: &f64) -> bool {
+    *x == 0.0
 }
 
 fn is_zero(n: &u32) -> bool {
@@ -215,6 +224,7 @@ impl Default for Method {
             xpic: None,
             quadrature: Quadrature::Point,
             centroid_passes: 0,
+            sharpen: 0.0,
         }
     }
 }

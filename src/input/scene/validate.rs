@@ -17,6 +17,9 @@ pub const MAX_XPIC: u32 = 8;
 /// node whose centroid is more than a cell away the series does not converge, so many
 /// more passes would only let that node's error grow.
 pub const MAX_CENTROID_PASSES: u32 = 8;
+/// The largest sharpening `[method] sharpen` takes: beyond about 2.5 it over-corrects
+/// the phase error it removes (docs/schemes.md, "Sharpening").
+pub const MAX_SHARPEN: f64 = 4.0;
 
 fn finite(key: &str, x: f64) -> Result<(), Invalid> {
     if x.is_finite() {
@@ -210,6 +213,7 @@ fn validate_time(s: &Scene) -> Result<(), Invalid> {
 /// correction.
 fn validate_method(s: &Scene) -> Result<(), Invalid> {
     validate_centroid(s)?;
+    validate_sharpen(s)?;
     if s.method.quadrature == Quadrature::Domain && s.method.gradient != Gradient::Mpmcg {
         return Err((
             "method.quadrature".into(),
@@ -287,6 +291,29 @@ fn validate_centroid(s: &Scene) -> Result<(), Invalid> {
         return Err((
             key(),
             "the centroid correction and XPIC cannot be combined: drop one of method.xpic and method.centroid_passes".into(),
+        ));
+    }
+    Ok(())
+}
+
+/// `[method] sharpen`: it acts on the averaged gradient's nodal averages, so it needs a
+/// two-step scheme.
+fn validate_sharpen(s: &Scene) -> Result<(), Invalid> {
+    let b = s.method.sharpen;
+    let key = || "method.sharpen".to_string();
+    if !(0.0..=MAX_SHARPEN).contains(&b) {
+        return Err((
+            key(),
+            format!("must be a number in [0, {MAX_SHARPEN}] (0 = off), got {b}"),
+        ));
+    }
+    if b > 0.0 && !matches!(s.method.gradient, Gradient::Mpmcg | Gradient::Averaged) {
+        return Err((
+            key(),
+            format!(
+                "sharpening acts on the averaged gradient's nodal averages: use it with gradient = \"mpmcg\" or \"averaged\" (got \"{}\")",
+                s.method.gradient.name()
+            ),
         ));
     }
     Ok(())

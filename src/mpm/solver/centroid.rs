@@ -186,7 +186,7 @@ mod tests {
             .flat_map(|g| ["fixed", "slip", "free"].map(|f| (g, f)))
             .flat_map(|(g, f)| [0.0, 0.6].map(|j| (g, f, j)))
         {
-            let (fv, work) = powers(g, face, jitter, true, 2024, 4);
+            let (fv, work) = powers(g, face, (jitter, true), 2024, (4, 0.0));
             let rel = (fv - work).abs() / fv.abs().max(work.abs());
             assert!(
                 rel < 1e-12,

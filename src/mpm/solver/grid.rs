@@ -155,6 +155,19 @@ impl<'c, const D: usize> Solver<'c, D> {
                 }
             }
         });
+        if self.sharpen > 0.0 {
+            let mut sharp = std::mem::take(&mut self.grid.sharp);
+            let nodes = self.nodes();
+            nodes.sharpen(
+                (sigma, sym, sym),
+                self.sharpen,
+                &self.grid.node_vol,
+                &mut sharp,
+            );
+            self.grid.sharp = sharp;
+            // The force reads σ̄ on the first ghost layer.
+            self.block.ghost_copy(self.comm, sigma, sym);
+        }
         let mut scat = std::mem::take(&mut self.grid.scat);
         let nodes = self.nodes();
         by_pad!(D, nodes, force_tiles, &mut scat, sw, sigma);
@@ -213,6 +226,14 @@ impl<'c, const D: usize> Solver<'c, D> {
             &self.grid.node_vol
         );
         self.block.ghost_copy(self.comm, avg, aw);
+        if self.sharpen > 0.0 {
+            let mut sharp = std::mem::take(&mut self.grid.sharp);
+            let nodes = self.nodes();
+            let dd = D * D;
+            nodes.sharpen((avg, aw, dd), self.sharpen, &self.grid.node_vol, &mut sharp);
+            self.grid.sharp = sharp;
+            self.block.ghost_copy(self.comm, avg, aw);
+        }
         self.grid.scat = scat;
     }
 

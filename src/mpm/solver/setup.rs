@@ -74,6 +74,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             tiles,
             xpic: scene.method.xpic.map(|m| m as usize),
             centroid_passes: scene.method.centroid_passes as usize,
+            sharpen: scene.method.sharpen,
             null_space: scene
                 .snapshot_plan()
                 .filter(|o| o.fields.contains(&crate::input::scene::Field::NullVelocity))
@@ -142,6 +143,13 @@ impl<'c, const D: usize> Solver<'c, D> {
     pub(super) fn set_centroid_passes(&mut self, passes: usize) {
         self.centroid_passes = passes;
         self.resolve_phases();
+        self.setup_grid();
+    }
+
+    /// Replace the sharpening's β (tests), with the scratch that goes with it.
+    #[cfg(test)]
+    pub(super) fn set_sharpen(&mut self, beta: f64) {
+        self.sharpen = beta;
         self.setup_grid();
     }
 
@@ -217,6 +225,12 @@ impl<'c, const D: usize> Solver<'c, D> {
         fit(&mut self.grid.fill, n2);
         fit(&mut self.grid.cell_w, n2);
         fit(&mut self.grid.node_vol, n2);
+        let ns = if two && self.sharpen > 0.0 {
+            nn * (D * D).max(NodeRecord::<D>::SYM)
+        } else {
+            0
+        };
+        fit(&mut self.grid.sharp, ns);
     }
 
     /// Activate the tiles the particles' nodes lie in (GIMP reaches one node below

@@ -206,6 +206,58 @@ impl<const D: usize> NodeView<'_, D> {
         });
     }
 
+    /// The sharpening of a two-step scheme's nodal averages ([`Solver::sharpen`]) on the
+    /// owned nodes: the first `comps` numbers `φ` of each record of `width` in `field`
+    /// become `(1 + β) φ_j − β (S φ)_j`, where `(S φ)_j = (1/V_j) Σ_i φ_i ∫ w S_j S_i dv`
+    /// is the consistent mass's smoothing (`node_vol` holds `V_j`). It reads the
+    /// neighbours' values from a copy in `scratch`, so the ghosts must hold theirs
+    /// (their first layer), and it leaves nodes without volume, where `φ` is 0, as they
+    /// are. `S` keeps constants, so fields of linear motion are unchanged.
+    pub(super) fn sharpen(
+        &self,
+        (field, width, comps): (&mut [f64], usize, usize),
+        beta: f64,
+        node_vol: &[f64],
+        scratch: &mut [f64],
+    ) {
+        let nn = node_vol.len();
+        for (dst, rec) in scratch[..nn * comps]
+            .chunks_exact_mut(comps)
+            .zip(field.chunks_exact(width))
+        {
+            dst.copy_from_slice(&rec[..comps]);
+        }
+        let src = &scratch[..nn * comps];
+        self.par_owned(field, width, |n, c, rec| {
+            let v = node_vol[n];
+            if v <= 0.0 {
+                return;
+            }
+            // The cells around the node, corners in order (as in `domain_weights`),
+            // then each cell's corners i with their share `w_c ∫_c S_j S_i dv`.
+            let mut cells = [0; 8];
+            self.tiles.octant(n, false, &mut cells);
+            let mut smooth = [0.0; 9];
+            for (q, &cell) in cells[..1 << D].iter().enumerate() {
+                let w = self.cell_w[cell];
+                if !((0..D).all(|a| c[a] >= (q >> a) & 1) && w > 0.0) {
+                    continue;
+                }
+                let mut corners = [0; 8];
+                self.tiles.octant(cell, true, &mut corners);
+                for (r, &i) in corners[..1 << D].iter().enumerate() {
+                    let m = w * self.cell_m[q][r];
+                    for (t, x) in smooth[..comps].iter_mut().enumerate() {
+                        *x += m * src[i * comps + t];
+                    }
+                }
+            }
+            for t in 0..comps {
+                rec[t] = (1.0 + beta) * src[n * comps + t] - beta * (smooth[t] / v);
+            }
+        });
+    }
+
     /// [`NodeView::par_owned`] over the stored nodes within `reach` nodes of the owned
     /// box (the ghost layers out to `reach`): for passes that can form a ghost's value
     /// from what the ghost holds, the same bits as its owner's, instead of copying it.
@@ -763,17 +815,18 @@ particles_per_cell = 3
     /// (Σ f·v, −Σ V σ:L) for random stresses and volumes, positions jittered by up to
     /// `jitter` cells (partly filled cells, an irregular Ω) and a random grid velocity,
     /// with the boundary conditions applied to it if `bc`; with `passes` of the
-    /// centroid correction on the force and the velocity the gradient reads.
+    /// centroid correction on the force and the velocity the gradient reads, and the
+    /// nodal averages sharpened by `sharpen`.
     pub(in crate::mpm::solver) fn powers(
         gradient: &str,
         x_lower: &str,
-        jitter: f64,
-        bc: bool,
+        (jitter, bc): (f64, bool),
         seed: u64,
-        passes: usize,
+        (passes, sharpen): (usize, f64),
     ) -> (f64, f64) {
         let (mut s, mut rng) = stressed_beam(gradient, x_lower, jitter, seed);
         s.set_centroid_passes(passes);
+        s.set_sharpen(sharpen);
         s.scatter(true, true);
         if passes > 0 {
             s.centroid_offsets();
@@ -866,14 +919,21 @@ particles_per_cell = 3
     /// too. This holds because a cell weighs 0 as soon as one of its corners carries
     /// no mass; a domain reaching one cell beyond the material (e.g. the weight
     /// `Σ_k φ_k S_k`) would read the zero velocity of massless nodes there and strain a
-    /// translating body.
+    /// translating body. Sharpened averages too: the smoothing `S` keeps the constant
+    /// L̄ of a linear field, on the surface nodes as well.
     #[test]
     pub(super) fn linear_velocity_fields_are_differentiated_exactly() {
         let w = [[0.3, -1.1], [0.7, 0.2]];
         let c = [2.0, -3.0];
-        for g in ["mpm", "averaged", "mpmcg"] {
+        for (g, sharpen) in [
+            ("mpm", 0.0),
+            ("averaged", 0.0),
+            ("mpmcg", 0.0),
+            ("mpmcg", 2.0),
+        ] {
             for jitter in [0.0, 0.9] {
                 let mut s = beam(g, "free", jitter, &mut Rng(99));
+                s.set_sharpen(sharpen);
                 s.scatter(false, true);
                 let mut vel = vec![0.0; s.tiles.nodes() * 4];
                 let mut owned = Vec::new();
@@ -903,7 +963,10 @@ particles_per_cell = 3
                         }
                     }
                 }
-                assert!(worst < 1e-12, "{g} jitter {jitter}: |L − W| = {worst:e}");
+                assert!(
+                    worst < 1e-12,
+                    "{g} sharpen {sharpen} jitter {jitter}: |L − W| = {worst:e}"
+                );
             }
         }
     }
@@ -977,14 +1040,19 @@ particles_per_cell = 3
 
     #[test]
     pub(super) fn internal_force_is_adjoint_of_velocity_gradient() {
-        for g in ["mpm", "averaged", "mpmcg"] {
+        for (g, sharpen) in [
+            ("mpm", 0.0),
+            ("averaged", 0.0),
+            ("mpmcg", 0.0),
+            ("mpmcg", 2.0),
+        ] {
             for face in ["fixed", "slip", "free"] {
                 for (jitter, bc) in [(0.0, false), (0.0, true), (0.6, false), (0.6, true)] {
-                    let (a, b) = powers(g, face, jitter, bc, 12345, 0);
+                    let (a, b) = powers(g, face, (jitter, bc), 12345, (0, sharpen));
                     let rel = (a - b).abs() / a.abs().max(b.abs());
                     assert!(
                         rel < 1e-12,
-                        "{g} {face} jitter {jitter} bc {bc}: {a} vs {b}"
+                        "{g} sharpen {sharpen} {face} jitter {jitter} bc {bc}: {a} vs {b}"
                     );
                 }
             }
@@ -1028,70 +1096,77 @@ particles_per_cell = 3
     /// jittered by up to 0.9 cells so that surface cells are partly filled: a linear
     /// grid velocity gives every particle its gradient `W` to round-off, and the nodal
     /// forces are the adjoint of the particles' velocity gradients for random
-    /// deformation gradients (neo-Hookean stress) and a random grid velocity.
+    /// deformation gradients (neo-Hookean stress) and a random grid velocity; with
+    /// the nodal averages sharpened too.
     #[test]
     pub(super) fn stencils_in_3d_are_exact_and_adjoint() {
-        let (mut s, mut rng) = jittered_box_3d(31);
-        s.scatter(true, true);
-        s.averaged_force();
-        // The records as the grid update reads them: L̄ is formed in their storage.
-        let records = s.grid.scat.clone();
-        let mut owned = Vec::new();
-        s.for_owned(|n, c| owned.push((n, c)));
-        let w = [[0.3, -1.1, 0.4], [0.7, 0.2, -0.5], [-0.6, 0.9, 0.1]];
-        let mut worst = 0.0f64;
-        let mut sides = [0.0; 2];
-        for linear in [true, false] {
-            let mut vel = vec![0.0; s.tiles.nodes() * 6];
-            for &(n, ci) in &owned {
-                if records[n * s.grid.sw + NodeRecord::<3>::MASS] > s.grid.mass_floor {
-                    let node = std::array::from_fn(|a| s.block.node_lo[a] + ci[a] as i64);
-                    let x = s.geom.node_position(node);
-                    for a in 0..3 {
-                        let v = if linear {
-                            w[a][0] * x[0] + w[a][1] * x[1] + w[a][2] * x[2] + 0.5
-                        } else {
-                            rng.f64() - 0.5
-                        };
-                        vel[n * 6 + a] = v;
-                        vel[n * 6 + 3 + a] = v;
-                    }
-                }
-            }
-            s.block.ghost_copy(s.comm, &mut vel, 6);
-            s.grid.vel = vel;
-            s.averaged_velocity_gradient(1);
-            let mut work = 0.0;
-            for p in 0..s.parts.len() {
-                let l = gradient_at_3d(&s, p);
-                if linear {
-                    for a in 0..3 {
-                        for b in 0..3 {
-                            worst = worst.max((l[(a, b)] - w[a][b]).abs());
+        for sharpen in [0.0, 2.0] {
+            let (mut s, mut rng) = jittered_box_3d(31);
+            s.set_sharpen(sharpen);
+            s.scatter(true, true);
+            s.averaged_force();
+            // The records as the grid update reads them: L̄ is formed in their storage.
+            let records = s.grid.scat.clone();
+            let mut owned = Vec::new();
+            s.for_owned(|n, c| owned.push((n, c)));
+            let w = [[0.3, -1.1, 0.4], [0.7, 0.2, -0.5], [-0.6, 0.9, 0.1]];
+            let mut worst = 0.0f64;
+            let mut sides = [0.0; 2];
+            for linear in [true, false] {
+                let mut vel = vec![0.0; s.tiles.nodes() * 6];
+                for &(n, ci) in &owned {
+                    if records[n * s.grid.sw + NodeRecord::<3>::MASS] > s.grid.mass_floor {
+                        let node = std::array::from_fn(|a| s.block.node_lo[a] + ci[a] as i64);
+                        let x = s.geom.node_position(node);
+                        for a in 0..3 {
+                            let v = if linear {
+                                w[a][0] * x[0] + w[a][1] * x[1] + w[a][2] * x[2] + 0.5
+                            } else {
+                                rng.f64() - 0.5
+                            };
+                            vel[n * 6 + a] = v;
+                            vel[n * 6 + 3 + a] = v;
                         }
                     }
-                } else {
-                    let sigma = s.materials[0].stress_of_def_grad(&s.parts.def_grad[p]);
-                    let vol = s.parts.volume(p, &s.kinds.vol0);
-                    work -= vol * sigma.component_mul(&l).sum();
                 }
-            }
-            if !linear {
-                let mut fv = 0.0;
-                for &(n, _) in &owned {
-                    for a in 0..3 {
-                        fv += records[n * s.grid.sw + NodeRecord::<3>::force(a)]
-                            * s.grid.vel[n * 6 + 3 + a];
+                s.block.ghost_copy(s.comm, &mut vel, 6);
+                s.grid.vel = vel;
+                s.averaged_velocity_gradient(1);
+                let mut work = 0.0;
+                for p in 0..s.parts.len() {
+                    let l = gradient_at_3d(&s, p);
+                    if linear {
+                        for a in 0..3 {
+                            for b in 0..3 {
+                                worst = worst.max((l[(a, b)] - w[a][b]).abs());
+                            }
+                        }
+                    } else {
+                        let sigma = s.materials[0].stress_of_def_grad(&s.parts.def_grad[p]);
+                        let vol = s.parts.volume(p, &s.kinds.vol0);
+                        work -= vol * sigma.component_mul(&l).sum();
                     }
                 }
-                sides = [fv, work];
+                if !linear {
+                    let mut fv = 0.0;
+                    for &(n, _) in &owned {
+                        for a in 0..3 {
+                            fv += records[n * s.grid.sw + NodeRecord::<3>::force(a)]
+                                * s.grid.vel[n * 6 + 3 + a];
+                        }
+                    }
+                    sides = [fv, work];
+                }
             }
+            assert!(worst < 1e-12, "sharpen {sharpen}: |L − W| = {worst:e}");
+            let [fv, work] = sides;
+            let rel = (fv - work).abs() / fv.abs().max(work.abs());
+            assert!(
+                rel < 1e-12,
+                "sharpen {sharpen}: Σ f·v = {fv}, −Σ V σ:L = {work}"
+            );
+            assert!(fv.abs() > 1e-3, "a test with work in it: {fv}");
         }
-        assert!(worst < 1e-12, "|L − W| = {worst:e}");
-        let [fv, work] = sides;
-        let rel = (fv - work).abs() / fv.abs().max(work.abs());
-        assert!(rel < 1e-12, "Σ f·v = {fv}, −Σ V σ:L = {work}");
-        assert!(fv.abs() > 1e-3, "a test with work in it: {fv}");
     }
 }
 
