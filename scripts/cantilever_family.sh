@@ -15,6 +15,7 @@
 #   XPIC=2         update particle velocities by XPIC of this order instead of FLIP
 #                  ([method] xpic, README: The cantilever family)
 #   QUADRATURE=domain  MPMCG's domain rule ([method] quadrature; MPM ignores it)
+#   SHARPEN=2      sharpening of MPMCG's nodal averages ([method] sharpen; MPM ignores it)
 #   CENTROID=4     passes of the centroid correction ([method] centroid_passes, MPMCG
 #                  only; MPM ignores it)
 #   SCHEMES=mpmcg  the gradients to run (default "mpm mpmcg")
@@ -67,13 +68,16 @@ variant() {
 }
 
 # with_method FILE: the particle velocity update as XPIC=ORDER asks, and MPMCG's
-# quadrature and centroid correction as QUADRATURE and CENTROID ask.
+# quadrature, sharpening and centroid correction as QUADRATURE, SHARPEN and CENTROID ask.
 with_method() {
     if [ -n "${XPIC:-}" ]; then
         sed -i "s/^\[method\]/[method]\nxpic = $XPIC/" "$1"
     fi
     if [ -n "${QUADRATURE:-}" ] && grep -q '^gradient = "mpmcg"' "$1"; then
         sed -i "s/^\[method\]/[method]\nquadrature = \"$QUADRATURE\"/" "$1"
+    fi
+    if [ -n "${SHARPEN:-}" ] && grep -q '^gradient = "mpmcg"' "$1"; then
+        sed -i "s/^\[method\]/[method]\nsharpen = $SHARPEN/" "$1"
     fi
     if [ -n "${CENTROID:-}" ] && grep -q '^gradient = "mpmcg"' "$1"; then
         sed -i "s/^\[method\]/[method]\ncentroid_passes = $CENTROID/" "$1"

@@ -14,7 +14,7 @@ A rigid rotation has no strain, so what strain energy the disk gains is the sche
   stress) and compares.
 
 Usage: /usr/bin/python3 scripts/spinning_disk.py [--gradient mpmcg] [--ppc 2]
-       [--quadrature point|domain] [--centroid K] [--end 100 | --one-step] [--mpmcg BIN]
+       [--quadrature point|domain] [--centroid K] [--sharpen B] [--end 100 | --one-step] [--mpmcg BIN]
 Needs h5py (Debian: python3-h5py) for --one-step.
 """
 import argparse
@@ -104,6 +104,7 @@ def main():
     ap.add_argument("--ppc", type=int, default=2)
     ap.add_argument("--quadrature", default="point", choices=("point", "domain"))
     ap.add_argument("--centroid", type=int, default=0, help="[method] centroid_passes")
+    ap.add_argument("--sharpen", type=float, default=0.0, help="[method] sharpen")
     ap.add_argument("--end", type=float, default=100.0)
     ap.add_argument("--one-step", action="store_true")
     ap.add_argument("--mpmcg", default=os.path.join(os.path.dirname(__file__), "..", "target", "release", "mpmcg"))
@@ -112,7 +113,8 @@ def main():
     text = SCENE.format(
         end=end, gradient=a.gradient, ppc=a.ppc,
         quadrature=(f'quadrature = "{a.quadrature}"' if a.quadrature != "point" else "")
-        + (f"\ncentroid_passes = {a.centroid}" if a.centroid else ""),
+        + (f"\ncentroid_passes = {a.centroid}" if a.centroid else "")
+        + (f"\nsharpen = {a.sharpen}" if a.sharpen else ""),
         every=end if a.one_step else 10.0,
         fields='fields = ["stress"]' if a.one_step else "")
     with tempfile.TemporaryDirectory() as tmp:
@@ -122,7 +124,8 @@ def main():
             f.write(text)
         subprocess.run([a.mpmcg, "run", scene, "--out", out, "--quiet", "--threads", "1"], check=True)
         print(f"{a.gradient}, {a.ppc} x {a.ppc} per cell, {a.quadrature} rule"
-              + (f", {a.centroid} centroid passes" if a.centroid else ""))
+              + (f", {a.centroid} centroid passes" if a.centroid else "")
+              + (f", sharpened by {a.sharpen}" if a.sharpen else ""))
         if a.one_step:
             import h5py
             import numpy as np

@@ -12,7 +12,11 @@ reference positions, the t = 0 snapshot's, where the exact motion has not moved 
   the largest shear `R dα/dR` and principal stretch of that motion; the median radius;
 - the snapshot with the largest error: its root mean square by radial band of the
   reference ring, each band's share of the squared error, and the outer band's mean
-  radial and tangential error.
+  radial and tangential error;
+- the error's rigid part, the ring turned as a whole (`rot`, the least-squares angle of
+  the particles' tangential errors), and the root mean square of the rest (`rest`), at
+  every snapshot and the largest over them: the rigid part is what the particles' total
+  angular momentum got wrong.
 
 Usage: /usr/bin/python3 scripts/vortex_where.py RUN_DIR --cells N [--amplitude 0.1]
 Needs h5py (Debian: python3-h5py).
@@ -67,17 +71,25 @@ def main():
         return np.stack([radius * np.cos(theta + al), radius * np.sin(theta + al)], 1), turn, al
 
     print(f"{n} cells, {len(x0)} particles, {inside.sum()} cells inside the ring")
-    print("     t     error  holes  exact-motion holes  shear  stretch  median r")
+    print("     t     error  holes  exact-motion holes  shear  stretch  median r       rot      rest")
     worst = None
+    rest_max = 0.0
     for t, x in snaps:
         xe, turn, al = exact(t)
         shear = np.abs(radius * turn * slope).max()
         stretch = shear / 2 + np.sqrt(1 + shear * shear / 4)
         e = errors[np.argmin(np.abs(times - t))]
-        print(f"{t:6.3f} {e:9.2e} {holes(x):6d} {holes(xe):19d} {shear:6.2f} {stretch:8.2f} {np.median(np.hypot(*x.T)):9.3f}")
+        d = x - xe
+        r = np.hypot(*xe.T)
+        rot = (d[:, 1] * xe[:, 0] - d[:, 0] * xe[:, 1]).sum() / (r * r).sum()
+        rest = np.sqrt(((d - rot * np.stack([-xe[:, 1], xe[:, 0]], 1)) ** 2).sum(1).mean())
+        rest_max = max(rest_max, rest)
+        print(f"{t:6.3f} {e:9.2e} {holes(x):6d} {holes(xe):19d} {shear:6.2f} {stretch:8.2f} "
+              f"{np.median(np.hypot(*x.T)):9.3f} {rot:+9.2e} {rest:9.2e}")
         e2 = ((x - xe) ** 2).sum(1)
         if worst is None or e2.mean() > worst[1].mean():
             worst = (t, e2, x, al)
+    print(f"largest rms error less the rigid turn over the snapshots: {rest_max:.2e}")
     t, e2, x, al = worst
     bands = np.linspace(0.75, 1.25, 6)
     k = np.clip(np.digitize(radius, bands) - 1, 0, 4)
