@@ -345,15 +345,22 @@ fn shared_cells<const D: usize>(j: [i64; D], i: [i64; D]) -> Vec<[i64; D]> {
 
 /// `V_j = ∫_Ω w S_j dv` (w the cell weights of Ω).
 pub fn node_volume<const D: usize>(geom: &Geom<D>, omega: &Domain<D>, j: [i64; D]) -> f64 {
-    shared_cells(j, j)
+    weighted_integral(geom, omega, shared_cells(j, j), |y| {
+        (0..D).map(|a| hat(geom, a, j[a], y[a])).product()
+    })
+}
+
+/// `Σ_c w_c ∫_c f dv` over those of `cells` that are in Ω.
+fn weighted_integral<const D: usize>(
+    geom: &Geom<D>,
+    omega: &Domain<D>,
+    cells: Vec<[i64; D]>,
+    f: impl Fn(&[f64; D]) -> f64,
+) -> f64 {
+    cells
         .into_iter()
         .filter(|&c| omega.contains(geom, c))
-        .map(|c| {
-            omega.weight(geom, c)
-                * cell_quadrature(geom, c, |y| {
-                    [(0..D).map(|a| hat(geom, a, j[a], y[a])).product::<f64>()]
-                })[0]
-        })
+        .map(|c| omega.weight(geom, c) * cell_quadrature(geom, c, |y| [f(y)])[0])
         .sum()
 }
 
@@ -396,18 +403,11 @@ pub fn mass_integral<const D: usize>(
     j: [i64; D],
     k: [i64; D],
 ) -> f64 {
-    shared_cells(j, k)
-        .into_iter()
-        .filter(|&c| omega.contains(geom, c))
-        .map(|c| {
-            omega.weight(geom, c)
-                * cell_quadrature(geom, c, |y| {
-                    [(0..D)
-                        .map(|a| hat(geom, a, j[a], y[a]) * hat(geom, a, k[a], y[a]))
-                        .product::<f64>()]
-                })[0]
-        })
-        .sum()
+    weighted_integral(geom, omega, shared_cells(j, k), |y| {
+        (0..D)
+            .map(|a| hat(geom, a, j[a], y[a]) * hat(geom, a, k[a], y[a]))
+            .product()
+    })
 }
 
 /// The sharpening of nodal averages at node `j` (`[method] sharpen = β`): the nodes `k`

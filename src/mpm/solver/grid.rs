@@ -155,24 +155,29 @@ impl<'c, const D: usize> Solver<'c, D> {
                 }
             }
         });
-        if self.sharpen > 0.0 {
-            let mut sharp = std::mem::take(&mut self.grid.sharp);
-            let nodes = self.nodes();
-            nodes.sharpen(
-                (sigma, sym, sym),
-                self.sharpen,
-                &self.grid.node_vol,
-                &mut sharp,
-            );
-            self.grid.sharp = sharp;
-            // The force reads σ̄ on the first ghost layer.
-            self.block.ghost_copy(self.comm, sigma, sym);
-        }
+        // (The force reads σ̄ on the first ghost layer, which the sharpening's ghost copy
+        // refills.)
+        self.sharpen_averages((sigma, sym, sym));
         let mut scat = std::mem::take(&mut self.grid.scat);
         let nodes = self.nodes();
         by_pad!(D, nodes, force_tiles, &mut scat, sw, sigma);
         self.grid.scat = scat;
         self.grid.vel = vel;
+    }
+
+    /// Under `[method] sharpen`, the first `comps` numbers of each record of `width` in
+    /// `field` (nodal averages whose ghosts hold theirs) sharpened on the owned nodes
+    /// ([`NodeView::sharpen`]) and then copied to the ghosts; else nothing.
+    fn sharpen_averages(&mut self, (field, width, comps): (&mut [f64], usize, usize)) {
+        if self.sharpen <= 0.0 {
+            return;
+        }
+        let mut sharp = std::mem::take(&mut self.grid.sharp);
+        let nodes = self.nodes();
+        let node_vol = &self.grid.node_vol;
+        nodes.sharpen((field, width, comps), self.sharpen, node_vol, &mut sharp);
+        self.grid.sharp = sharp;
+        self.block.ghost_copy(self.comm, field, width);
     }
 
     /// Grid velocities from momentum (and, if `dt > 0`, forces), with boundary
@@ -226,14 +231,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             &self.grid.node_vol
         );
         self.block.ghost_copy(self.comm, avg, aw);
-        if self.sharpen > 0.0 {
-            let mut sharp = std::mem::take(&mut self.grid.sharp);
-            let nodes = self.nodes();
-            let dd = D * D;
-            nodes.sharpen((avg, aw, dd), self.sharpen, &self.grid.node_vol, &mut sharp);
-            self.grid.sharp = sharp;
-            self.block.ghost_copy(self.comm, avg, aw);
-        }
+        self.sharpen_averages((avg, aw, D * D));
         self.grid.scat = scat;
     }
 

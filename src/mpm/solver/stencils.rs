@@ -206,7 +206,7 @@ impl<const D: usize> NodeView<'_, D> {
         });
     }
 
-    /// The sharpening of a two-step scheme's nodal averages ([`Solver::sharpen`]) on the
+    /// The sharpening of a two-step scheme's nodal averages (`[method] sharpen`) on the
     /// owned nodes: the first `comps` numbers `φ` of each record of `width` in `field`
     /// become `(1 + β) φ_j − β (S φ)_j`, where `(S φ)_j = (1/V_j) Σ_i φ_i ∫ w S_j S_i dv`
     /// is the consistent mass's smoothing (`node_vol` holds `V_j`). It reads the
