@@ -227,7 +227,8 @@ fields = ["velocity", "stress", "displacement"]
 /// the null-space diagnostic's history column), the same disks under MPMCG's domain
 /// rule (its domains follow the restarted `F` and half-widths), with the centroid
 /// correction and sharpened averages as well (its offsets are formed afresh each step,
-/// from the restarted positions) and brittle (failing, so their stored σ_zz matters).
+/// from the restarted positions) and the disks seeded `cut` (particles of partial kinds,
+/// which the checkpoint names) and brittle (failing, so their stored σ_zz matters).
 #[test]
 fn restart_continues_the_run() {
     // The brittle crossing fails particles where the disks meet: their stored
@@ -255,7 +256,8 @@ fn restart_continues_the_run() {
             crossing_scene(16, 1.2, "every = 0.6").replace(
                 "update = \"musl\"",
                 "update = \"musl\"\nquadrature = \"domain\"\ncentroid_passes = 4\nsharpen = 2.0",
-            ),
+            )
+            .replace("[[bodies]]", "[[bodies]]\nseeding = \"cut\""),
         ),
         ("brittle", brittle),
     ] {

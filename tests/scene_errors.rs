@@ -871,7 +871,7 @@ fn other_validation() {
     };
     check("kinds_too_many", kinds(65536))
         .key("bodies")
-        .says("the bodies seed 65537 kinds of particle (distinct pairs of material and particles_per_cell); at most 65536");
+        .says("the bodies seed 65537 kinds of particle (distinct material, particles_per_cell and, seeded `cut`, share of a box); at most 65536");
     // `..` and `.` name a folder outside `out/` or `out/` itself.
     for (tag, name) in [
         ("name_dotdot", ".."),
@@ -965,6 +965,13 @@ fn other_validation() {
     )
     .key("method.sharpen")
     .says("must be a number in [0, 4] (0 = off), got -1");
+    check(
+        "seeding_name",
+        edit(DISKS, "[[bodies]]", "[[bodies]]\nseeding = \"area\""),
+    )
+    .key("bodies[0].seeding")
+    .at("\"area\"")
+    .says("unknown variant `area`, expected `lattice` or `cut`");
     check(
         "quadrature_name",
         edit(BAR, "flip = 1.0", "flip = 1.0\nquadrature = \"gauss\""),

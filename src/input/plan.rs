@@ -60,13 +60,34 @@ pub enum CheckpointEvery {
 }
 
 /// A kind of particle: the particles of one material seeded with one count per cell
-/// share their reference volume and mass, which they need not store each.
+/// and the same share of their lattice box share their reference volume and mass,
+/// which they need not store each.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct KindPlan {
     /// The index of its material in [`Plan::materials`].
     pub material: usize,
     /// Particles per cell per axis.
     pub particles_per_cell: usize,
+    /// The share of its lattice box its volume is, in [`cut_levels`]ths: all of it
+    /// unless the body is seeded `cut` and the particle's box is cut by the surface.
+    pub share: u32,
+}
+
+/// Points per axis of the sub-lattice that measures the part of a particle's box inside
+/// a shape (`seeding = "cut"`): a box's share is known in `cut_samples^dim`ths, 256 in
+/// 1D and 2D and 512 in 3D, which bounds the kinds such a body adds.
+pub const fn cut_samples(dim: usize) -> u32 {
+    match dim {
+        1 => 256,
+        2 => 16,
+        _ => 8,
+    }
+}
+
+/// The shares of a lattice box a cut particle may have, `cut_samples(dim)^dim`: a whole
+/// box is `cut_levels(dim)` of them.
+pub const fn cut_levels(dim: usize) -> u32 {
+    cut_samples(dim).pow(dim as u32)
 }
 
 /// Kinds a scene may have: a particle stores its kind's index in 16 bits.
@@ -81,8 +102,11 @@ pub struct Plan {
     /// The kinds of particle the bodies seed: each distinct pair of material and
     /// particles per cell, in the order the bodies first name it.
     pub kinds: Vec<KindPlan>,
-    /// Per `[[bodies]]` entry: the index of its kind in `kinds`.
+    /// Per `[[bodies]]` entry: the index of its kind in `kinds` (whole boxes).
     pub body_kind: Vec<usize>,
+    /// Per `[[bodies]]` entry seeded `cut`: the index in `kinds` of its particles of
+    /// share 1, followed by those of shares 2 to `cut_levels − 1` in order.
+    pub body_cut_kinds: Vec<Option<usize>>,
     pub benchmark: Option<BenchmarkPlan>,
     pub checkpoint: Option<CheckpointEvery>,
 }

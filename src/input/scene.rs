@@ -13,7 +13,7 @@ mod validate;
 pub use schema::{
     Balance, BenchmarkKind, BenchmarkSpec, BodySpec, Boundary, CheckpointSpec, Face, Field,
     Gradient, Gravity, GridSpec, MaterialSpec, Method, Model, Output, Parallel, Quadrature, Scene,
-    Shape, SnapshotPlan, Strain, Time, Update, VelocityGradient,
+    Seeding, Shape, SnapshotPlan, Strain, Time, Update, VelocityGradient,
 };
 pub use validate::{MAX_CELLS_PER_AXIS, MAX_OUTPUTS, MAX_STEPS, MAX_XPIC};
 

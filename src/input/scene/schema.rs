@@ -373,6 +373,26 @@ pub struct BodySpec {
     pub velocity: Option<Vec<f64>>,
     /// A linear initial velocity field added to `velocity`: `v += value · (x − about)`.
     pub velocity_gradient: Option<VelocityGradient>,
+    /// How the particles of the cells the shape's surface cuts are made.
+    #[serde(default)]
+    pub seeding: Seeding,
+}
+
+/// How a body's particles are seeded: each sits in its own box of the lattice, `1/n`
+/// of a cell per axis for `n` particles per cell.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Seeding {
+    /// A particle of the box's full volume at its centre, where the centre lies in the
+    /// shape: a curved surface is seeded as a staircase, and the body's volume is the
+    /// shape's only to first order in the spacing.
+    #[default]
+    Lattice,
+    /// A particle of the volume of the box's part inside the shape, at that part's
+    /// centroid (both from a sub-lattice of the box, [`crate::input::plan::cut_samples`]
+    /// points per axis): the body has the shape's volume, centroid and moments of inertia
+    /// to second order. Boxes of the interior are seeded as `lattice` seeds them.
+    Cut,
 }
 
 #[derive(Debug, Clone, Deserialize, Serialize)]

@@ -135,7 +135,11 @@ pub(super) fn validate(s: &Scene) -> Result<Plan, Invalid> {
     validate_grid(s)?;
     let materials = validate_materials(s)?;
     let body_material = validate_bodies(s)?;
-    let (kinds, body_kind) = kinds_of(s, &body_material)?;
+    let bodies::BodyKinds {
+        kinds,
+        body_kind,
+        body_cut_kinds,
+    } = kinds_of(s, &body_material)?;
     let benchmark = validate_benchmark_table(s)?;
     if let Some(gr) = &s.gravity {
         vector("gravity.value", &gr.value, s.dim)?;
@@ -147,6 +151,7 @@ pub(super) fn validate(s: &Scene) -> Result<Plan, Invalid> {
         materials,
         kinds,
         body_kind,
+        body_cut_kinds,
         benchmark,
         checkpoint,
     })

@@ -2,7 +2,7 @@
 //! a particle's mass and volume from them, and the stress of its kind's material.
 
 use super::Particles;
-use crate::input::plan::KindPlan;
+use crate::input::plan::{cut_levels, KindPlan};
 use crate::input::scene::Scene;
 use crate::physics::material::Material;
 use crate::physics::shape::Geom;
@@ -147,7 +147,7 @@ pub struct Kinds {
     /// Per kind: the index of its material in the scene's `[[materials]]`.
     pub material: Vec<u16>,
     /// Per kind: the reference volume of each particle, the cell's volume over the
-    /// particles per cell.
+    /// particles per cell, times its share of its box.
     pub vol0: Vec<f64>,
     /// Per kind: the mass of each particle, its material's density times `vol0` (the
     /// product seeding formed when particles stored it: the same bits).
@@ -162,9 +162,15 @@ impl Kinds {
     }
 
     pub fn new<const D: usize>(kinds: &[KindPlan], geom: &Geom<D>, materials: &[Material]) -> Self {
+        // A whole box's share is exactly 1: its volume keeps the bits it had before
+        // kinds had shares.
+        let levels = f64::from(cut_levels(D));
         let vol0: Vec<f64> = kinds
             .iter()
-            .map(|k| geom.cell_volume() / k.particles_per_cell.pow(D as u32) as f64)
+            .map(|k| {
+                geom.cell_volume() / k.particles_per_cell.pow(D as u32) as f64
+                    * (f64::from(k.share) / levels)
+            })
             .collect();
         Kinds {
             material: kinds.iter().map(|k| k.material as u16).collect(),

@@ -2,7 +2,8 @@
 //! shapes' bounds and insides.
 
 use super::{Carries, Kinds, Particles};
-use crate::input::scene::{BodySpec, Scene, Shape};
+use crate::input::plan::{cut_levels, cut_samples};
+use crate::input::scene::{BodySpec, Scene, Seeding, Shape};
 use crate::physics::benchmark::Benchmark;
 use crate::physics::material::Material;
 use crate::physics::shape::Geom;
@@ -28,13 +29,14 @@ impl<const D: usize> Particles<D> {
             _ => 0.0,
         };
         let mut id_base = 0u64;
-        for (body, &k) in scene.bodies.iter().zip(&scene.plan.body_kind) {
+        for (body_index, (body, &k)) in scene.bodies.iter().zip(&scene.plan.body_kind).enumerate() {
             let n = body.particles_per_cell;
             let sub = n.pow(D as u32);
             let seed = BodySeed {
                 mat: &materials[k],
-                kind: k as u16,
-                vol0: kinds.vol0[k],
+                kind: k,
+                cut_kinds: scene.plan.body_cut_kinds[body_index],
+                vol0: &kinds.vol0,
                 half: std::array::from_fn(|a| 0.5 * geom.h[a] / n as f64),
                 carries,
             };
@@ -48,14 +50,15 @@ impl<const D: usize> Particles<D> {
             let dims: [usize; D] = std::array::from_fn(|a| c1[a] - c0[a]);
             let body_cells: usize = dims.iter().product();
             if (0..D).all(|a| r0[a] < r1[a]) {
-                lattice_points::<D>(body, geom, (c0, c1), (r0, r1), |lin, s, xref| {
+                lattice_points::<D>(body, geom, (c0, c1), (r0, r1), |lin, s, xref, share| {
                     let xr = vector::<D>(&xref);
                     let (x, v, f) = initial_motion(body, benchmark, &xr);
                     let (c, _) = geom.locate(&std::array::from_fn(|a| x[a]));
                     if (0..D).any(|a| c[a] < cell_lo[a] as i64 || c[a] >= cell_hi[a] as i64) {
                         return true;
                     }
-                    p.push_seeded(&seed, id_base + (lin * sub + s) as u64, xr, (x, v, f));
+                    let id = id_base + (lin * sub + s) as u64;
+                    p.push_seeded(&seed, (id, share), xr, (x, v, f));
                     true
                 });
             }
@@ -64,17 +67,24 @@ impl<const D: usize> Particles<D> {
         p
     }
 
-    /// Append a new particle of `seed`'s body: reference position `xr`, position,
-    /// velocity and deformation gradient `(x, v, f)`, the stress of `f`, and every
-    /// material state the scene carries at its declared initial value.
+    /// Append a new particle `id` of `seed`'s body with `share` of its lattice box
+    /// ([`cut_levels`]ths): reference position `xr`, position, velocity and deformation
+    /// gradient `(x, v, f)`, the stress of `f`, and every material state the scene
+    /// carries at its declared initial value.
     fn push_seeded(
         &mut self,
         seed: &BodySeed<D>,
-        id: u64,
+        (id, share): (u64, u32),
         xr: Vector<D>,
         (x, v, f): (Vector<D>, Vector<D>, Mat<D>),
     ) {
-        let (mat, vol0, carries) = (seed.mat, seed.vol0, seed.carries);
+        let (mat, carries) = (seed.mat, seed.carries);
+        let levels = cut_levels(D);
+        let kind = match seed.cut_kinds {
+            Some(first) if share < levels => first + share as usize - 1,
+            _ => seed.kind,
+        };
+        let vol0 = seed.vol0[kind];
         let j = det(&f);
         self.x.push(x);
         self.v.push(v);
@@ -101,13 +111,15 @@ impl<const D: usize> Particles<D> {
         if carries.def_grad {
             self.def_grad.push(f);
         }
-        self.kind.push(seed.kind);
+        self.kind.push(kind as u16);
         self.id.push(id);
         if carries.x0 {
             self.x0.push(xr);
         }
         if carries.half {
-            self.half.push(seed.half);
+            // A cut particle's box shrinks to its volume (a whole one's keeps its bits).
+            let scale = (f64::from(share) / f64::from(levels)).powf(1.0 / D as f64);
+            self.half.push(seed.half.map(|w| w * scale));
         }
         self.push_initial_state(carries);
         debug_assert!(self.consistent(carries));
@@ -117,10 +129,14 @@ impl<const D: usize> Particles<D> {
 /// What the particles of one body share when they are seeded.
 struct BodySeed<'m, const D: usize> {
     mat: &'m Material,
-    /// The body's kind of particle.
-    kind: u16,
-    /// Its reference volume.
-    vol0: f64,
+    /// The body's kind of particle of a whole box.
+    kind: usize,
+    /// Seeded `cut`: the kind of its particles of share 1 ([`Plan::body_cut_kinds`]).
+    ///
+    /// [`Plan::body_cut_kinds`]: crate::input::plan::Plan::body_cut_kinds
+    cut_kinds: Option<usize>,
+    /// The reference volume of each kind.
+    vol0: &'m [f64],
     /// GIMP half-widths.
     half: [f64; D],
     carries: Carries,
@@ -170,20 +186,25 @@ fn body_cells<const D: usize>(body: &BodySpec, geom: &Geom<D>) -> ([usize; D], [
     (c0, c1)
 }
 
-/// Calls `f(lin, s, x)` for each seeding lattice point `x` of `body` inside its shape, in
-/// the cells `r0..r1` of the body's cells `c0..c1`: point `s` of the `n^D` in a cell
-/// (`n` particles per cell and axis, at `(q + ½)/n` of the cell), `lin` the cell's
-/// index in `c0..c1` (which, with `s`, numbers the particle ids). Stops when `f`
-/// returns false.
+/// Calls `f(lin, s, x, share)` for each particle `body` seeds in the cells `r0..r1` of
+/// its cells `c0..c1`: box `s` of the `n^D` in a cell (`n` particles per cell and axis,
+/// centred at `(q + ½)/n` of the cell), `lin` the cell's index in `c0..c1` (which, with
+/// `s`, numbers the particle ids), `x` the box's centre where it lies in the shape and
+/// `share` the whole box ([`cut_levels`]); seeded `cut`, a box the surface cuts gives
+/// instead the centroid and share of its part inside ([`cut_part`]), none if that is
+/// empty. Stops when `f` returns false.
 fn lattice_points<const D: usize>(
     body: &BodySpec,
     geom: &Geom<D>,
     (c0, c1): ([usize; D], [usize; D]),
     (r0, r1): ([usize; D], [usize; D]),
-    mut f: impl FnMut(usize, usize, [f64; D]) -> bool,
+    mut f: impl FnMut(usize, usize, [f64; D], u32) -> bool,
 ) {
     let n = body.particles_per_cell;
     let sub = n.pow(D as u32);
+    let half: [f64; D] = std::array::from_fn(|a| 0.5 * geom.h[a] / n as f64);
+    let reach = half.iter().map(|w| w * w).sum::<f64>().sqrt();
+    let cut = body.seeding == Seeding::Cut;
     let dims: [usize; D] = std::array::from_fn(|a| c1[a] - c0[a]);
     let counts: [usize; D] = std::array::from_fn(|a| r1[a].saturating_sub(r0[a]));
     let total: usize = counts.iter().product();
@@ -206,10 +227,89 @@ fn lattice_points<const D: usize>(
                 r /= n;
                 x[a] = geom.lower[a] + (cell[a] as f64 + (q as f64 + 0.5) / n as f64) * geom.h[a];
             }
-            if inside(&body.shape, &x) && !f(lin, s, x) {
-                return;
+            // A box farther from the surface than its corners lies wholly on one side.
+            let seeded = if cut && surface_distance(&body.shape, &x) <= reach * (1.0 + 1e-9) {
+                cut_part(&body.shape, &x, &half)
+            } else {
+                inside(&body.shape, &x).then_some((x, cut_levels(D)))
+            };
+            if let Some((x, share)) = seeded {
+                if !f(lin, s, x, share) {
+                    return;
+                }
             }
         }
+    }
+}
+
+/// The part inside `shape` of the box of centre `x` and half-widths `half`, measured on
+/// a sub-lattice of [`cut_samples`] points per axis: its centroid and its share of the
+/// box in [`cut_levels`]ths, none if no point is inside; the centre itself if every
+/// point is, so that such a box is seeded as `lattice` seeds it.
+fn cut_part<const D: usize>(
+    shape: &Shape,
+    x: &[f64; D],
+    half: &[f64; D],
+) -> Option<([f64; D], u32)> {
+    let k = cut_samples(D);
+    let (mut count, mut sum) = (0u32, [0.0; D]);
+    for j in 0..cut_levels(D) {
+        let mut r = j;
+        let y: [f64; D] = std::array::from_fn(|a| {
+            let q = r % k;
+            r /= k;
+            x[a] + half[a] * (2.0 * (f64::from(q) + 0.5) / f64::from(k) - 1.0)
+        });
+        if inside(shape, &y) {
+            count += 1;
+            (0..D).for_each(|a| sum[a] += y[a]);
+        }
+    }
+    match count {
+        0 => None,
+        c if c == cut_levels(D) => Some((*x, c)),
+        c => Some((sum.map(|s| s / f64::from(c)), c)),
+    }
+}
+
+/// A lower bound of the distance from `x` to the surface of `s` (exact for every shape
+/// but a box's inside corners, where it is the nearest face's).
+fn surface_distance<const D: usize>(s: &Shape, x: &[f64; D]) -> f64 {
+    // Distance to a slab [lo, hi] along one axis: negative inside (to its nearer face).
+    let slab = |x: f64, lo: f64, hi: f64| (lo - x).max(x - hi);
+    // Inside every slab the nearest face; outside any, the distance to the slabs' box.
+    let boxed = |d: &[f64]| {
+        if d.iter().all(|&v| v <= 0.0) {
+            -d.iter().fold(f64::NEG_INFINITY, |m, &v| m.max(v))
+        } else {
+            d.iter().map(|v| v.max(0.0).powi(2)).sum::<f64>().sqrt()
+        }
+    };
+    let radius = |c: &[f64]| {
+        (0..c.len().min(D))
+            .map(|a| (x[a] - c[a]).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    };
+    match s {
+        Shape::Box { lower, upper } => {
+            let d: Vec<f64> = (0..D).map(|a| slab(x[a], lower[a], upper[a])).collect();
+            boxed(&d)
+        }
+        Shape::Sphere { center, radius: r } => (radius(center) - r).abs(),
+        Shape::Annulus {
+            center,
+            inner,
+            outer,
+        } => {
+            let r = radius(center);
+            (r - inner).abs().min((r - outer).abs())
+        }
+        Shape::Cylinder {
+            center,
+            radius: r,
+            z,
+        } => boxed(&[radius(&center[..2]) - r, slab(x[2], z[0], z[1])]),
     }
 }
 
@@ -220,7 +320,7 @@ pub fn seeds_any<const D: usize>(body: &BodySpec, geom: &Geom<D>) -> bool {
     let (c0, c1) = body_cells::<D>(body, geom);
     let r1: [usize; D] = std::array::from_fn(|a| c1[a].min(geom.cells[a]));
     let mut any = false;
-    lattice_points::<D>(body, geom, (c0, c1), (c0, r1), |_, _, _| {
+    lattice_points::<D>(body, geom, (c0, c1), (c0, r1), |_, _, _, _| {
         any = true;
         false
     });
@@ -236,7 +336,7 @@ pub fn overlap<const D: usize>(a: &BodySpec, b: &BodySpec, geom: &Geom<D>) -> Op
     let r0: [usize; D] = std::array::from_fn(|k| a0[k].max(b0[k]));
     let r1: [usize; D] = std::array::from_fn(|k| a1[k].min(b1[k]).min(geom.cells[k]));
     let mut hit = None;
-    lattice_points::<D>(b, geom, (b0, b1), (r0, r1), |_, _, x| {
+    lattice_points::<D>(b, geom, (b0, b1), (r0, r1), |_, _, x, _| {
         if inside(&a.shape, &x) {
             hit = Some(x);
         }
@@ -312,13 +412,14 @@ mod tests {
             particles_per_cell: n,
             velocity: None,
             velocity_gradient: None,
+            seeding: Seeding::Lattice,
         }
     }
 
     fn count<const D: usize>(b: &BodySpec, geom: &Geom<D>) -> usize {
         let (c0, c1) = body_cells::<D>(b, geom);
         let mut n = 0;
-        lattice_points::<D>(b, geom, (c0, c1), (c0, c1), |_, _, _| {
+        lattice_points::<D>(b, geom, (c0, c1), (c0, c1), |_, _, _, _| {
             n += 1;
             true
         });
@@ -362,5 +463,128 @@ mod tests {
         // Moved into each other by a particle spacing they do.
         let into = body(vec![1.0 - 1.0 / 12.0, 0.0], vec![2.0, 1.0], 3);
         assert!(overlap::<2>(&left, &into, &geom).is_some());
+    }
+
+    /// The particles `b` seeds on `geom`: positions and reference volumes.
+    fn seeded<const D: usize>(b: &BodySpec, geom: &Geom<D>) -> Vec<([f64; D], f64)> {
+        let (c0, c1) = body_cells::<D>(b, geom);
+        let whole = geom.cell_volume() / b.particles_per_cell.pow(D as u32) as f64;
+        let mut out = Vec::new();
+        lattice_points::<D>(b, geom, (c0, c1), (c0, c1), |_, _, x, share| {
+            out.push((x, whole * f64::from(share) / f64::from(cut_levels(D))));
+            true
+        });
+        out
+    }
+
+    /// Volume, centroid and polar moment of inertia about `c` of seeded particles.
+    fn moments<const D: usize>(p: &[([f64; D], f64)], c: &[f64]) -> (f64, [f64; D], f64) {
+        let vol: f64 = p.iter().map(|q| q.1).sum();
+        let centroid = std::array::from_fn(|a| p.iter().map(|q| q.1 * q.0[a]).sum::<f64>() / vol);
+        let polar = p
+            .iter()
+            .map(|(x, v)| v * (0..D).map(|a| (x[a] - c[a]).powi(2)).sum::<f64>())
+            .sum();
+        (vol, centroid, polar)
+    }
+
+    fn cut(mut b: BodySpec) -> BodySpec {
+        b.seeding = Seeding::Cut;
+        b
+    }
+
+    /// Seeded `cut`, a box whose faces lie on the sub-lattice that measures the cut
+    /// boxes (at 3/16 and 11/16 of a particle's box) has its volume and centroid to
+    /// round-off, where the lattice's staircase misses it by 8 %; a box whose
+    /// faces lie between particle boxes is seeded as the lattice seeds it, bit for bit.
+    #[test]
+    fn cut_seeding_gives_a_box_its_volume_and_centroid() {
+        let geom = Geom::<2>::new([0.0; 2], [1.0; 2], [8, 8], [false; 2]);
+        // Particle boxes of 1/16; sub-lattice lines every 1/256.
+        let (lo, hi) = (
+            vec![0.25 + 3.0 / 256.0, 0.5],
+            vec![0.75 + 11.0 / 256.0, 0.625 + 5.0 / 256.0],
+        );
+        let exact = (hi[0] - lo[0]) * (hi[1] - lo[1]);
+        let centre = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1])];
+        let b = body(lo, hi, 2);
+        let (v, c, _) = moments(&seeded(&cut(b.clone()), &geom), &centre);
+        assert!((v - exact).abs() < 1e-14, "{v} vs {exact}");
+        for a in 0..2 {
+            assert!((c[a] - centre[a]).abs() < 1e-14, "{c:?} vs {centre:?}");
+        }
+        let (vl, _, _) = moments(&seeded(&b, &geom), &centre);
+        assert!((vl - exact).abs() > 0.05 * exact, "{vl} vs {exact}");
+        let aligned = body(vec![0.25, 0.125], vec![0.8125, 0.5], 2);
+        let bits = |p: Vec<([f64; 2], f64)>| -> Vec<[u64; 3]> {
+            p.iter()
+                .map(|(x, v)| [x[0].to_bits(), x[1].to_bits(), v.to_bits()])
+                .collect()
+        };
+        assert_eq!(
+            bits(seeded(&cut(aligned.clone()), &geom)),
+            bits(seeded(&aligned, &geom))
+        );
+    }
+
+    /// Seeded `cut`, a disk (2D) and a ball (3D) off the grid's lines have their volume
+    /// and centroid within what the sub-lattice can miss (the sub-boxes the surface
+    /// crosses, at most √d times its area over the sub-spacing, each of the sub-box's
+    /// volume) and the disk its polar moment within that and the particles' own moment
+    /// (points, they miss `V w²/6` of each box of width `w`).
+    #[test]
+    fn cut_seeding_gives_round_bodies_their_volume_centroid_and_inertia() {
+        use std::f64::consts::PI;
+        let geom = Geom::<2>::new([0.0; 2], [1.0; 2], [40, 40], [false; 2]);
+        let (c, r) = ([0.503, 0.4871], 0.25);
+        let disk = body(vec![], vec![], 2);
+        let disk = BodySpec {
+            shape: Shape::Sphere {
+                center: c.to_vec(),
+                radius: r,
+            },
+            ..disk
+        };
+        let w = 1.0 / 80.0;
+        let sub = w / f64::from(cut_samples(2));
+        let slack = 2f64.sqrt() * 2.0 * PI * r * sub;
+        let (area, polar) = (PI * r * r, 0.5 * PI * r.powi(4));
+        let (v, cen, j) = moments(&seeded(&cut(disk.clone()), &geom), &c);
+        assert!(
+            (v - area).abs() <= slack,
+            "area {v} vs {area}, slack {slack:e}"
+        );
+        for a in 0..2 {
+            assert!((cen[a] - c[a]).abs() * v <= slack * (r + sub), "{cen:?}");
+        }
+        let own = area * w * w / 6.0;
+        assert!(
+            (j - polar).abs() <= own + slack * (r + sub).powi(2),
+            "polar {j} vs {polar}"
+        );
+        // A ball, 2 per cell.
+        let g3 = Geom::<3>::new([0.0; 3], [1.0; 3], [12, 12, 12], [false; 3]);
+        let (c3, r3) = ([0.51, 0.47, 0.493], 0.3);
+        let ball = BodySpec {
+            shape: Shape::Sphere {
+                center: c3.to_vec(),
+                radius: r3,
+            },
+            ..body(vec![], vec![], 2)
+        };
+        let sub3 = 1.0 / 24.0 / f64::from(cut_samples(3));
+        let slack3 = 3f64.sqrt() * 4.0 * PI * r3 * r3 * sub3;
+        let (v3, cen3, _) = moments(&seeded(&cut(ball), &g3), &c3);
+        let vol3 = 4.0 / 3.0 * PI * r3.powi(3);
+        assert!(
+            (v3 - vol3).abs() <= slack3,
+            "volume {v3} vs {vol3}, slack {slack3:e}"
+        );
+        for a in 0..3 {
+            assert!(
+                (cen3[a] - c3[a]).abs() * v3 <= slack3 * (r3 + sub3),
+                "{cen3:?}"
+            );
+        }
     }
 }

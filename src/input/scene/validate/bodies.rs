@@ -2,11 +2,11 @@
 //! bodies and the kinds of particle they seed, and what a benchmark needs of them.
 
 use super::super::schema::{
-    variants, BenchmarkKind, BenchmarkSpec, BodySpec, Face, MaterialSpec, Model, Scene, Shape,
-    Strain,
+    variants, BenchmarkKind, BenchmarkSpec, BodySpec, Face, MaterialSpec, Model, Scene, Seeding,
+    Shape, Strain,
 };
 use super::{finite, positive, vector, Invalid};
-use crate::input::plan::{BenchmarkPlan, KindPlan, Law, MaterialPlan, MAX_KINDS};
+use crate::input::plan::{cut_levels, BenchmarkPlan, KindPlan, Law, MaterialPlan, MAX_KINDS};
 
 /// What each benchmark kind needs of the scene (the benchmark module relies on it; the
 /// check lives here so that the scene does not depend on the solutions' code).
@@ -210,36 +210,55 @@ pub(super) fn validate_bodies(s: &Scene) -> Result<Vec<usize>, Invalid> {
         .collect()
 }
 
-/// The kinds of particle the bodies seed (distinct material and particles per cell, in
-/// the bodies' order) and each body's kind; at most [`MAX_KINDS`].
-pub(super) fn kinds_of(
-    s: &Scene,
-    body_material: &[usize],
-) -> Result<(Vec<KindPlan>, Vec<usize>), Invalid> {
+/// The kinds of particle the bodies seed (distinct material, particles per cell and
+/// share of the lattice box, in the bodies' order), each body's kind of whole boxes and,
+/// for a body seeded `cut`, the first of its run of partial kinds; at most [`MAX_KINDS`].
+pub(super) fn kinds_of(s: &Scene, body_material: &[usize]) -> Result<BodyKinds, Invalid> {
     let mut kinds: Vec<KindPlan> = Vec::new();
     let mut index = std::collections::HashMap::new();
-    let mut body_kind = Vec::with_capacity(body_material.len());
-    for (b, &material) in s.bodies.iter().zip(body_material) {
-        let kind = KindPlan {
-            material,
-            particles_per_cell: b.particles_per_cell,
-        };
-        body_kind.push(*index.entry(kind).or_insert_with(|| {
+    let mut add = |kind: KindPlan| {
+        *index.entry(kind).or_insert_with(|| {
             kinds.push(kind);
             kinds.len() - 1
-        }));
+        })
+    };
+    let levels = cut_levels(s.dim);
+    let mut body_kind = Vec::with_capacity(body_material.len());
+    let mut body_cut_kinds = Vec::with_capacity(body_material.len());
+    for (b, &material) in s.bodies.iter().zip(body_material) {
+        let kind = |share| KindPlan {
+            material,
+            particles_per_cell: b.particles_per_cell,
+            share,
+        };
+        body_kind.push(add(kind(levels)));
+        // The partial shares enter together, so a run found once is whole and in order.
+        body_cut_kinds.push(
+            (b.seeding == Seeding::Cut).then(|| (1..levels).map(|q| add(kind(q))).min().unwrap()),
+        );
     }
     if kinds.len() > MAX_KINDS {
         return Err((
             "bodies".into(),
             format!(
-                "the bodies seed {} kinds of particle (distinct pairs of material and \
-                 particles_per_cell); at most {MAX_KINDS}",
+                "the bodies seed {} kinds of particle (distinct material, \
+                 particles_per_cell and, seeded `cut`, share of a box); at most {MAX_KINDS}",
                 kinds.len()
             ),
         ));
     }
-    Ok((kinds, body_kind))
+    Ok(BodyKinds {
+        kinds,
+        body_kind,
+        body_cut_kinds,
+    })
+}
+
+/// What [`kinds_of`] finds.
+pub(super) struct BodyKinds {
+    pub kinds: Vec<KindPlan>,
+    pub body_kind: Vec<usize>,
+    pub body_cut_kinds: Vec<Option<usize>>,
 }
 
 /// `bodies[i]`: a defined material, particles per cell in 1..=16, velocities of `dim`
