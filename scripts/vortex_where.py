@@ -18,6 +18,9 @@ reference positions, the t = 0 snapshot's, where the exact motion has not moved 
   every snapshot and the largest over them: the rigid part is what the particles' total
   angular momentum got wrong.
 
+Each particle counts once in the bands, `rot` and `rest` (seeded `cut`, the ring's edge
+particles are smaller than the others; history.csv's error weighs them by volume).
+
 Usage: /usr/bin/python3 scripts/vortex_where.py RUN_DIR --cells N [--amplitude 0.1]
 Needs h5py (Debian: python3-h5py).
 """
@@ -93,7 +96,7 @@ def main():
     t, e2, x, al = worst
     bands = np.linspace(0.75, 1.25, 6)
     k = np.clip(np.digitize(radius, bands) - 1, 0, 4)
-    print(f"largest error at t = {t:.3f}; by reference radius (the particles' volumes are equal):")
+    print(f"largest error at t = {t:.3f}; by reference radius (each particle counted once: the ring's cut particles, smaller, weigh as much as the others):")
     for b in range(5):
         m = k == b
         print(f"  R {bands[b]:.2f}-{bands[b + 1]:.2f}: rms {np.sqrt(e2[m].mean()):.2e}, "
