@@ -25,7 +25,12 @@ reconstruction at the particle. The solver's `quadrature = "domain"` is
 `--quadrature domain --mass domain`.
 Velocity steps: `own` advances the velocity by each step's own size, `centred` (the
 solver) by the mean of this step's and the last, half on the first (leapfrog with
-variable steps).
+variable steps). `--dt-cells X` replaces the CFL step by the fixed step X / cells (CFL
+0.2 starts at about 1.7e-3 / cells in 1D), to separate the errors of space and time.
+`--stress linear` (1D, with a quadrature over the domain) takes each particle's stress as
+linear over its domain, `σ_p + σ'_p (x − x_p)`, with `σ'_p` the hat gradient at the
+particle of the stresses' nodal averages (`Σ_p V_p σ_p N_i / Σ_p V_p N_i`), instead of
+constant (the solver); only the force sees the slope, the velocity gradient is as before.
 
 Run with the system Python (it needs numpy):
   /usr/bin/python3 scripts/mms_quadrature.py --dim 1 --ppc 2 --quadrature domain \
@@ -167,7 +172,7 @@ def locate(x, h, n):
     return cell, xi, np.prod(4 * xi * (1 - xi), axis=1)
 
 
-def run(d, n, ppc, quadrature, kick):
+def run(d, n, ppc, quadrature, kick, dt_cells=0.0, linear=False):
     g = Grid(n, d)
     h, m = g.h, n + 1
     ax = (np.arange(n * ppc) + 0.5) / (n * ppc)
@@ -185,7 +190,8 @@ def run(d, n, ppc, quadrature, kick):
     while t < END - 1e-14:
         vol = np.linalg.det(f) * vol0
         sig = stress(f)
-        dt = min(0.2 * h / np.max(signal(f) + np.linalg.norm(v, axis=1)), END - t)
+        cfl = 0.2 * h / np.max(signal(f) + np.linalg.norm(v, axis=1))
+        dt = min(dt_cells / n if dt_cells else cfl, END - t)
         dtv = dt if kick == "own" else (0.5 * dt if dt_last is None else 0.5 * (dt_last + dt))
         dt_last = dt
         cell, xi, _ = locate(x, h, n)
@@ -205,12 +211,21 @@ def run(d, n, ppc, quadrature, kick):
         nodes_mass, mom, force = rec[0], rec[1:1 + d], rec[1 + d:].copy()
         points = []
         sbar = np.zeros((d, d) + (m,) * d)
+        if linear:
+            # The stresses' nodal averages and their hat gradient at each particle.
+            shat = g.scatter(cell, xi, (vol * sig[:, 0, 0])[:, None])[0] \
+                / g.scatter(cell, xi, vol[:, None])[0]
+            slope = np.zeros(len(x))
+            for idx, w, gr in g.corners(cell, xi):
+                slope += shat[idx] * gr[:, 0]
         for combo in itertools.product(*per_axis):
             xq = np.stack([c[0] for c in combo], axis=1)
             wq = np.prod(np.stack([c[1] for c in combo], axis=1), axis=1)
             cq, xiq, al = locate(xq, h, n)
             points.append((cq, xiq, al, wq))
             s = (wq * vol)[:, None, None] * sig
+            if linear:
+                s = s + (wq * vol * slope * (xq[:, 0] - x[:, 0]))[:, None, None]
             for idx, w, gr in g.corners(cq, xiq):
                 for a in range(d):
                     fa = -np.einsum("nb,nb->n", s[:, a, :], gr) * al
@@ -289,13 +304,19 @@ def main():
     p.add_argument("--cells", default="16,32,64,128,256")
     p.add_argument("--mass", choices=["point", "domain"], default="point",
                    help="weights of mass, momentum, body force and the FLIP increment")
+    p.add_argument("--dt-cells", type=float, default=0.0,
+                   help="a fixed step of DT_CELLS / cells instead of CFL 0.2")
+    p.add_argument("--stress", choices=["constant", "linear"], default="constant",
+                   help="the particle's stress over its domain (linear: 1D only)")
     a = p.parse_args()
+    if a.stress == "linear" and (a.dim != 1 or a.quadrature == "point"):
+        p.error("--stress linear needs --dim 1 and a quadrature over the domain")
     global MASS
     MASS = a.mass
     print("cells  displacement order   velocity at t order   at t - dt/2 order")
     last = None
     for n in map(int, a.cells.split(",")):
-        e = run(a.dim, n, a.ppc, a.quadrature, a.kick)
+        e = run(a.dim, n, a.ppc, a.quadrature, a.kick, a.dt_cells, a.stress == "linear")
         o = [""] * 3 if last is None else [f"{np.log2(l / k):5.2f}" for l, k in zip(last, e)]
         print(f"{n:5d}  {e[0]:.3e} {o[0]:>5}   {e[1]:.3e} {o[1]:>5}   {e[2]:.3e} {o[2]:>5}",
               flush=True)

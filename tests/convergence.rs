@@ -327,13 +327,39 @@ fn mms_1d_domain_rule_orders() {
 
 /// 2D at 2 × 2 particles per cell, 8 to 32 cells: displacement order ≥ 1.8 (measured
 /// 2.02, 2.01; to 128 cells in docs/verification.md), velocity order ≥ 1.5 (2.00,
-/// 2.00).
+/// 2.00); at 4 × 4 the same (2.00, 2.01 and 1.99, 2.00), and sharpened (`sharpen = 2`)
+/// at 4 × 4 too (2.11, 2.04 and 2.26, 2.07).
 #[test]
 fn mms_2d_domain_rule_orders() {
     let cells = [8, 16, 32];
-    let (u, v) = domain_study(2, 2, &cells);
-    assert_orders("MPMCG domain 2D displacement", &u, &cells, &[1.8; 2]);
-    assert_orders("MPMCG domain 2D velocity", &v, &cells, &[1.5; 2]);
+    for ppc in [2, 4] {
+        let (u, v) = domain_study(2, ppc, &cells);
+        assert_orders(
+            &format!("MPMCG domain 2D displacement, {ppc} per cell"),
+            &u,
+            &cells,
+            &[1.8; 2],
+        );
+        assert_orders(
+            &format!("MPMCG domain 2D velocity, {ppc} per cell"),
+            &v,
+            &cells,
+            &[1.5; 2],
+        );
+    }
+    let (u, v) = domain_study_sharpened(2, 4, &cells, 2.0);
+    assert_orders(
+        "MPMCG domain 2D sharpened displacement, 4 per cell",
+        &u,
+        &cells,
+        &[1.8; 2],
+    );
+    assert_orders(
+        "MPMCG domain 2D sharpened velocity, 4 per cell",
+        &v,
+        &cells,
+        &[1.5; 2],
+    );
 }
 
 /// Sharpening the nodal averages (`sharpen = 2`) removes most of the averaged
