@@ -14,7 +14,8 @@ A rigid rotation has no strain, so what strain energy the disk gains is the sche
   stress) and compares.
 
 Usage: /usr/bin/python3 scripts/spinning_disk.py [--gradient mpmcg] [--ppc 2]
-       [--quadrature point|domain] [--centroid K] [--sharpen B] [--end 100 | --one-step] [--mpmcg BIN]
+       [--quadrature point|domain] [--centroid K] [--sharpen B] [--seeding lattice|cut]
+       [--end 100 | --one-step] [--mpmcg BIN]
 Needs h5py (Debian: python3-h5py) for --one-step.
 """
 import argparse
@@ -50,6 +51,7 @@ poisson_ratio = 0.3
 material = "disk"
 shape = {{ sphere = {{ center = [0.5, 0.5], radius = 0.3 }} }}
 particles_per_cell = {ppc}
+seeding = "{seeding}"
 velocity_gradient = {{ value = [[0.0, -0.2], [0.2, 0.0]], about = [0.5, 0.5] }}
 [output]
 every = {every}
@@ -105,13 +107,14 @@ def main():
     ap.add_argument("--quadrature", default="point", choices=("point", "domain"))
     ap.add_argument("--centroid", type=int, default=0, help="[method] centroid_passes")
     ap.add_argument("--sharpen", type=float, default=0.0, help="[method] sharpen")
+    ap.add_argument("--seeding", default="lattice", choices=("lattice", "cut"), help="[[bodies]] seeding")
     ap.add_argument("--end", type=float, default=100.0)
     ap.add_argument("--one-step", action="store_true")
     ap.add_argument("--mpmcg", default=os.path.join(os.path.dirname(__file__), "..", "target", "release", "mpmcg"))
     a = ap.parse_args()
     end = 1.0e-3 if a.one_step else a.end
     text = SCENE.format(
-        end=end, gradient=a.gradient, ppc=a.ppc,
+        end=end, gradient=a.gradient, ppc=a.ppc, seeding=a.seeding,
         quadrature=(f'quadrature = "{a.quadrature}"' if a.quadrature != "point" else "")
         + (f"\ncentroid_passes = {a.centroid}" if a.centroid else "")
         + (f"\nsharpen = {a.sharpen}" if a.sharpen else ""),
@@ -125,7 +128,8 @@ def main():
         subprocess.run([a.mpmcg, "run", scene, "--out", out, "--quiet", "--threads", "1"], check=True)
         print(f"{a.gradient}, {a.ppc} x {a.ppc} per cell, {a.quadrature} rule"
               + (f", {a.centroid} centroid passes" if a.centroid else "")
-              + (f", sharpened by {a.sharpen}" if a.sharpen else ""))
+              + (f", sharpened by {a.sharpen}" if a.sharpen else "")
+              + (", seeded cut" if a.seeding == "cut" else ""))
         if a.one_step:
             import h5py
             import numpy as np
