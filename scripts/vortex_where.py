@@ -18,8 +18,9 @@ reference positions, the t = 0 snapshot's, where the exact motion has not moved 
   every snapshot and the largest over them: the rigid part is what the particles' total
   angular momentum got wrong.
 
-Each particle counts once in the bands, `rot` and `rest` (seeded `cut`, the ring's edge
-particles are smaller than the others; history.csv's error weighs them by volume).
+The bands, `rot` and `rest` weigh each particle by its volume at t = 0 where the
+snapshots have the field `volume` (seeded `cut`, the ring's edge particles are smaller:
+give the run `fields = ["velocity", "volume"]`), else count each once.
 
 Usage: /usr/bin/python3 scripts/vortex_where.py RUN_DIR --cells N [--amplitude 0.1]
 Needs h5py (Debian: python3-h5py).
@@ -45,6 +46,9 @@ def main():
         with h5py.File(f) as g:
             order = np.argsort(g["id"][:])
             snaps.append((float(g.attrs["time"]), g["position"][:, :2][order]))
+            if len(snaps) == 1:
+                w = g["volume"][:][order] if "volume" in g else np.ones(len(order))
+    w = w / w.mean()
     x0 = snaps[0][1]
     lo, n = -1.5, a.cells  # the scene's grid: [-1.5, 1.5]²
     h = 3.0 / n
@@ -84,19 +88,19 @@ def main():
         e = errors[np.argmin(np.abs(times - t))]
         d = x - xe
         r = np.hypot(*xe.T)
-        rot = (d[:, 1] * xe[:, 0] - d[:, 0] * xe[:, 1]).sum() / (r * r).sum()
-        rest = np.sqrt(((d - rot * np.stack([-xe[:, 1], xe[:, 0]], 1)) ** 2).sum(1).mean())
+        rot = (w * (d[:, 1] * xe[:, 0] - d[:, 0] * xe[:, 1])).sum() / (w * r * r).sum()
+        rest = np.sqrt((w * ((d - rot * np.stack([-xe[:, 1], xe[:, 0]], 1)) ** 2).sum(1)).mean())
         rest_max = max(rest_max, rest)
         print(f"{t:6.3f} {e:9.2e} {holes(x):6d} {holes(xe):19d} {shear:6.2f} {stretch:8.2f} "
               f"{np.median(np.hypot(*x.T)):9.3f} {rot:+9.2e} {rest:9.2e}")
-        e2 = ((x - xe) ** 2).sum(1)
+        e2 = w * ((x - xe) ** 2).sum(1)
         if worst is None or e2.mean() > worst[1].mean():
             worst = (t, e2, x, al)
     print(f"largest rms error less the rigid turn over the snapshots: {rest_max:.2e}")
     t, e2, x, al = worst
     bands = np.linspace(0.75, 1.25, 6)
     k = np.clip(np.digitize(radius, bands) - 1, 0, 4)
-    print(f"largest error at t = {t:.3f}; by reference radius (each particle counted once: the ring's cut particles, smaller, weigh as much as the others):")
+    print(f"largest error at t = {t:.3f}; by reference radius:")
     for b in range(5):
         m = k == b
         print(f"  R {bands[b]:.2f}-{bands[b + 1]:.2f}: rms {np.sqrt(e2[m].mean()):.2e}, "
@@ -104,8 +108,9 @@ def main():
     outer = k == 4
     r = np.hypot(*x.T)
     turned = (np.arctan2(x[:, 1], x[:, 0]) - theta - al + np.pi) % (2 * np.pi) - np.pi
-    print(f"  outer band: radial error mean {(r - radius)[outer].mean():+.2e}, "
-          f"tangential error mean {(radius * turned)[outer].mean():+.2e}")
+    mean = lambda q: (w * q)[outer].sum() / w[outer].sum()
+    print(f"  outer band: radial error mean {mean(r - radius):+.2e}, "
+          f"tangential error mean {mean(radius * turned):+.2e}")
 
 
 if __name__ == "__main__":

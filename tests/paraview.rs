@@ -35,9 +35,10 @@ poisson_ratio = 0.3
 material = "m"
 shape = { sphere = { center = [0.5, 0.5], radius = 0.3 } }
 velocity = [0.5, -0.25]
+seeding = "cut"
 [output]
 every = 0.0125
-fields = ["velocity", "stress", "displacement"]
+fields = ["velocity", "stress", "displacement", "volume"]
 "#;
 
 const SCENE_3D: &str = r#"name = "paraview_3d"
@@ -183,6 +184,34 @@ fn check_times(out: &Path, every: f64, end: f64) {
     }
 }
 
+/// The 2D disk is seeded `cut`: the first snapshot's `volume`s are whole shares of a
+/// particle's box (`k/256` of `(h/2)²`, `k` in 1..=256: the sub-lattice's 16 × 16
+/// points), some of them partial, and they add up to the disk's area within what the
+/// sub-lattice can miss (√2 times the perimeter times the sub-spacing).
+fn check_cut_volumes(out: &Path) {
+    let first = &files(out, "particles_")[0];
+    let f = hdf5::File::open(first).unwrap();
+    let vol: Vec<f64> = f.dataset("volume").unwrap().read_raw().unwrap();
+    let whole = (1.0f64 / 16.0).powi(2);
+    let mut partial = 0;
+    for v in &vol {
+        let k = v / whole * 256.0;
+        assert!(
+            (k - k.round()).abs() < 1e-9 && (1.0..=256.0).contains(&k.round()),
+            "{v}"
+        );
+        partial += usize::from(k.round() < 256.0);
+    }
+    assert!(partial > 0, "no particle of a cut box");
+    let area = std::f64::consts::PI * 0.09;
+    let slack = 2f64.sqrt() * 2.0 * std::f64::consts::PI * 0.3 * (1.0 / 256.0);
+    let sum: f64 = vol.iter().sum();
+    assert!(
+        (sum - area).abs() <= slack,
+        "volumes {sum}, disk {area}, slack {slack:e}"
+    );
+}
+
 #[test]
 fn paraview_reads_every_particle_in_2d_and_3d() {
     let dir = temp_dir("paraview");
@@ -192,7 +221,8 @@ fn paraview_reads_every_particle_in_2d_and_3d() {
     std::fs::create_dir_all(&d3).unwrap();
     let out2 = run(SCENE_2D, 2, &d2);
     let out3 = run(SCENE_3D, 1, &d3);
-    check_xdmf(&out2, &["velocity", "stress", "displacement"]);
+    check_xdmf(&out2, &["velocity", "stress", "displacement", "volume"]);
+    check_cut_volumes(&out2);
     check_xdmf(&out3, &["velocity", "stress", "damage"]);
     check_times(&out2, 0.0125, 0.05);
     check_times(&out3, 0.01, 0.02);

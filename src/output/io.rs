@@ -321,6 +321,9 @@ impl Snapshots {
                 })?,
                 // Scalars, one value per particle (the scene only lists them when a
                 // material carries them).
+                Field::Volume => w.blocks(name, cols, buf, |r, b| {
+                    b.extend(r.map(|p| parts.volume(p, &kinds.vol0)))
+                })?,
                 Field::PlasticStrain => w.floats(name, &parts.eps_p, cols)?,
                 Field::Damage => w.floats(name, &parts.damage, cols)?,
             }
@@ -904,5 +907,6 @@ fn field_layout(f: Field) -> (&'static str, &'static str, usize) {
         Field::Stress => ("stress", "Tensor", 9),
         Field::PlasticStrain => ("plastic_strain", "Scalar", 0),
         Field::Damage => ("damage", "Scalar", 0),
+        Field::Volume => ("volume", "Scalar", 0),
     }
 }

@@ -445,6 +445,9 @@ pub enum Field {
     /// projecting the velocities onto the grid with the consistent mass); asking for
     /// it also adds its kinetic energy to `history.csv` as `null_kinetic`.
     NullVelocity,
+    /// Each particle's current volume, `J V₀` (seeded `cut`, the particles of the cells
+    /// the surface cuts stand for less than the others).
+    Volume,
 }
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
