@@ -31,6 +31,9 @@ variable steps). `--dt-cells X` replaces the CFL step by the fixed step X / cell
 linear over its domain, `σ_p + σ'_p (x − x_p)`, with `σ'_p` the hat gradient at the
 particle of the stresses' nodal averages (`Σ_p V_p σ_p N_i / Σ_p V_p N_i`), instead of
 constant (the solver); only the force sees the slope, the velocity gradient is as before.
+`--momentum affine` (with `--mass domain`) takes each particle's velocity as affine over
+its domain in the transfer to the grid, `v_p + L_p (x − x_p)` with its velocity gradient
+of the last step (APIC's idea on the domain), instead of constant (the solver).
 
 Run with the system Python (it needs numpy):
   /usr/bin/python3 scripts/mms_quadrature.py --dim 1 --ppc 2 --quadrature domain \
@@ -172,7 +175,7 @@ def locate(x, h, n):
     return cell, xi, np.prod(4 * xi * (1 - xi), axis=1)
 
 
-def run(d, n, ppc, quadrature, kick, dt_cells=0.0, linear=False):
+def run(d, n, ppc, quadrature, kick, dt_cells=0.0, linear=False, affine=False):
     g = Grid(n, d)
     h, m = g.h, n + 1
     ax = (np.arange(n * ppc) + 0.5) / (n * ppc)
@@ -186,6 +189,9 @@ def run(d, n, ppc, quadrature, kick, dt_cells=0.0, linear=False):
     stretch = 1 + A * np.pi * np.cos(np.pi * x0) * np.sin(PHASE[:d])
     f = np.einsum("na,ab->nab", stretch, np.eye(d))
     t, dt_last = 0.0, None
+    # The velocity gradient of the last step (at t = 0 the exact one), for --momentum affine.
+    lprev = np.einsum("na,ab->nab", A * np.pi * np.cos(np.pi * x0) * C * np.pi * np.cos(PHASE[:d]),
+                      np.eye(d))
     worst = np.zeros(3)
     while t < END - 1e-14:
         vol = np.linalg.det(f) * vol0
@@ -207,7 +213,11 @@ def run(d, n, ppc, quadrature, kick, dt_cells=0.0, linear=False):
                 xq = np.stack([c[0] for c in combo], axis=1)
                 wq = np.prod(np.stack([c[1] for c in combo], axis=1), axis=1)
                 cq, xiq, al = locate(xq, h, n)
-                rec = rec + g.scatter(cq, xiq, vals * wq[:, None])
+                vq = vals
+                if affine:
+                    va = v + np.einsum("nab,nb->na", lprev, xq - x)
+                    vq = np.column_stack([np.full(len(x), mass), mass * va, mass * b])
+                rec = rec + g.scatter(cq, xiq, vq * wq[:, None])
         nodes_mass, mom, force = rec[0], rec[1:1 + d], rec[1 + d:].copy()
         points = []
         sbar = np.zeros((d, d) + (m,) * d)
@@ -275,6 +285,7 @@ def run(d, n, ppc, quadrature, kick, dt_cells=0.0, linear=False):
                                   + np.einsum("nac,nc->na", np.moveaxis(lflat[:, :, idx], -1, 0),
                                               x - xj))
         v = v + dv
+        lprev = grad
         f = (np.eye(d) + dt * grad) @ f
         x = x + dt * move
         t += dt
@@ -308,7 +319,11 @@ def main():
                    help="a fixed step of DT_CELLS / cells instead of CFL 0.2")
     p.add_argument("--stress", choices=["constant", "linear"], default="constant",
                    help="the particle's stress over its domain (linear: 1D only)")
+    p.add_argument("--momentum", choices=["constant", "affine"], default="constant",
+                   help="the particle's velocity over its domain in the transfer (affine: --mass domain)")
     a = p.parse_args()
+    if a.momentum == "affine" and a.mass != "domain":
+        p.error("--momentum affine needs --mass domain")
     if a.stress == "linear" and (a.dim != 1 or a.quadrature == "point"):
         p.error("--stress linear needs --dim 1 and a quadrature over the domain")
     global MASS
@@ -316,7 +331,8 @@ def main():
     print("cells  displacement order   velocity at t order   at t - dt/2 order")
     last = None
     for n in map(int, a.cells.split(",")):
-        e = run(a.dim, n, a.ppc, a.quadrature, a.kick, a.dt_cells, a.stress == "linear")
+        e = run(a.dim, n, a.ppc, a.quadrature, a.kick, a.dt_cells, a.stress == "linear",
+                a.momentum == "affine")
         o = [""] * 3 if last is None else [f"{np.log2(l / k):5.2f}" for l, k in zip(last, e)]
         print(f"{n:5d}  {e[0]:.3e} {o[0]:>5}   {e[1]:.3e} {o[1]:>5}   {e[2]:.3e} {o[2]:>5}",
               flush=True)
