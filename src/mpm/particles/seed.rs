@@ -29,13 +29,15 @@ impl<const D: usize> Particles<D> {
             _ => 0.0,
         };
         let mut id_base = 0u64;
-        for (body_index, (body, &k)) in scene.bodies.iter().zip(&scene.plan.body_kind).enumerate() {
+        let plan = &scene.plan;
+        let body_kinds = plan.body_kind.iter().zip(&plan.body_cut_kinds);
+        for (body, (&k, &cut_kinds)) in scene.bodies.iter().zip(body_kinds) {
             let n = body.particles_per_cell;
             let sub = n.pow(D as u32);
             let seed = BodySeed {
                 mat: &materials[k],
                 kind: k,
-                cut_kinds: scene.plan.body_cut_kinds[body_index],
+                cut_kinds,
                 vol0: &kinds.vol0,
                 half: std::array::from_fn(|a| 0.5 * geom.h[a] / n as f64),
                 carries,
@@ -292,10 +294,9 @@ fn surface_distance<const D: usize>(s: &Shape, x: &[f64; D]) -> f64 {
             .sqrt()
     };
     match s {
-        Shape::Box { lower, upper } => {
-            let d: Vec<f64> = (0..D).map(|a| slab(x[a], lower[a], upper[a])).collect();
-            boxed(&d)
-        }
+        Shape::Box { lower, upper } => boxed(&std::array::from_fn::<f64, D, _>(|a| {
+            slab(x[a], lower[a], upper[a])
+        })),
         Shape::Sphere { center, radius: r } => (radius(center) - r).abs(),
         Shape::Annulus {
             center,

@@ -233,9 +233,13 @@ pub(super) fn kinds_of(s: &Scene, body_material: &[usize]) -> Result<BodyKinds, 
         };
         body_kind.push(add(kind(levels)));
         // The partial shares enter together, so a run found once is whole and in order.
-        body_cut_kinds.push(
-            (b.seeding == Seeding::Cut).then(|| (1..levels).map(|q| add(kind(q))).min().unwrap()),
-        );
+        body_cut_kinds.push((b.seeding == Seeding::Cut).then(|| {
+            let first = add(kind(1));
+            (2..levels).for_each(|q| {
+                add(kind(q));
+            });
+            first
+        }));
     }
     if kinds.len() > MAX_KINDS {
         return Err((
