@@ -29,6 +29,9 @@ dt = $dt
 [method]
 gradient = "mpmcg"
 update = "musl"
+quadrature = "point"          # MPMCG at the particle, as bench_peers.py runs it
+centroid_passes = 0
+sharpen = 0.0
 [grid]
 lower = [0.0, 0.0]
 upper = [1.0, 1.0]

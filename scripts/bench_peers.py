@@ -57,9 +57,16 @@ def wave_dt(cells):
     return CFL * (1.0 / cells) / math.sqrt((lam + 2 * mu) / RHO)
 
 
+# MPMCG at the particle, the scheme whose work per particle compares with the peer's;
+# the default's domain rule, centroid passes and sharpening cost 4-8 times its step
+# (docs/schemes.md, "Defaults"). The speed figures of the docs are of this method.
+POINT_RULE = 'quadrature = "point"\ncentroid_passes = 0\nsharpen = 0.0\n'
+
+
 def scene(dim, cells, ppc, gradient, update, end, lower=0.0, upper=1.0, name=None):
     """The block drop's scene file: the block [LO, HI]^D in the box [lower, upper]^D with
-    `cells` cells per axis (scripts/bench_sparse.py widens the box)."""
+    `cells` cells per axis (scripts/bench_sparse.py widens the box); MPMCG at the
+    particle (POINT_RULE)."""
     v = lambda x: "[" + ", ".join(str(x) for _ in range(dim)) + "]"  # noqa: E731
     g = [0.0] * dim
     g[1] = GRAVITY
@@ -72,7 +79,7 @@ cfl = {CFL}
 [method]
 gradient = "{gradient}"
 update = "{update}"
-[grid]
+{POINT_RULE if gradient == "mpmcg" else ""}[grid]
 lower = {v(lower)}
 upper = {v(upper)}
 cells = {v(cells)}

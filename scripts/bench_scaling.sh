@@ -19,6 +19,7 @@ dt = $dt
 [method]
 gradient = "$gradient"
 update = "usl"
+$([ "$gradient" = mpmcg ] && printf 'quadrature = "point"\nsharpen = 0.0')
 [grid]
 lower = [0.0, 0.0]
 upper = [1.0, 1.0]

@@ -14,10 +14,12 @@
 #   REFINE=2       divide h by this (same particles per cell, so more particles)
 #   XPIC=2         update particle velocities by XPIC of this order instead of FLIP
 #                  ([method] xpic, README: The cantilever family)
-#   QUADRATURE=domain  MPMCG's domain rule ([method] quadrature; MPM ignores it)
-#   SHARPEN=2      sharpening of MPMCG's nodal averages ([method] sharpen; MPM ignores it)
-#   CENTROID=4     passes of the centroid correction ([method] centroid_passes, MPMCG
+#   QUADRATURE=point   MPMCG's quadrature ([method] quadrature; MPM ignores it)
+#   SHARPEN=0      sharpening of MPMCG's nodal averages ([method] sharpen; MPM ignores it)
+#   CENTROID=0     passes of the centroid correction ([method] centroid_passes, MPMCG
 #                  only; MPM ignores it)
+#                  (unset, each of the three takes the scene's default: MPMCG's is the
+#                  domain rule, sharpen 1, 4 passes under MUSL; docs/scenes.md)
 #   SCHEMES=mpmcg  the gradients to run (default "mpm mpmcg")
 #   PPC="2 3 4"   the beams' particles per cell (default "2 3")
 #   REFERENCE=DIR  a run of this script at PPC=4 on the same grid: the free ends' distance

@@ -15,12 +15,14 @@ A rigid rotation has no strain, so what strain energy the disk gains is the sche
 
 Usage: /usr/bin/python3 scripts/spinning_disk.py [--gradient mpmcg] [--ppc 2]
        [--quadrature point|domain] [--centroid K] [--sharpen B] [--seeding lattice|cut]
+(each of the method's keys absent takes the scene's default: docs/scenes.md)
        [--end 100 | --one-step] [--mpmcg BIN]
 Needs h5py (Debian: python3-h5py) for --one-step.
 """
 import argparse
 import csv
 import glob
+import json
 import os
 import subprocess
 import sys
@@ -104,9 +106,10 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--gradient", default="mpmcg")
     ap.add_argument("--ppc", type=int, default=2)
-    ap.add_argument("--quadrature", default="point", choices=("point", "domain"))
-    ap.add_argument("--centroid", type=int, default=0, help="[method] centroid_passes")
-    ap.add_argument("--sharpen", type=float, default=0.0, help="[method] sharpen")
+    # Absent, each takes the scene's default (docs/scenes.md).
+    ap.add_argument("--quadrature", choices=("point", "domain"))
+    ap.add_argument("--centroid", type=int, help="[method] centroid_passes")
+    ap.add_argument("--sharpen", type=float, help="[method] sharpen")
     ap.add_argument("--seeding", default="lattice", choices=("lattice", "cut"), help="[[bodies]] seeding")
     ap.add_argument("--end", type=float, default=100.0)
     ap.add_argument("--one-step", action="store_true")
@@ -115,9 +118,9 @@ def main():
     end = 1.0e-3 if a.one_step else a.end
     text = SCENE.format(
         end=end, gradient=a.gradient, ppc=a.ppc, seeding=a.seeding,
-        quadrature=(f'quadrature = "{a.quadrature}"' if a.quadrature != "point" else "")
-        + (f"\ncentroid_passes = {a.centroid}" if a.centroid else "")
-        + (f"\nsharpen = {a.sharpen}" if a.sharpen else ""),
+        quadrature=(f'quadrature = "{a.quadrature}"' if a.quadrature is not None else "")
+        + (f"\ncentroid_passes = {a.centroid}" if a.centroid is not None else "")
+        + (f"\nsharpen = {a.sharpen}" if a.sharpen is not None else ""),
         every=end if a.one_step else 10.0,
         fields='fields = ["stress"]' if a.one_step else "")
     with tempfile.TemporaryDirectory() as tmp:
@@ -126,9 +129,11 @@ def main():
         with open(scene, "w") as f:
             f.write(text)
         subprocess.run([a.mpmcg, "run", scene, "--out", out, "--quiet", "--threads", "1"], check=True)
-        print(f"{a.gradient}, {a.ppc} x {a.ppc} per cell, {a.quadrature} rule"
-              + (f", {a.centroid} centroid passes" if a.centroid else "")
-              + (f", sharpened by {a.sharpen}" if a.sharpen else "")
+        with open(os.path.join(out, "summary.json")) as f:
+            ran = json.load(f)
+        print(f"{a.gradient}, {a.ppc} x {a.ppc} per cell, {ran.get('quadrature', 'point')} rule"
+              + (f", {ran['centroid_passes']} centroid passes" if "centroid_passes" in ran else "")
+              + (f", sharpened by {ran['sharpen']}" if "sharpen" in ran else "")
               + (", seeded cut" if a.seeding == "cut" else ""))
         if a.one_step:
             import h5py

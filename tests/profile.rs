@@ -11,8 +11,13 @@ use std::path::Path;
 
 /// A body crossing the block boundary of a 2-rank split. Balancing off: a rebalance
 /// migrates particles between steps, which the halo's count includes and the step's
-/// does not.
+/// does not. MPMCG at the particle, whose parts and counts docs/scaling.md gives.
 fn scene(gradient: &str, update: &str) -> String {
+    let point = if gradient == "mpmcg" {
+        "quadrature = \"point\"\nsharpen = 0.0\ncentroid_passes = 0"
+    } else {
+        ""
+    };
     format!(
         r#"
 name = "profile"
@@ -23,6 +28,7 @@ cfl = 0.3
 [method]
 gradient = "{gradient}"
 update = "{update}"
+{point}
 [grid]
 lower = [0.0, 0.0]
 upper = [1.0, 1.0]

@@ -15,7 +15,7 @@
 
 mod common;
 use common::{files, temp_dir};
-use serde_json::Value;
+use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::sync::OnceLock;
@@ -383,7 +383,7 @@ fn version_3_checkpoint_restarts() {
 /// masses its rows hold sum to the restarted run's mass (a mass formed from another
 /// material's density, or a column read out of place, would not); a restart starts
 /// from its rows and continues alike on one and two ranks ([`fixture_restarts`]); the
-/// checkpoints this build writes are of version 6, without the mass.
+/// checkpoints this build writes are of version 7, without the mass.
 #[test]
 fn version_4_checkpoint_restarts() {
     let dir = temp_dir("restart-v4");
@@ -419,11 +419,17 @@ fn starts_from_its_rows(scene: &str, ckpt: &Path) {
     use mpmcg::mpm::particles::{Carries, Kinds};
     use mpmcg::mpm::solver::Solver;
     use mpmcg::output::checkpoint;
-    let scene = mpmcg::input::scene::parse(scene, "fixture").expect("the fixture's scene");
+    let header = checkpoint::read_header(ckpt).expect("a header");
+    assert_eq!(
+        header.scene_defaults, 1,
+        "a fixture from before scene defaults 2"
+    );
+    // As a restart reads it: with the defaults its run took.
+    let scene = mpmcg::input::scene::parse_with(scene, "fixture", header.scene_defaults)
+        .expect("the fixture's scene");
     let geom = Solver::<2>::geometry(&scene);
     let cells = [scene.grid.cells[0], scene.grid.cells[1]];
     let layout = decomposition::Layout::choose(cells, geom.periodic, 1).expect("a layout");
-    let header = checkpoint::read_header(ckpt).expect("a header");
     let kinds = Kinds::of_scene(&scene, &geom);
     let carries = Carries::for_scene(&scene);
     let parts = checkpoint::read::<2>(&header, 0, &layout, &geom, carries, &kinds)
@@ -471,8 +477,10 @@ fn fixture(name: &str, version: u64) -> (PathBuf, hdf5::File) {
 
 /// A restart from fixture `ckpt` (at its step `step`) of `scene` starts from the
 /// fixture's rows ([`starts_from_its_rows`]) and, restarted on 1 and 2 ranks, ends
-/// alike within 1e-12; `scene` run uninterrupted in `dir` writes checkpoints of this
-/// build's format (version 6). Returns the restarts' folders and the uninterrupted
+/// alike within 1e-12, with the method of scene defaults 1 (the fixtures are older:
+/// MPMCG at the particle, no passes, no sharpening), where `scene` run uninterrupted
+/// in `dir` takes this build's defaults (the domain rule, 4 passes, `sharpen = 1`)
+/// and writes checkpoints of this build's format (version 7, `scene_defaults` 2). Returns the restarts' folders and the uninterrupted
 /// run's first checkpoint, opened.
 ///
 /// The restarts are not compared with the uninterrupted run: the fixture's steps were
@@ -492,16 +500,29 @@ fn fixture_restarts(dir: &Path, scene: &str, ckpt: &Path, step: u64) -> (Vec<Pat
             n,
             &["run", "--restart", s(ckpt), "--out", s(&out), "--quiet"],
         );
-        assert_eq!(summary(&out)["restarted_from"]["step"], step);
+        let sum = summary(&out);
+        assert_eq!(sum["restarted_from"]["step"], step);
+        let method = (&sum["quadrature"], &sum["centroid_passes"], &sum["sharpen"]);
+        assert_eq!(
+            method,
+            (&json!("point"), &Value::Null, &Value::Null),
+            "{n} ranks"
+        );
+        assert_eq!(sum["scene_defaults"], 1);
         if let Some(first) = outs.first() {
             assert_close(first, &out, 1e-12, &format!("{} 1→{n}", ckpt.display()));
         }
         outs.push(out);
     }
+    let sum = summary(&full);
+    let method = (&sum["quadrature"], &sum["centroid_passes"], &sum["sharpen"]);
+    assert_eq!(method, (&json!("domain"), &json!(4), &json!(1.0)));
     let c = files(&full, "checkpoint_");
     let f = hdf5::File::open(&c[0]).unwrap();
     let version: u64 = f.attr("version").unwrap().read_scalar().unwrap();
-    assert_eq!(version, 6);
+    assert_eq!(version, 7);
+    let defaults: u64 = f.attr("scene_defaults").unwrap().read_scalar().unwrap();
+    assert_eq!(defaults, 2);
     (outs, f)
 }
 
@@ -515,7 +536,7 @@ fn fixture_restarts(dir: &Path, scene: &str, ckpt: &Path, step: u64) -> (Vec<Pat
 /// as in `version_4_checkpoint_restarts`: the fixture's volumes were updated by each
 /// step's increment, this build's are `det F · V₀`), and every particle keeps its
 /// material (the snapshot's `material` by id against the stored rows); the
-/// checkpoints this build writes are of version 6: no `vol0` and no `vol` (the disks
+/// checkpoints this build writes are of version 7: no `vol0` and no `vol` (the disks
 /// carry `F`), and the kinds as attributes.
 #[test]
 fn version_5_checkpoint_restarts_its_kinds() {
@@ -804,14 +825,19 @@ fn checkpoint_bits(path: &Path) -> Vec<(String, Vec<u64>)> {
     out
 }
 
-/// The crossing disks with a fixed step a little above the stable one, so that the run
-/// fails after some 40 steps, with checkpoints every `every` steps and snapshots that
-/// cut steps short.
+/// The crossing disks (MPMCG at the particle) with a fixed step a little above the
+/// stable one, so that the run fails after some 40 steps, with checkpoints every
+/// `every` steps and snapshots that cut steps short.
 fn failing_crossing(every: u64) -> String {
     let text = crossing_scene(16, 3.0, &format!("every_steps = {every}"))
         .replace("cfl = 0.3", "dt = 0.0596")
-        .replace("every = 3\n", "every = 0.35\n");
+        .replace("every = 3\n", "every = 0.35\n")
+        .replace(
+            "update = \"musl\"",
+            "update = \"musl\"\nquadrature = \"point\"\nsharpen = 0.0\ncentroid_passes = 0",
+        );
     assert!(text.contains("every = 0.35") && text.contains("dt = 0.0596"));
+    assert!(text.contains("quadrature = \"point\""));
     text
 }
 
@@ -1357,6 +1383,10 @@ dim = 2
 [time]
 end = 0.5
 cfl = 0.4
+[method]
+quadrature = "point"
+sharpen = 0.0
+centroid_passes = 0
 [grid]
 lower = [0.0, 0.0]
 upper = [2.0, 1.0]
@@ -1424,7 +1454,8 @@ fields = ["velocity", "stress", "displacement"]
             "a translating body stays unstressed"
         );
     }
-    // Velocities that are powers of two survive every projection exactly.
+    // Velocities that are powers of two survive every projection of MPMCG at the
+    // particle exactly (the domain rule's weights reproduce them to round-off).
     assert_eq!(worst_v, 0.0, "translation velocity off by {worst_v:e}");
 
     check_xdmf_index(&out, &snaps);
@@ -1521,7 +1552,23 @@ fn unusable_checkpoints_are_rejected() {
     mpmcg::output::checkpoint::seal(&future).unwrap();
     run(
         &future,
-        "checkpoint format version 99, but this mpmcg reads versions 3 to 6",
+        "checkpoint format version 99, but this mpmcg reads versions 3 to 7",
+    );
+    // Scene defaults of a later build: their method is unknown here.
+    let later = put("later.h5", &bytes);
+    {
+        let f = hdf5::File::open_rw(&later).unwrap();
+        f.delete_attr("scene_defaults").unwrap();
+        f.new_attr::<u64>()
+            .create("scene_defaults")
+            .unwrap()
+            .write_scalar(&3u64)
+            .unwrap();
+    }
+    mpmcg::output::checkpoint::seal(&later).unwrap();
+    run(
+        &later,
+        "attribute `scene_defaults` = 3, but this mpmcg knows scene defaults 1 to 2",
     );
     // Particle data changed in the middle of the file: the checksum notices.
     let flipped = put("flipped.h5", &bytes);

@@ -238,9 +238,13 @@ fn restart_scene(
     }
     let header = header.expect("agreed");
     let label = format!("{}:/scene", ckpt.display());
-    let sc = scene::parse(&header.scene_text, &label).map_err(|e| e.to_string())?;
+    // The stored scene and any given one read with the checkpoint's defaults: a
+    // restart continues the run's method whatever this build's defaults are.
+    let sc = scene::parse_with(&header.scene_text, &label, header.scene_defaults)
+        .map_err(|e| e.to_string())?;
     if let Some(path) = scene_file {
-        let (given, text) = scene::load(path).map_err(|e| e.to_string())?;
+        let (given, text) =
+            scene::load_with(path, header.scene_defaults).map_err(|e| e.to_string())?;
         if text != header.scene_text {
             if let Some(key) = scene::restart_difference(&sc, &given) {
                 return Err(format!(

@@ -15,7 +15,7 @@ pub mod report;
 pub use report::{Row, Stats};
 
 use crate::driver::run::{self, RunError, RunOptions};
-use crate::input::scene::{self, Gradient, Quadrature, Scene};
+use crate::input::scene::{self, Gradient, Method, Quadrature, Scene};
 use decomposition::SerialComm;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -76,48 +76,65 @@ pub fn parse_cells(list: &str) -> Result<Vec<usize>, String> {
     Ok(cells)
 }
 
-/// A scheme a sweep runs: a gradient, its quadrature and the sharpening of its nodal
-/// averages, named `mpmcg-domain` for MPMCG's domain rule, `mpmcg-sharp` for the domain
-/// rule with `sharpen = 2` and by the gradient otherwise (MPMCG at the particle).
+/// A scheme a sweep runs: a gradient and MPMCG's variant. Each name fixes the method
+/// whatever the scene's `[method]` says of quadrature, centroid passes and sharpening:
+/// `mpm`, `gimp`, `averaged` and `mpmcg` run with the current defaults of their
+/// gradient, `mpmcg-point` is MPMCG at the particle with neither passes nor sharpening,
+/// `mpmcg-domain` the domain rule alone and `mpmcg-sharp` the domain rule with
+/// `sharpen = 2`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Scheme {
     pub gradient: Gradient,
-    pub quadrature: Quadrature,
-    /// β of `[method] sharpen`; 0 keeps the scene's own (off for one-step schemes).
-    pub sharpen: f64,
+    /// Quadrature, centroid passes and β; `None` takes the defaults.
+    pub variant: Option<(Quadrature, u32, f64)>,
 }
 
 impl Scheme {
-    pub const ALL: [Scheme; 6] = [
-        Scheme::point(Gradient::Mpm),
-        Scheme::point(Gradient::Gimp),
-        Scheme::point(Gradient::Averaged),
-        Scheme::point(Gradient::Mpmcg),
-        Scheme {
-            gradient: Gradient::Mpmcg,
-            quadrature: Quadrature::Domain,
-            sharpen: 0.0,
-        },
-        Scheme {
-            gradient: Gradient::Mpmcg,
-            quadrature: Quadrature::Domain,
-            sharpen: 2.0,
-        },
+    pub const ALL: [Scheme; 7] = [
+        Scheme::defaults(Gradient::Mpm),
+        Scheme::defaults(Gradient::Gimp),
+        Scheme::defaults(Gradient::Averaged),
+        Scheme::defaults(Gradient::Mpmcg),
+        Scheme::mpmcg(Quadrature::Point, 0.0),
+        Scheme::mpmcg(Quadrature::Domain, 0.0),
+        Scheme::mpmcg(Quadrature::Domain, 2.0),
     ];
 
-    pub const fn point(gradient: Gradient) -> Self {
+    /// `gradient` with the current scene defaults.
+    pub const fn defaults(gradient: Gradient) -> Self {
         Scheme {
             gradient,
-            quadrature: Quadrature::Point,
-            sharpen: 0.0,
+            variant: None,
+        }
+    }
+
+    /// MPMCG with `quadrature`, no centroid passes and sharpening `beta`.
+    const fn mpmcg(quadrature: Quadrature, beta: f64) -> Self {
+        Scheme {
+            gradient: Gradient::Mpmcg,
+            variant: Some((quadrature, 0, beta)),
         }
     }
 
     pub fn name(self) -> &'static str {
-        match (self.quadrature, self.sharpen > 0.0) {
-            (Quadrature::Domain, true) => "mpmcg-sharp",
-            (Quadrature::Domain, false) => "mpmcg-domain",
-            (Quadrature::Point, _) => self.gradient.name(),
+        match self.variant {
+            None => self.gradient.name(),
+            Some((Quadrature::Point, ..)) => "mpmcg-point",
+            Some((Quadrature::Domain, _, b)) if b > 0.0 => "mpmcg-sharp",
+            Some((Quadrature::Domain, ..)) => "mpmcg-domain",
+        }
+    }
+
+    /// Set `method` to this scheme.
+    fn apply(self, method: &mut Method) {
+        method.gradient = self.gradient;
+        match self.variant {
+            None => method.resolve(scene::DEFAULTS, |_| false),
+            Some((q, passes, beta)) => {
+                method.quadrature = q;
+                method.centroid_passes = passes;
+                method.sharpen = beta;
+            }
         }
     }
 }
@@ -191,13 +208,7 @@ pub fn scene_at(
 ) -> Result<(Scene, String), String> {
     let mut s = base.clone();
     s.grid.cells = grid_at(&base.grid.cells, n)?;
-    s.method.gradient = scheme.gradient;
-    s.method.quadrature = scheme.quadrature;
-    if scheme.sharpen > 0.0 {
-        s.method.sharpen = scheme.sharpen;
-    } else if !matches!(scheme.gradient, Gradient::Mpmcg | Gradient::Averaged) {
-        s.method.sharpen = 0.0;
-    }
+    scheme.apply(&mut s.method);
     if let Some(p) = ppc {
         for b in &mut s.bodies {
             b.particles_per_cell = p;
@@ -659,14 +670,14 @@ mod tests {
         assert_eq!(
             parse_gradients("mpmcg, mpm,gimp").unwrap(),
             vec![
-                Scheme::point(Gradient::Mpmcg),
-                Scheme::point(Gradient::Mpm),
-                Scheme::point(Gradient::Gimp)
+                Scheme::defaults(Gradient::Mpmcg),
+                Scheme::defaults(Gradient::Mpm),
+                Scheme::defaults(Gradient::Gimp)
             ]
         );
         assert_eq!(
-            parse_gradients("mpmcg-domain,mpmcg").unwrap(),
-            vec![Scheme::ALL[4], Scheme::ALL[3]]
+            parse_gradients("mpmcg-domain,mpmcg-point,mpmcg").unwrap(),
+            vec![Scheme::ALL[5], Scheme::ALL[4], Scheme::ALL[3]]
         );
         let e = parse_gradients("mpm,bspline").unwrap_err();
         assert!(
@@ -698,7 +709,7 @@ mod tests {
     #[test]
     fn scenes_at_a_resolution_round_trip_through_toml() {
         let base = bar();
-        let (s, text) = scene_at(&base, Scheme::point(Gradient::Gimp), 32, Some(4)).unwrap();
+        let (s, text) = scene_at(&base, Scheme::defaults(Gradient::Gimp), 32, Some(4)).unwrap();
         let again = scene::parse(&text, "t").unwrap();
         for sc in [&s, &again] {
             assert_eq!(sc.grid.cells, vec![32]);
@@ -710,13 +721,13 @@ mod tests {
             assert!(sc.benchmark.is_some());
         }
         // Without --ppc the scene's particles per cell stay.
-        let (s, _) = scene_at(&base, Scheme::point(Gradient::Mpm), 8, None).unwrap();
+        let (s, _) = scene_at(&base, Scheme::defaults(Gradient::Mpm), 8, None).unwrap();
         assert_eq!(
             s.bodies[0].particles_per_cell,
             base.bodies[0].particles_per_cell
         );
         // The scene's own validation still applies.
-        let e = scene_at(&base, Scheme::point(Gradient::Mpm), 8, Some(17)).unwrap_err();
+        let e = scene_at(&base, Scheme::defaults(Gradient::Mpm), 8, Some(17)).unwrap_err();
         assert!(e.contains("particles_per_cell"), "{e}");
     }
 
@@ -760,7 +771,7 @@ mod tests {
             ..options(
                 Path::new("/tmp/x"),
                 vec![8],
-                vec![Scheme::point(Gradient::Mpm)],
+                vec![Scheme::defaults(Gradient::Mpm)],
             )
         };
         let cmd = mpirun_command(
@@ -828,7 +839,7 @@ mod tests {
         base.benchmark = None;
         let e = sweep(
             &base,
-            &options(&dir, vec![8], vec![Scheme::point(Gradient::Mpm)]),
+            &options(&dir, vec![8], vec![Scheme::defaults(Gradient::Mpm)]),
         )
         .unwrap_err();
         assert_eq!(e.exit_code(), 2);
@@ -840,7 +851,7 @@ mod tests {
         base.grid.cells = vec![16, 8];
         let e = sweep(
             &base,
-            &options(&dir, vec![8, 9], vec![Scheme::point(Gradient::Mpm)]),
+            &options(&dir, vec![8, 9], vec![Scheme::defaults(Gradient::Mpm)]),
         )
         .unwrap_err();
         assert!(
@@ -863,7 +874,10 @@ mod tests {
         let opts = options(
             &dir,
             vec![8, 16],
-            vec![Scheme::point(Gradient::Mpm), Scheme::point(Gradient::Mpmcg)],
+            vec![
+                Scheme::defaults(Gradient::Mpm),
+                Scheme::defaults(Gradient::Mpmcg),
+            ],
         );
         let rows = sweep(&base, &opts).unwrap();
         let status: Vec<_> = rows.iter().map(|r| r.status.as_str()).collect();
@@ -894,7 +908,10 @@ mod tests {
         let opts = options(
             &dir,
             vec![8, 16],
-            vec![Scheme::point(Gradient::Mpm), Scheme::point(Gradient::Mpmcg)],
+            vec![
+                Scheme::defaults(Gradient::Mpm),
+                Scheme::defaults(Gradient::Mpmcg),
+            ],
         );
         let rows = sweep(&bar(), &opts).unwrap();
         assert_eq!(rows.len(), 4);

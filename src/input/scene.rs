@@ -13,7 +13,7 @@ mod validate;
 pub use schema::{
     Balance, BenchmarkKind, BenchmarkSpec, BodySpec, Boundary, CheckpointSpec, Face, Field,
     Gradient, Gravity, GridSpec, MaterialSpec, Method, Model, Output, Parallel, Quadrature, Scene,
-    Seeding, Shape, SnapshotPlan, Strain, Time, Update, VelocityGradient,
+    Seeding, Shape, SnapshotPlan, Strain, Time, Update, VelocityGradient, DEFAULTS,
 };
 pub use validate::{MAX_CELLS_PER_AXIS, MAX_OUTPUTS, MAX_STEPS, MAX_XPIC};
 
@@ -110,11 +110,29 @@ pub fn restart_difference(a: &Scene, b: &Scene) -> Option<String> {
             }),
         }
     }
-    first(&strip(a), &strip(b), "")
+    // The method keys the defaults resolve follow from the others (`gradient`,
+    // `update`, `xpic`): name a key the scene changed before one that followed.
+    let unresolved = |s: &Scene| {
+        let mut v = strip(s);
+        if let Some(m) = v.get_mut("method").and_then(|m| m.as_object_mut()) {
+            for k in ["quadrature", "centroid_passes", "sharpen"] {
+                m.remove(k);
+            }
+        }
+        v
+    };
+    first(&unresolved(a), &unresolved(b), "").or_else(|| first(&strip(a), &strip(b), ""))
 }
 
-/// Parse and validate a scene. `file` is used in messages only.
+/// Parse and validate a scene under the current defaults. `file` is used in messages
+/// only.
 pub fn parse(text: &str, file: &str) -> Result<Scene, SceneError> {
+    parse_with(text, file, DEFAULTS)
+}
+
+/// Parse and validate a scene, its absent `[method]` keys taking the values of the
+/// scene defaults `version` (a restart's is its checkpoint's).
+pub fn parse_with(text: &str, file: &str, version: u32) -> Result<Scene, SceneError> {
     let err = |key: Option<String>, pos: Option<usize>, message: String| SceneError {
         file: file.to_string(),
         key: key.map(|k| one_line(&k)),
@@ -146,6 +164,13 @@ pub fn parse(text: &str, file: &str) -> Result<Scene, SceneError> {
         let (key, pos, message) = explain(text, e.path(), e.inner());
         err(key, pos, message)
     })?;
+    // The text parsed once as a scene, so it is a table with a `[method]` table if any.
+    let table: toml::Table = text.parse().unwrap_or_default();
+    let method = table.get("method").and_then(|m| m.as_table());
+    scene
+        .method
+        .resolve(version, |k| method.is_some_and(|m| m.contains_key(k)));
+    scene.defaults = version;
     scene.plan = validate(&scene).map_err(|(key, message)| {
         let pos = locate(text, &key);
         err(Some(key), pos, message)
@@ -156,8 +181,13 @@ pub fn parse(text: &str, file: &str) -> Result<Scene, SceneError> {
 /// The largest scene file read.
 pub const MAX_SCENE_BYTES: u64 = 16 << 20;
 
-/// Read, parse and validate a scene file.
+/// Read, parse and validate a scene file under the current defaults.
 pub fn load(path: &Path) -> Result<(Scene, String), SceneError> {
+    load_with(path, DEFAULTS)
+}
+
+/// Read, parse and validate a scene file under the scene defaults `version`.
+pub fn load_with(path: &Path, version: u32) -> Result<(Scene, String), SceneError> {
     let file = path.display().to_string();
     let fail = |message: String| SceneError {
         file: file.clone(),
@@ -189,6 +219,96 @@ pub fn load(path: &Path) -> Result<(Scene, String), SceneError> {
             ),
         }
     })?;
-    let scene = parse(&text, &file)?;
+    let scene = parse_with(&text, &file, version)?;
     Ok((scene, text))
+}
+
+#[cfg(test)]
+mod defaults_tests {
+    use super::*;
+
+    /// A minimal 2D scene with `method` as its `[method]` table.
+    fn text(method: &str) -> String {
+        format!(
+            "name = \"d\"\ndim = 2\n[time]\nend = 0.1\n[method]\n{method}\n[grid]\n\
+             lower = [0.0, 0.0]\nupper = [1.0, 1.0]\ncells = [4, 4]\n[[materials]]\n\
+             name = \"m\"\nmodel = \"neo_hookean\"\ndensity = 1.0\nyoungs_modulus = 1.0\n\
+             poisson_ratio = 0.3\n[[bodies]]\nmaterial = \"m\"\n\
+             shape = {{ box = {{ lower = [0.25, 0.25], upper = [0.75, 0.75] }} }}\n"
+        )
+    }
+
+    fn method(m: &str, version: u32) -> (Quadrature, u32, f64) {
+        let s = parse_with(&text(m), "t", version).unwrap();
+        assert_eq!(s.defaults, version);
+        (
+            s.method.quadrature,
+            s.method.centroid_passes,
+            s.method.sharpen,
+        )
+    }
+
+    /// Under scene defaults 2, MPMCG takes the domain rule, `sharpen = 1` where its
+    /// quadrature is the domain rule, and four centroid passes only where they may run
+    /// (MUSL, no XPIC); the other schemes and scene defaults 1 take none of them; a key
+    /// the scene gives is kept.
+    #[test]
+    fn absent_method_keys_take_the_versions_defaults() {
+        use Quadrature::{Domain, Point};
+        assert_eq!(method("", 2), (Domain, 4, 1.0));
+        assert_eq!(method("update = \"usl\"", 2), (Domain, 0, 1.0));
+        assert_eq!(method("xpic = 2", 2), (Domain, 0, 1.0));
+        assert_eq!(method("gradient = \"mpm\"", 2), (Point, 0, 0.0));
+        assert_eq!(method("gradient = \"averaged\"", 2), (Point, 0, 0.0));
+        assert_eq!(method("sharpen = 2.0", 2), (Domain, 4, 2.0));
+        // Sharpened only with the domain rule, by default.
+        assert_eq!(method("quadrature = \"point\"", 2), (Point, 4, 0.0));
+        assert_eq!(
+            method("quadrature = \"point\"\nsharpen = 1.0", 2),
+            (Point, 4, 1.0)
+        );
+        assert_eq!(method("", 1), (Point, 0, 0.0));
+        assert_eq!(method("centroid_passes = 2", 1), (Point, 2, 0.0));
+        // No `[method]` table at all is the same as an empty one.
+        let bare = text("").replace("[method]\n", "");
+        let s = parse(&bare, "t").unwrap();
+        assert_eq!(
+            (
+                s.method.quadrature,
+                s.method.centroid_passes,
+                s.method.sharpen
+            ),
+            (Domain, 4, 1.0)
+        );
+    }
+
+    /// A scene written out names every method key, so it reads the same under either
+    /// version of the defaults (a sweep's `scene.toml`, the stored built-in scene).
+    #[test]
+    fn a_written_scene_reads_the_same_under_any_defaults() {
+        for (m, version) in [("", 1), ("", 2), ("update = \"usl\"", 2)] {
+            let s = parse_with(&text(m), "t", version).unwrap();
+            let written = toml::to_string(&s).unwrap();
+            for v in [1, DEFAULTS] {
+                let again = parse_with(&written, "w", v).unwrap();
+                assert_eq!(
+                    restart_difference(&s, &again),
+                    None,
+                    "{m:?} under {version}, read under {v}"
+                );
+            }
+        }
+    }
+
+    /// A restart with a scene whose gradient changed names `method.gradient`, not the
+    /// keys whose defaults followed from it.
+    #[test]
+    fn a_changed_gradient_is_named_before_what_follows_from_it() {
+        let a = parse(&text(""), "a").unwrap();
+        let b = parse(&text("gradient = \"gimp\""), "b").unwrap();
+        assert_eq!(
+            restart_difference(&a, &b).as_deref(),
+            Some("method.gradient")
+        );
+    }
 }

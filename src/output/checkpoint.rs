@@ -61,7 +61,7 @@ mod write;
 pub use lineage::Lineage;
 pub use read::{read, read_header, Restored};
 pub use seal::seal;
-pub use write::write;
+pub use write::{write, Stored};
 
 use crate::mpm::particles::{Carries, Columns, Particles};
 use crate::mpm::solver::Totals;
@@ -80,8 +80,9 @@ pub const FORMAT: &str = "mpmcg-checkpoint";
 /// column `kind` holds the particle's kind (material and reference volume, the
 /// attributes `kind_material` and `kind_vol0`), where before 6 it held the material;
 /// and no `vol` column where the particles carry `F` (`carries_vol` = 0: the volume
-/// is `det F · V₀`).
-pub const VERSION: u64 = 6;
+/// is `det F · V₀`). 7: the attribute `scene_defaults`, the version of the scene
+/// defaults the stored scene was read with (1 when absent).
+pub const VERSION: u64 = 7;
 /// The oldest version this build reads: a version 3 record always has the stress
 /// columns, which a scene that does not store the stress drops on reading, records
 /// before version 5 the mass, dropped too, and before 6 the material and `vol0`,
@@ -151,6 +152,8 @@ pub struct SolverState {
 pub struct Header {
     pub path: PathBuf,
     pub scene_text: String,
+    /// The scene defaults the run read `scene_text` with (1 before version 7).
+    pub scene_defaults: u32,
     pub dim: usize,
     pub step: u64,
     pub time: f64,

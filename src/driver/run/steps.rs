@@ -221,7 +221,10 @@ impl<'a, const D: usize> Run<'a, D> {
             self.out,
             &self.solver,
             &self.st,
-            &self.scene_text,
+            checkpoint::Stored {
+                text: &self.scene_text,
+                defaults: self.scene.defaults,
+            },
             &mut self.lineage,
         );
         self.output_seconds.checkpoints += t0.elapsed().as_secs_f64();

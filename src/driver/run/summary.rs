@@ -126,6 +126,9 @@ pub struct Summary {
     /// β of the sharpening of the nodal averages, when it is on.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sharpen: Option<f64>,
+    /// The version of the scene defaults the absent `[method]` keys took (a restart
+    /// keeps its checkpoint's).
+    pub scene_defaults: u32,
     /// `SI`, or `dimensionless` for benchmark scenes (as in the snapshots).
     pub units: String,
     /// `completed`, `unstable` or `interrupted`.
@@ -255,6 +258,7 @@ impl<'a, const D: usize> Run<'a, D> {
             centroid_passes: (scene.method.centroid_passes > 0)
                 .then_some(scene.method.centroid_passes),
             sharpen: (scene.method.sharpen > 0.0).then_some(scene.method.sharpen),
+            scene_defaults: scene.defaults,
             units: Labels::of::<D>(scene).units,
             status: String::new(),
             message: None,

@@ -24,6 +24,10 @@ pub struct Scene {
     /// What validation resolved (filled by [`parse`](super::parse), not a key of the file).
     #[serde(skip)]
     pub plan: Plan,
+    /// The version of the defaults the absent keys took ([`DEFAULTS`] for a new run; a
+    /// restart keeps its checkpoint's), not a key of the file.
+    #[serde(skip)]
+    pub defaults: u32,
 }
 
 /// `[parallel]`: how the grid's blocks follow the material over ranks.
@@ -174,32 +178,56 @@ pub struct Method {
     /// cost of m − 1 more particle → grid passes per step. Off when absent.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub xpic: Option<u32>,
-    /// MPMCG's quadrature of the internal force and the velocity gradient.
-    #[serde(default, skip_serializing_if = "is_point")]
+    /// MPMCG's quadrature of the internal force and the velocity gradient. When absent,
+    /// see [`Method::resolve`]. Always written out, so that a scene written by one
+    /// version reads the same in any other.
+    #[serde(default)]
     pub quadrature: Quadrature,
     /// Passes of the centroid correction (MUSL, two-step schemes): the remapped grid
     /// velocity is the particles' at their mass centroid `x_i + d_i`, and each pass
     /// moves it towards the node, `v ← v₀ − L̄(v) d_i`; the grid force is its adjoint.
-    /// 0 (the default) is off: docs/schemes.md, "The centroid correction".
-    #[serde(default, skip_serializing_if = "is_zero")]
+    /// 0 is off: docs/schemes.md, "The centroid correction".
+    #[serde(default)]
     pub centroid_passes: u32,
     /// β of the sharpening of the two-step schemes' nodal averages L̄ and σ̄,
     /// `φ ← (1 + β) φ − β S φ` with `S` the consistent mass's smoothing: it cancels most
-    /// of their phase error. 0 (the default) is off: docs/schemes.md, "Sharpening".
-    #[serde(default, skip_serializing_if = "is_off")]
+    /// of their phase error. 0 is off: docs/schemes.md, "Sharpening".
+    #[serde(default)]
     pub sharpen: f64,
 }
 
-fn is_off(x: &f64) -> bool {
-    *x == 0.0
-}
+/// The version of the scene defaults a new run takes; checkpoints record theirs, so
+/// that a restart resolves its stored scene as the run that wrote it did.
+/// 1: every scheme at the particle (point rule), no centroid passes, no sharpening.
+/// 2: MPMCG with the domain rule, `sharpen = 1` (with the domain rule) and, under MUSL
+/// without XPIC, 4 centroid passes (docs/schemes.md, "Defaults"); the other schemes as
+/// in 1.
+pub const DEFAULTS: u32 = 2;
 
-fn is_zero(n: &u32) -> bool {
-    *n == 0
-}
-
-fn is_point(q: &Quadrature) -> bool {
-    *q == Quadrature::Point
+impl Method {
+    /// Give each of `quadrature`, `centroid_passes` and `sharpen` that `given` says is
+    /// absent its value under the scene defaults `version`: under 2, MPMCG's robust and accurate settings (the
+    /// particle noise of the point rule tears beams that MPM keeps whole); 1 keeps
+    /// every scheme's plain form, as runs before version 2 had it.
+    pub fn resolve(&mut self, version: u32, given: impl Fn(&str) -> bool) {
+        let mpmcg = version >= 2 && self.gradient == Gradient::Mpmcg;
+        if !given("quadrature") {
+            self.quadrature = if mpmcg {
+                Quadrature::Domain
+            } else {
+                Quadrature::Point
+            };
+        }
+        if !given("centroid_passes") {
+            let musl = self.update == Update::Musl && self.xpic.is_none();
+            self.centroid_passes = if mpmcg && musl { 4 } else { 0 };
+        }
+        if !given("sharpen") {
+            // With the point rule sharpening amplifies the quadrature's noise.
+            let domain = self.quadrature == Quadrature::Domain;
+            self.sharpen = if mpmcg && domain { 1.0 } else { 0.0 };
+        }
+    }
 }
 
 fn default_gradient() -> Gradient {

@@ -736,7 +736,8 @@ mod sort_tests {
         .replace("cells = [64, 64]", "cells = [24, 24]")
         .replace("amplitude = 0.1", &format!("amplitude = {amplitude}"))
         .replace("gradient = \"mpmcg\"", gradient);
-        let sc = scene::parse(&text, "vortex").unwrap();
+        // Scene defaults 1: absent keys give MPMCG at the particle, the path tested.
+        let sc = scene::parse_with(&text, "vortex", 1).unwrap();
         let layout = Layout::choose([24; 2], [false; 2], 1).unwrap();
         Solver::<2>::new(&sc, &SerialComm, layout)
     }

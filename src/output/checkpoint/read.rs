@@ -5,6 +5,7 @@ use super::access::{attr_f64, attr_u64, attr_vec, dataset, dataset_any, finite, 
 use super::rows::{RowCheck, Rows, Writers};
 use super::seal::check_seal;
 use super::{totals_from, Header, RunState, SolverState, FORMAT, OLDEST, VERSION};
+use crate::input::scene;
 use crate::mpm::particles::{Carries, Kinds, Particles};
 use crate::output::io::Entry;
 use crate::physics::shape::Geom;
@@ -104,6 +105,18 @@ pub fn read_header(path: &Path) -> Result<Header, String> {
     let scene: Vec<u8> = dataset_any(&f, path, "scene")?;
     let scene_text = String::from_utf8(scene)
         .map_err(|_| format!("{p}: damaged checkpoint: the stored scene is not UTF-8 text"))?;
+    let scene_defaults = if has_attr(&f, "scene_defaults") {
+        let v = attr_u64(&f, path, "scene_defaults")?;
+        if !(1..=u64::from(scene::DEFAULTS)).contains(&v) {
+            return Err(format!(
+                "{p}: attribute `scene_defaults` = {v}, but this mpmcg knows scene defaults 1 to {}",
+                scene::DEFAULTS
+            ));
+        }
+        v as u32
+    } else {
+        1
+    };
     let step = attr_u64(&f, path, "step")?;
     // Steps count up by one from 0, and the history stores them as numbers.
     if step >= F64_INTEGERS {
@@ -127,6 +140,7 @@ pub fn read_header(path: &Path) -> Result<Header, String> {
     Ok(Header {
         path: path.to_path_buf(),
         scene_text,
+        scene_defaults,
         dim,
         step,
         time,

@@ -13,6 +13,14 @@ use decomposition::Communicator;
 use hdf5::types::VarLenUnicode;
 use std::path::{Path, PathBuf};
 
+/// The scene a checkpoint stores: its text as given and the version of the scene
+/// defaults its absent keys took, so that a restart reads it as the run did.
+#[derive(Clone, Copy)]
+pub struct Stored<'a> {
+    pub text: &'a str,
+    pub defaults: u32,
+}
+
 /// Collective: write a checkpoint of the solver and run state after the current step,
 /// then delete the oldest checkpoints beyond `keep`. Returns the checkpoint's path.
 /// Every rank returns the same result.
@@ -21,7 +29,7 @@ pub fn write<const D: usize>(
     out: &Path,
     solver: &Solver<D>,
     run: &RunState,
-    scene_text: &str,
+    scene: Stored,
     lineage: &mut Lineage,
 ) -> Result<PathBuf, IoError> {
     let step = solver.step;
@@ -52,7 +60,7 @@ pub fn write<const D: usize>(
         per_rank.u64s("rank_rows", &[n])?;
         per_rank.floats("external_work", &[external_work], 0)?;
         per_rank.u64s("checksum", &[hash])?;
-        write_root_data(&o, scene_text, run, history_len)
+        write_root_data(&o, scene, run, history_len)
     })();
     // Closing is collective: after it every rank's rows are in the file. On failure
     // the partial file is gone and the earlier checkpoints are untouched.
@@ -219,14 +227,15 @@ fn write_particles<const D: usize>(
 /// scene text, `history.csv` so far (`history_len` bytes) and the snapshot list.
 fn write_root_data(
     o: &Out,
-    scene_text: &str,
+    scene: Stored,
     run: &RunState,
     history_len: u64,
 ) -> Result<(), IoError> {
     let root = o.comm.rank() == 0;
     let only_root = |len: u64| o.rows(0, if root { len } else { 0 }, len);
     let pick = |b: &[u8]| if root { b.to_vec() } else { Vec::new() };
-    only_root(scene_text.len() as u64).bytes("scene", &pick(scene_text.as_bytes()))?;
+    only_root(scene.text.len() as u64).bytes("scene", &pick(scene.text.as_bytes()))?;
+    o.u64("scene_defaults", u64::from(scene.defaults))?;
     only_root(history_len).bytes("history", &pick(&run.history))?;
     let k = run.snapshots.len() as u64;
     let steps: Vec<u64> = run.snapshots.iter().map(|s| s.step).collect();
