@@ -78,8 +78,8 @@ pub struct Ctx<'a, const D: usize> {
 /// mass, the momentum (D), the force (D), and for two-step schemes the averaged-stress
 /// sum `Σ_p (1 − α_p) v_p σ_p S_j(x_p)` (its upper triangle, [`NodeRecord::SYM`]
 /// numbers: the stress is symmetric, so the lower one is the same sum), with the
-/// centroid correction the first moment `Σ_p m_p S_j(x_p) (x̂_p − x_j)` (D) and the
-/// external force alone (D), and the cover `Σ_p v_p S_j(x_p)` last. The records are summed over ranks as plain numbers
+/// centroid correction the first moment `Σ_p m_p S_j(x_p) (x̂_p − x_j)` (D), and the
+/// cover `Σ_p v_p S_j(x_p)` last. The records are summed over ranks as plain numbers
 /// (the ghost sum).
 pub struct NodeRecord<const D: usize>;
 
@@ -88,7 +88,7 @@ impl<const D: usize> NodeRecord<D> {
     /// Entries of a symmetric D × D tensor's upper triangle.
     pub const SYM: usize = D * (D + 1) / 2;
     pub const fn width(two_step: bool, moments: bool) -> usize {
-        1 + 2 * D + if two_step { Self::SYM + 1 } else { 0 } + if moments { 2 * D } else { 0 }
+        1 + 2 * D + if two_step { Self::SYM + 1 } else { 0 } + if moments { D } else { 0 }
     }
     pub const fn momentum(a: usize) -> usize {
         1 + a
@@ -103,12 +103,6 @@ impl<const D: usize> NodeRecord<D> {
     /// Component `a` of the first moment (records with moments, two-step schemes).
     pub const fn moment(a: usize) -> usize {
         1 + 2 * D + Self::SYM + a
-    }
-    /// Component `a` of the external force alone, also summed in [`force`](Self::force)
-    /// (records with moments): the centroid correction transposes the internal force
-    /// only.
-    pub const fn external(a: usize) -> usize {
-        1 + 3 * D + Self::SYM + a
     }
     /// The cover, last in a record of `width`.
     pub const fn cover(width: usize) -> usize {

@@ -182,7 +182,7 @@ pub(super) fn scatter_slab<const D: usize, const NA: usize, const N: usize>(
         }
         acc.add(&k, mass, &mv, vol, &vs, &fe, m);
         if m.moments {
-            acc.add_moment(&k, mass, &off, &fe);
+            acc.add_moment(&k, mass, &off);
         }
     }
     if run.started() {
@@ -239,8 +239,6 @@ pub(super) struct ScatterSums<const D: usize, const N: usize> {
     pub(super) cover: [f64; N],
     /// The first moment relative to each node ([`ScatterMode::moments`]).
     pub(super) moment: [[f64; N]; D],
-    /// The external force alone, beside the moment.
-    pub(super) external: [[f64; N]; D],
 }
 
 impl<const D: usize, const N: usize> ScatterSums<D, N> {
@@ -253,7 +251,6 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
             stress: [[0.0; N]; 6],
             cover: [0.0; N],
             moment: [[0.0; N]; D],
-            external: [[0.0; N]; D],
         }
     }
 
@@ -324,22 +321,11 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
         }
     }
 
-    /// Add one particle's first moment relative to each of its nodes (the node
+    /// Add one particle's first moment relative to each of its nodes: the node
     /// positions `off`, relative to the stencil's first node, interpolated at the
-    /// particle, less each node's own) and its external force `fe` alone.
+    /// particle, less each node's own.
     #[inline(always)]
-    pub(super) fn add_moment(
-        &mut self,
-        k: &Kern<D, N>,
-        mass: f64,
-        off: &[[f64; N]; D],
-        fe: &Vector<D>,
-    ) {
-        for a in 0..D {
-            for n in 0..N {
-                self.external[a][n] += fe[a] * k.s[n];
-            }
-        }
+    pub(super) fn add_moment(&mut self, k: &Kern<D, N>, mass: f64, off: &[[f64; N]; D]) {
         for a in 0..D {
             let mut r = 0.0;
             for n in 0..N {
@@ -399,7 +385,6 @@ impl<const D: usize, const N: usize> ScatterSums<D, N> {
             if m.moments {
                 for a in 0..D {
                     rec[R::<D>::moment(a)] += self.moment[a][n];
-                    rec[R::<D>::external(a)] += self.external[a][n];
                 }
             }
             if m.forces {

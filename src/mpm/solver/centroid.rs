@@ -9,11 +9,10 @@
 //! rotation gains a strain rate, and the spin turns into strain. Each pass moves the
 //! velocity back to the node with the averaged gradient, `v_{k+1} = P (v₀ − L̄(v_k) d)`
 //! from `v₀ = P v` (`P`: the walls and the empty nodes); their fixed point is exact for a
-//! linear field. The internal grid force becomes the adjoint of the passes, `f ← Cᵀ f`,
-//! so its power against the grid velocity stays the stress power of the corrected
+//! linear field. The grid force becomes the adjoint of the passes, `f ← Cᵀ f`, so the
+//! forces' power against the grid velocity stays the stress power of the corrected
 //! velocity gradient, and `Σ_i (Cᵀ f)_i = Σ_i f_i` before the walls (a uniform velocity
-//! has `L̄ = 0`): momentum is kept. The external force is not transposed: its work is
-//! counted on the particles' velocities, which it changes as it is.
+//! has `L̄ = 0`): momentum is kept.
 
 use super::*;
 
@@ -91,14 +90,11 @@ impl<'c, const D: usize> Solver<'c, D> {
         self.grid.centroid_base = base;
     }
 
-    /// The internal grid force of the owned nodes replaced by the adjoint of the passes
-    /// of [`centroid_velocity`](Solver::centroid_velocity): with `u` that force,
+    /// The grid force of the owned nodes replaced by the adjoint of the passes of
+    /// [`centroid_velocity`](Solver::centroid_velocity): with `u` the force,
     /// `w ← u − Mᵀ P w` as often, `(Mᵀ y)_i = Σ_j (y_j ⊗ d_j / V_j) · ∫ w S_j ∇S_i dv`
     /// (the averaged force's stencil on a tensor that is not symmetric); the grid
-    /// update's walls are the last `P`. The external force is added after, as it is:
-    /// its work is counted against the particles' own velocities, which the grid
-    /// update changes by it untransposed, and a uniform acceleration stays uniform (a
-    /// falling body is not strained).
+    /// update's walls are the last `P`.
     pub(super) fn centroid_force(&mut self) {
         let (sw, vw, dd) = (self.grid.sw, VelRecord::<D>::WIDTH, D * D);
         let nn = self.grid.vel.len() / vw;
@@ -109,18 +105,12 @@ impl<'c, const D: usize> Solver<'c, D> {
         let mut tensor = std::mem::take(&mut self.grid.centroid_tensor);
         tensor.clear();
         tensor.resize(nn * dd, 0.0);
-        let external = |a: usize| NodeRecord::<D>::external(a);
         let mut scat = std::mem::take(&mut self.grid.scat);
         {
             let rec = &scat;
             self.nodes().par_owned(&mut base, D, |n, _, u| {
                 for a in 0..D {
-                    u[a] = rec[n * sw + force(a)] - rec[n * sw + external(a)];
-                }
-            });
-            self.nodes().par_owned(&mut scat, sw, |n, _, rec| {
-                for a in 0..D {
-                    rec[force(a)] = base[n * D + a];
+                    u[a] = rec[n * sw + force(a)];
                 }
             });
         }
@@ -154,11 +144,6 @@ impl<'c, const D: usize> Solver<'c, D> {
             });
             by_pad!(D, nodes, full_force_tiles, &mut scat, sw, &tensor);
         }
-        self.nodes().par_owned(&mut scat, sw, |_, _, rec| {
-            for a in 0..D {
-                rec[force(a)] += rec[external(a)];
-            }
-        });
         self.grid.scat = scat;
         self.grid.centroid_base = base;
         self.grid.centroid_tensor = tensor;
