@@ -29,7 +29,7 @@ import subprocess
 import sys
 import time
 
-SCHEMES = ["mpm", "gimp", "mpmcg", "mpmcg-domain"]
+SCHEMES = ["mpm", "gimp", "mpmcg-point", "mpmcg-domain"]
 PEER = "warp MLS-MPM"
 CASES = {
     "walls": ("inputs/axis_aligned_mms_2d.toml", 1),

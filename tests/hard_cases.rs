@@ -272,7 +272,7 @@ fn worst_pieces(out: &std::path::Path, h: f64) -> usize {
 /// The family at 2 × 2 particles per cell (MUSL, both grids, and the 4 m beam in 3D at
 /// 2 × 2 × 2) under MPMCG's defaults (the domain rule, `sharpen = 1`, four centroid
 /// passes): every beam whole and its motion kept, the energy balance at 3 s (kinetic +
-/// strain − gravity's work) within 5 % of gravity's work (measured −0.3 … +0.5 %).
+/// strain − gravity's work) within 5 % of gravity's work (measured −0.2 … +0.7 %).
 /// MPMCG at the particle tears the aligned 4 and 5 m beams and the 3D beam at the clamp
 /// (its first cell column comes off late in the run); MPM keeps the 4 m beam whole on
 /// both grids and the 3D beam, which it broke in 3 and 4 pieces while its particles
