@@ -1538,36 +1538,29 @@ fn unusable_checkpoints_are_rejected() {
         f.new_dataset::<f64>().shape([4]).create("data").unwrap();
     }
     run(&foreign, "not an mpmcg checkpoint");
-    let future = put("future.h5", &bytes);
-    {
-        let f = hdf5::File::open_rw(&future).unwrap();
-        f.delete_attr("version").unwrap();
-        f.new_attr::<u64>()
-            .create("version")
-            .unwrap()
-            .write_scalar(&99u64)
-            .unwrap();
-    }
-    // Edited on purpose with HDF5: sealed again, as a user would.
-    mpmcg::output::checkpoint::seal(&future).unwrap();
+    // A copy of the good checkpoint with attribute `attr` set to `value`, edited on
+    // purpose with HDF5 and sealed again, as a user would.
+    let with_attr = |name: &str, attr: &str, value: u64| {
+        let p = put(name, &bytes);
+        {
+            let f = hdf5::File::open_rw(&p).unwrap();
+            f.delete_attr(attr).unwrap();
+            f.new_attr::<u64>()
+                .create(attr)
+                .unwrap()
+                .write_scalar(&value)
+                .unwrap();
+        }
+        mpmcg::output::checkpoint::seal(&p).unwrap();
+        p
+    };
     run(
-        &future,
+        &with_attr("future.h5", "version", 99),
         "checkpoint format version 99, but this mpmcg reads versions 3 to 7",
     );
     // Scene defaults of a later build: their method is unknown here.
-    let later = put("later.h5", &bytes);
-    {
-        let f = hdf5::File::open_rw(&later).unwrap();
-        f.delete_attr("scene_defaults").unwrap();
-        f.new_attr::<u64>()
-            .create("scene_defaults")
-            .unwrap()
-            .write_scalar(&3u64)
-            .unwrap();
-    }
-    mpmcg::output::checkpoint::seal(&later).unwrap();
     run(
-        &later,
+        &with_attr("later.h5", "scene_defaults", 3),
         "attribute `scene_defaults` = 3, but this mpmcg knows scene defaults 1 to 2",
     );
     // Particle data changed in the middle of the file: the checksum notices.
