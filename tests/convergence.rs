@@ -13,10 +13,9 @@ use mpmcg::input::scene::{self, Gradient};
 use std::fmt::Write;
 use std::time::Instant;
 
-/// Scene defaults 1: what a test's scene does not name is off (MPMCG at the particle
-/// unless it names the domain rule or sharpening), so each test measures the variant
-/// its name says.
-const PLAIN: u32 = 1;
+/// What a test's scene does not name is off (MPMCG at the particle unless it names the
+/// domain rule or sharpening), so each test measures the variant its name says.
+const PLAIN: u32 = scene::PLAIN_DEFAULTS;
 
 fn mms_text(dim: usize, cells: usize, ppc: usize, gradient: Gradient) -> String {
     let v = |x: &str| vec![x; dim].join(", ");

@@ -5,7 +5,7 @@
 #![forbid(unsafe_code)]
 
 mod common;
-use common::{history, run_scene, snapshots, Snapshot};
+use common::{history, run_scene, snapshots, Snapshot, POINT_RULE};
 use mpmcg::driver::run::RunError;
 use std::collections::HashMap;
 
@@ -16,8 +16,6 @@ fn at_the_particle(text: &str) -> String {
     assert!(out.contains(POINT_RULE), "the scene has a [method] table");
     out
 }
-
-const POINT_RULE: &str = "quadrature = \"point\"\nsharpen = 0.0\ncentroid_passes = 0";
 
 fn with_gradient(text: &str, g: &str) -> String {
     let mut lines: Vec<String> = text.lines().map(String::from).collect();

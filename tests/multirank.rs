@@ -76,10 +76,7 @@ fn scene(dim: usize, gradient: &str) -> String {
                     "quadrature = \"domain\"\ncentroid_passes = 4\nsharpen = 2.0",
                 ),
                 None => match gradient.strip_suffix("+point") {
-                    Some(g) => (
-                        g,
-                        "quadrature = \"point\"\ncentroid_passes = 0\nsharpen = 0.0",
-                    ),
+                    Some(g) => (g, common::POINT_RULE),
                     None => (gradient, ""),
                 },
             },

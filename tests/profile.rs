@@ -14,7 +14,7 @@ use std::path::Path;
 /// does not. MPMCG at the particle, whose parts and counts docs/scaling.md gives.
 fn scene(gradient: &str, update: &str) -> String {
     let point = if gradient == "mpmcg" {
-        "quadrature = \"point\"\nsharpen = 0.0\ncentroid_passes = 0"
+        common::POINT_RULE
     } else {
         ""
     };

@@ -834,10 +834,10 @@ fn failing_crossing(every: u64) -> String {
         .replace("every = 3\n", "every = 0.35\n")
         .replace(
             "update = \"musl\"",
-            "update = \"musl\"\nquadrature = \"point\"\nsharpen = 0.0\ncentroid_passes = 0",
+            &format!("update = \"musl\"\n{}", common::POINT_RULE),
         );
     assert!(text.contains("every = 0.35") && text.contains("dt = 0.0596"));
-    assert!(text.contains("quadrature = \"point\""));
+    assert!(text.contains(common::POINT_RULE));
     text
 }
 
@@ -1375,6 +1375,8 @@ fn snapshots_and_xdmf_read_back() {
     let dir = temp_dir("snapshots");
     let sc = dir.join("scene.toml");
     let (vx, vy) = (0.5, -0.25);
+    // MPMCG at the particle: its projections keep velocities that are powers of two.
+    let point = common::POINT_RULE;
     std::fs::write(
         &sc,
         format!(
@@ -1384,9 +1386,7 @@ dim = 2
 end = 0.5
 cfl = 0.4
 [method]
-quadrature = "point"
-sharpen = 0.0
-centroid_passes = 0
+{point}
 [grid]
 lower = [0.0, 0.0]
 upper = [2.0, 1.0]

@@ -108,7 +108,7 @@ fn quadratures(g: Gradient) -> &'static [bool] {
 /// The scene `text` under scene defaults 1: each variant these tests compare (the
 /// domain rule, sharpening) is named in the text, and what it does not name is off.
 fn parse(text: &str) -> scene::Scene {
-    scene::parse_with(text, "test", 1).expect("valid scene")
+    scene::parse_with(text, "test", scene::PLAIN_DEFAULTS).expect("valid scene")
 }
 
 /// A solver for `text` with scattered velocities (around a drift) and symmetric stresses.

@@ -28,7 +28,7 @@
 mod common;
 use common::temp_dir;
 use mpmcg::driver::run::{run, RunOptions};
-use mpmcg::input::scene::{parse_with, Gradient, Quadrature, DEFAULTS};
+use mpmcg::input::scene::{parse_with, Gradient, Quadrature, DEFAULTS, PLAIN_DEFAULTS};
 
 const SCENE: &str = include_str!("../inputs/generalized_vortex.toml");
 
@@ -42,7 +42,11 @@ fn error(gradient: Gradient, cells: usize) -> f64 {
 /// with `sharpen < 0`, MPMCG with this build's defaults.
 fn errors(gradient: Gradient, cells: usize, sharpen: f64) -> (f64, f64) {
     // Scene defaults 1: MPMCG at the particle unless `sharpen` asks for the domain rule.
-    let defaults = if sharpen < 0.0 { DEFAULTS } else { 1 };
+    let defaults = if sharpen < 0.0 {
+        DEFAULTS
+    } else {
+        PLAIN_DEFAULTS
+    };
     let mut scene =
         parse_with(SCENE, "inputs/generalized_vortex.toml", defaults).expect("input parses");
     scene.method.gradient = gradient;

@@ -13,7 +13,7 @@ mod validate;
 pub use schema::{
     Balance, BenchmarkKind, BenchmarkSpec, BodySpec, Boundary, CheckpointSpec, Face, Field,
     Gradient, Gravity, GridSpec, MaterialSpec, Method, Model, Output, Parallel, Quadrature, Scene,
-    Seeding, Shape, SnapshotPlan, Strain, Time, Update, VelocityGradient, DEFAULTS,
+    Seeding, Shape, SnapshotPlan, Strain, Time, Update, VelocityGradient, DEFAULTS, PLAIN_DEFAULTS,
 };
 pub use validate::{MAX_CELLS_PER_AXIS, MAX_OUTPUTS, MAX_STEPS, MAX_XPIC};
 
@@ -112,16 +112,17 @@ pub fn restart_difference(a: &Scene, b: &Scene) -> Option<String> {
     }
     // The method keys the defaults resolve follow from the others (`gradient`,
     // `update`, `xpic`): name a key the scene changed before one that followed.
-    let unresolved = |s: &Scene| {
-        let mut v = strip(s);
+    let (a, b) = (strip(a), strip(b));
+    let unresolved = |v: &serde_json::Value| {
+        let mut v = v.clone();
         if let Some(m) = v.get_mut("method").and_then(|m| m.as_object_mut()) {
-            for k in ["quadrature", "centroid_passes", "sharpen"] {
+            for k in Method::RESOLVED {
                 m.remove(k);
             }
         }
         v
     };
-    first(&unresolved(a), &unresolved(b), "").or_else(|| first(&strip(a), &strip(b), ""))
+    first(&unresolved(&a), &unresolved(&b), "").or_else(|| first(&a, &b, ""))
 }
 
 /// Parse and validate a scene under the current defaults. `file` is used in messages

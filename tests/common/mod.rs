@@ -2,6 +2,10 @@
 //! read the files it writes.
 #![allow(dead_code)]
 
+/// `[method]` keys for MPMCG at the particle (no centroid passes, no sharpening), which
+/// MPMCG's defaults would otherwise add: for tests of what that method does.
+pub const POINT_RULE: &str = "quadrature = \"point\"\nsharpen = 0.0\ncentroid_passes = 0";
+
 use mpmcg::driver::run::{run, RunError, RunOptions, Summary};
 use mpmcg::input::scene::parse;
 use std::collections::HashMap;

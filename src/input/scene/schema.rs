@@ -204,13 +204,22 @@ pub struct Method {
 /// in 1.
 pub const DEFAULTS: u32 = 2;
 
+/// Scene defaults 1, every scheme in its plain form: what a checkpoint written before
+/// the attribute existed was run with, and what a test that names each variant it
+/// measures parses under.
+pub const PLAIN_DEFAULTS: u32 = 1;
+
 impl Method {
-    /// Give each of `quadrature`, `centroid_passes` and `sharpen` that `given` says is
-    /// absent its value under the scene defaults `version`: under 2, MPMCG's robust and accurate settings (the
-    /// particle noise of the point rule tears beams that MPM keeps whole); 1 keeps
-    /// every scheme's plain form, as runs before version 2 had it.
+    /// The keys whose absence [`Method::resolve`] fills, by the other keys and the
+    /// version of the defaults.
+    pub const RESOLVED: [&'static str; 3] = ["quadrature", "centroid_passes", "sharpen"];
+
+    /// Give each of [`Method::RESOLVED`] that `given` says is absent its value under the
+    /// scene defaults `version`: under 2, MPMCG's robust and accurate settings (the
+    /// particle noise of the point rule tears beams that MPM keeps whole); under
+    /// [`PLAIN_DEFAULTS`] every scheme's plain form, as runs before version 2 had it.
     pub fn resolve(&mut self, version: u32, given: impl Fn(&str) -> bool) {
-        let mpmcg = version >= 2 && self.gradient == Gradient::Mpmcg;
+        let mpmcg = version > PLAIN_DEFAULTS && self.gradient == Gradient::Mpmcg;
         if !given("quadrature") {
             self.quadrature = if mpmcg {
                 Quadrature::Domain

@@ -736,8 +736,8 @@ mod sort_tests {
         .replace("cells = [64, 64]", "cells = [24, 24]")
         .replace("amplitude = 0.1", &format!("amplitude = {amplitude}"))
         .replace("gradient = \"mpmcg\"", gradient);
-        // Scene defaults 1: absent keys give MPMCG at the particle, the path tested.
-        let sc = scene::parse_with(&text, "vortex", 1).unwrap();
+        // Plain defaults: absent keys give MPMCG at the particle, the path tested.
+        let sc = scene::parse_with(&text, "vortex", scene::PLAIN_DEFAULTS).unwrap();
         let layout = Layout::choose([24; 2], [false; 2], 1).unwrap();
         Solver::<2>::new(&sc, &SerialComm, layout)
     }

@@ -400,8 +400,8 @@ particles_per_cell = 2
 {rest}
 "#
         );
-        // Scene defaults 1: absent keys give MPMCG at the particle, the path tested.
-        let sc = scene::parse_with(&text, "periodic", 1).unwrap();
+        // Plain defaults: absent keys give MPMCG at the particle, the path tested.
+        let sc = scene::parse_with(&text, "periodic", scene::PLAIN_DEFAULTS).unwrap();
         let layout = Layout::choose([8, 4], [true, true], 1).unwrap();
         Solver::<2>::new(&sc, &SerialComm, layout)
     }
@@ -545,8 +545,8 @@ particles_per_cell = 2
                 .replace("gradient = \"mpmcg\"", &format!("gradient = \"{g}\""))
                 .replace("update = \"musl\"", &format!("update = \"{u}\""))
                 .replace("end = 3.0", "end = 1.0");
-            // Scene defaults 1: absent keys give MPMCG at the particle, the path tested.
-            let sc = scene::parse_with(&text, "cantilever", 1).unwrap();
+            // Plain defaults: absent keys give MPMCG at the particle, the path tested.
+            let sc = scene::parse_with(&text, "cantilever", scene::PLAIN_DEFAULTS).unwrap();
             let layout = Layout::choose([20, 22], [false, false], 1).unwrap();
             let mut s = Solver::<2>::new(&sc, &SerialComm, layout);
             s.null_space = Some(NullSpace::new());

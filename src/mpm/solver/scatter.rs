@@ -189,8 +189,8 @@ shape = {{ box = {{ lower = [0.5, 0.5], upper = [2.5, 1.5] }} }}
 particles_per_cell = 2
 "#
         );
-        // Scene defaults 1: absent keys give MPMCG at the particle, the path tested.
-        let sc = scene::parse_with(&text, "xpic", 1).unwrap();
+        // Plain defaults: absent keys give MPMCG at the particle, the path tested.
+        let sc = scene::parse_with(&text, "xpic", scene::PLAIN_DEFAULTS).unwrap();
         let layout = Layout::choose([12, 8], [false, false], 1).unwrap();
         let mut s = Solver::<2>::new(&sc, &SerialComm, layout);
         for p in 0..s.parts.len() {

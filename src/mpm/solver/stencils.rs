@@ -901,8 +901,9 @@ particles_per_cell = 3
         jitter: f64,
         rng: &mut Rng,
     ) -> Solver<'static, 2> {
-        // Scene defaults 1: absent keys give MPMCG at the particle, the path tested.
-        let sc = scene::parse_with(&scene_text(gradient, x_lower), "adj", 1).unwrap();
+        // Plain defaults: absent keys give MPMCG at the particle, the path tested.
+        let sc = scene::parse_with(&scene_text(gradient, x_lower), "adj", scene::PLAIN_DEFAULTS)
+            .unwrap();
         let layout = Layout::choose([20, 22], [false, false], 1).unwrap();
         let mut s = Solver::<2>::new(&sc, &SerialComm, layout);
         let h = s.geom.h;
@@ -1064,7 +1065,7 @@ particles_per_cell = 3
     /// particles jittered by up to 0.9 cells (partly filled surface cells) and given
     /// random deformation gradients `I + 0.2 (U − ½)`, with the stream that drew them.
     pub(in crate::mpm::solver) fn jittered_box_3d(seed: u64) -> (Solver<'static, 3>, Rng) {
-        // Scene defaults 1: absent keys give MPMCG at the particle, the path tested.
+        // Plain defaults: absent keys give MPMCG at the particle, the path tested.
         let sc = scene::parse_with(
             &super::super::setup::sparse_tests::text(3, 1.0, 16, "mpmcg"),
             "s3",
@@ -1192,8 +1193,8 @@ mod kept_force_tests {
         ))
         .unwrap()
         .replace("cells = [64, 64]", "cells = [24, 24]");
-        // Scene defaults 1: absent keys give MPMCG at the particle, the path tested.
-        let sc = scene::parse_with(&text, "vortex", 1).unwrap();
+        // Plain defaults: absent keys give MPMCG at the particle, the path tested.
+        let sc = scene::parse_with(&text, "vortex", scene::PLAIN_DEFAULTS).unwrap();
         let layout = Layout::choose([24; 2], [false; 2], 1).unwrap();
         let mut kept = Solver::<2>::new(&sc, &SerialComm, layout.clone());
         let mut formed = Solver::<2>::new(&sc, &SerialComm, layout);

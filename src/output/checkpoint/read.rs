@@ -107,15 +107,16 @@ pub fn read_header(path: &Path) -> Result<Header, String> {
         .map_err(|_| format!("{p}: damaged checkpoint: the stored scene is not UTF-8 text"))?;
     let scene_defaults = if has_attr(&f, "scene_defaults") {
         let v = attr_u64(&f, path, "scene_defaults")?;
-        if !(1..=u64::from(scene::DEFAULTS)).contains(&v) {
+        if !(u64::from(scene::PLAIN_DEFAULTS)..=u64::from(scene::DEFAULTS)).contains(&v) {
             return Err(format!(
-                "{p}: attribute `scene_defaults` = {v}, but this mpmcg knows scene defaults 1 to {}",
+                "{p}: attribute `scene_defaults` = {v}, but this mpmcg knows scene defaults {} to {}",
+                scene::PLAIN_DEFAULTS,
                 scene::DEFAULTS
             ));
         }
         v as u32
     } else {
-        1
+        scene::PLAIN_DEFAULTS
     };
     let step = attr_u64(&f, path, "step")?;
     // Steps count up by one from 0, and the history stores them as numbers.
