@@ -85,8 +85,8 @@ pub fn parse_cells(list: &str) -> Result<Vec<usize>, String> {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Scheme {
     pub gradient: Gradient,
-    /// Quadrature, centroid passes and β; `None` takes the defaults.
-    pub variant: Option<(Quadrature, u32, f64)>,
+    /// MPMCG's quadrature and β, without centroid passes; `None` takes the defaults.
+    pub variant: Option<(Quadrature, f64)>,
 }
 
 impl Scheme {
@@ -112,7 +112,7 @@ impl Scheme {
     const fn mpmcg(quadrature: Quadrature, beta: f64) -> Self {
         Scheme {
             gradient: Gradient::Mpmcg,
-            variant: Some((quadrature, 0, beta)),
+            variant: Some((quadrature, beta)),
         }
     }
 
@@ -120,7 +120,7 @@ impl Scheme {
         match self.variant {
             None => self.gradient.name(),
             Some((Quadrature::Point, ..)) => "mpmcg-point",
-            Some((Quadrature::Domain, _, b)) if b > 0.0 => "mpmcg-sharp",
+            Some((Quadrature::Domain, b)) if b > 0.0 => "mpmcg-sharp",
             Some((Quadrature::Domain, ..)) => "mpmcg-domain",
         }
     }
@@ -130,9 +130,9 @@ impl Scheme {
         method.gradient = self.gradient;
         match self.variant {
             None => method.resolve(scene::DEFAULTS, |_| false),
-            Some((q, passes, beta)) => {
+            Some((q, beta)) => {
                 method.quadrature = q;
-                method.centroid_passes = passes;
+                method.centroid_passes = 0;
                 method.sharpen = beta;
             }
         }
