@@ -410,10 +410,15 @@ fn other_cases() -> Vec<(&'static str, &'static str, Edit)> {
         case("carries_half_off", "are not those the stored scene needs", |f| scalar(f, "carries_half", 0u64)),
         case("carries_deleted", "attribute `carries_def_grad`", |f| f.delete_attr("carries_def_grad").unwrap()),
         case("carries_vol0_on", "are not those the stored scene needs", |f| scalar(f, "carries_vol0", 1u64)),
-        case("kind_material_deleted", "attribute `kind_material`", |f| f.delete_attr("kind_material").unwrap()),
-        case("kind_material_two", "attribute `kind_material` has 2 values, expected 1", |f| attr(f, "kind_material", &[0u64, 0])),
-        case("kind_material_other", "are not the kinds of particle of the stored scene", |f| attr(f, "kind_material", &[1u64])),
-        case("kind_vol0_other", "are not the kinds of particle of the stored scene", |f| attr(f, "kind_vol0", &[0.5f64])),
+        case("kind_material_deleted", "dataset `kind_material`", |f| f.unlink("kind_material").unwrap()),
+        case("kind_material_two", "dataset `kind_material` has 2 values, expected 1", |f| data(f, "kind_material", &[0u64, 0])),
+        case("kind_material_other", "kind 0 is material 1 of reference volume", |f| data(f, "kind_material", &[1u64])),
+        case("kind_vol0_other", "are not the kinds of particle of the stored scene: kind 0 is material 0 of reference volume 5e-1", |f| data(f, "kind_vol0", &[0.5f64])),
+        // Versions 6 and 7 hold them as attributes, which are read when present.
+        case("kind_vol0_attribute_other", "attributes `kind_material` and `kind_vol0` are not the kinds", |f| {
+            attr(f, "kind_material", &[0u64]);
+            attr(f, "kind_vol0", &[0.5f64]);
+        }),
         case("step_deleted", "attribute `step`", |f| f.delete_attr("step").unwrap()),
         case("step_max", "is beyond any run's step count", |f| scalar(f, "step", u64::MAX)),
         case("time_nan", "attribute `time` = NaN is not a finite time", |f| scalar(f, "time", f64::NAN)),

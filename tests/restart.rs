@@ -383,7 +383,7 @@ fn version_3_checkpoint_restarts() {
 /// masses its rows hold sum to the restarted run's mass (a mass formed from another
 /// material's density, or a column read out of place, would not); a restart starts
 /// from its rows and continues alike on one and two ranks ([`fixture_restarts`]); the
-/// checkpoints this build writes are of version 7, without the mass.
+/// checkpoints this build writes are of version 8, without the mass.
 #[test]
 fn version_4_checkpoint_restarts() {
     let dir = temp_dir("restart-v4");
@@ -420,10 +420,6 @@ fn starts_from_its_rows(scene: &str, ckpt: &Path) {
     use mpmcg::mpm::solver::Solver;
     use mpmcg::output::checkpoint;
     let header = checkpoint::read_header(ckpt).expect("a header");
-    assert_eq!(
-        header.scene_defaults, 1,
-        "a fixture from before scene defaults 2"
-    );
     // As a restart reads it: with the defaults its run took.
     let scene = mpmcg::input::scene::parse_with(scene, "fixture", header.scene_defaults)
         .expect("the fixture's scene");
@@ -477,11 +473,12 @@ fn fixture(name: &str, version: u64) -> (PathBuf, hdf5::File) {
 
 /// A restart from fixture `ckpt` (at its step `step`) of `scene` starts from the
 /// fixture's rows ([`starts_from_its_rows`]) and, restarted on 1 and 2 ranks, ends
-/// alike within 1e-12, with the method of scene defaults 1 (the fixtures are older:
-/// MPMCG at the particle, no passes, no sharpening), where `scene` run uninterrupted
-/// in `dir` takes this build's defaults (the domain rule, 4 passes, `sharpen = 1`)
-/// and writes checkpoints of this build's format (version 7, `scene_defaults` 2). Returns the restarts' folders and the uninterrupted
-/// run's first checkpoint, opened.
+/// alike within 1e-12, with the method of the scene defaults the fixture stores (1 in
+/// the fixtures before version 7: MPMCG at the particle, no passes, no sharpening),
+/// where `scene` run uninterrupted in `dir` takes this build's defaults (the domain
+/// rule, 4 passes, `sharpen = 1`) and writes checkpoints of this build's format
+/// (version 8, `scene_defaults` 2). Returns the restarts' folders and the
+/// uninterrupted run's first checkpoint, opened.
 ///
 /// The restarts are not compared with the uninterrupted run: the fixture's steps were
 /// taken by an older build, whose stepping (the order of the scatter's sums, the
@@ -489,6 +486,14 @@ fn fixture(name: &str, version: u64) -> (PathBuf, hdf5::File) {
 /// round-off; the rows themselves are the test of the reading.
 fn fixture_restarts(dir: &Path, scene: &str, ckpt: &Path, step: u64) -> (Vec<PathBuf>, hdf5::File) {
     starts_from_its_rows(scene, ckpt);
+    let defaults = mpmcg::output::checkpoint::read_header(ckpt)
+        .expect("a header")
+        .scene_defaults;
+    let defaults_2 = (json!("domain"), json!(4), json!(1.0));
+    let expected = match defaults {
+        1 => (json!("point"), Value::Null, Value::Null),
+        _ => defaults_2.clone(),
+    };
     let sc = dir.join("scene.toml");
     std::fs::write(&sc, scene).unwrap();
     let full = dir.join("full");
@@ -503,12 +508,8 @@ fn fixture_restarts(dir: &Path, scene: &str, ckpt: &Path, step: u64) -> (Vec<Pat
         let sum = summary(&out);
         assert_eq!(sum["restarted_from"]["step"], step);
         let method = (&sum["quadrature"], &sum["centroid_passes"], &sum["sharpen"]);
-        assert_eq!(
-            method,
-            (&json!("point"), &Value::Null, &Value::Null),
-            "{n} ranks"
-        );
-        assert_eq!(sum["scene_defaults"], 1);
+        assert_eq!(method, (&expected.0, &expected.1, &expected.2), "{n} ranks");
+        assert_eq!(sum["scene_defaults"], defaults);
         if let Some(first) = outs.first() {
             assert_close(first, &out, 1e-12, &format!("{} 1→{n}", ckpt.display()));
         }
@@ -516,11 +517,11 @@ fn fixture_restarts(dir: &Path, scene: &str, ckpt: &Path, step: u64) -> (Vec<Pat
     }
     let sum = summary(&full);
     let method = (&sum["quadrature"], &sum["centroid_passes"], &sum["sharpen"]);
-    assert_eq!(method, (&json!("domain"), &json!(4), &json!(1.0)));
+    assert_eq!(method, (&defaults_2.0, &defaults_2.1, &defaults_2.2));
     let c = files(&full, "checkpoint_");
     let f = hdf5::File::open(&c[0]).unwrap();
     let version: u64 = f.attr("version").unwrap().read_scalar().unwrap();
-    assert_eq!(version, 7);
+    assert_eq!(version, 8);
     let defaults: u64 = f.attr("scene_defaults").unwrap().read_scalar().unwrap();
     assert_eq!(defaults, 2);
     (outs, f)
@@ -536,8 +537,8 @@ fn fixture_restarts(dir: &Path, scene: &str, ckpt: &Path, step: u64) -> (Vec<Pat
 /// as in `version_4_checkpoint_restarts`: the fixture's volumes were updated by each
 /// step's increment, this build's are `det F · V₀`), and every particle keeps its
 /// material (the snapshot's `material` by id against the stored rows); the
-/// checkpoints this build writes are of version 7: no `vol0` and no `vol` (the disks
-/// carry `F`), and the kinds as attributes.
+/// checkpoints this build writes are of version 8: no `vol0` and no `vol` (the disks
+/// carry `F`), and the kinds as datasets.
 #[test]
 fn version_5_checkpoint_restarts_its_kinds() {
     let dir = temp_dir("restart-v5");
@@ -565,11 +566,41 @@ fn version_5_checkpoint_restarts_its_kinds() {
     }
     let (_, _, cols) = common::checkpoint_table(&f);
     assert!(!cols.iter().any(|c| c == "vol0" || c == "vol"), "{cols:?}");
-    let material: Vec<u64> = f.attr("kind_material").unwrap().read_raw().unwrap();
-    let vol0: Vec<f64> = f.attr("kind_vol0").unwrap().read_raw().unwrap();
+    let material: Vec<u64> = f.dataset("kind_material").unwrap().read_raw().unwrap();
+    let vol0: Vec<f64> = f.dataset("kind_vol0").unwrap().read_raw().unwrap();
     let h2 = 1.0 / 256.0;
     assert_eq!(material, [0, 1, 0]);
     assert_eq!(vol0, [h2 / 4.0, h2 / 4.0, h2 / 9.0]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A checkpoint of format version 7 (`tests/data/checkpoint_v7_kinds.h5`, written by
+/// commit f2779d0 from [`kinds_scene`], step 77 of 167, under scene defaults 2), whose
+/// kinds of particle are root attributes: a restart reads them, starts from its rows
+/// and continues alike on one and two ranks with the defaults it stores
+/// ([`fixture_restarts`]); this build writes the same kinds as datasets.
+#[test]
+fn version_7_checkpoint_restarts_its_kinds() {
+    let dir = temp_dir("restart-v7");
+    let (v7, f) = fixture("checkpoint_v7_kinds.h5", 7);
+    let kinds = |f: &hdf5::File, attribute: bool| -> (Vec<u64>, Vec<f64>) {
+        if attribute {
+            let m = f.attr("kind_material").unwrap().read_raw().unwrap();
+            (m, f.attr("kind_vol0").unwrap().read_raw().unwrap())
+        } else {
+            let m = f.dataset("kind_material").unwrap().read_raw().unwrap();
+            (m, f.dataset("kind_vol0").unwrap().read_raw().unwrap())
+        }
+    };
+    let stored = kinds(&f, true);
+    drop(f);
+    let (_, f) = fixture_restarts(&dir, &kinds_scene(), &v7, 77);
+    assert!(!f
+        .attr_names()
+        .unwrap()
+        .iter()
+        .any(|a| a.starts_with("kind_")));
+    assert_eq!(kinds(&f, false), stored);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -632,6 +663,58 @@ fn plastic_state_restarts() {
     let plastic = |out: &Path| common::scalar_by_id(&last_snapshot(out), "plastic_strain");
     let peak = common::assert_rows_close(&plastic(&full), &plastic(&again(1)), 32.4e-3);
     assert!(peak > 0.5, "plastic flow by 20 µs ({peak})");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A scene with more kinds of particle than an HDF5 attribute holds checkpoints and
+/// restarts: 17 balls of 17 materials seeded `cut` in 3D are 17 × 512 kinds, 70 KB of
+/// `kind_vol0` (an attribute holds 64 KB; version 7 failed to write the checkpoint).
+/// On 2 ranks, with the balls thrown towards the middle, across the blocks' cut, the checkpoint holds
+/// the kinds the scene makes and the restart 2→2 ends bit for bit like the
+/// uninterrupted run.
+#[test]
+fn many_kinds_of_particle_restart() {
+    let dir = temp_dir("restart-many-kinds");
+    let sc = dir.join("scene.toml");
+    let mut text = String::from(
+        "name = \"many_kinds\"\ndim = 3\n[time]\nend = 0.04\ncfl = 0.4\n[grid]\n\
+         lower = [0.0, 0.0, 0.0]\nupper = [6.0, 6.0, 1.0]\ncells = [24, 24, 4]\n\
+         [output]\nevery = 0.04\nfields = [\"velocity\", \"stress\", \"displacement\"]\n\
+         [checkpoint]\nevery = 0.02\n",
+    );
+    for m in 0..17 {
+        let (x, y) = (0.5 + (m % 5) as f64 * 1.2, 0.5 + (m / 5) as f64 * 1.2);
+        let toward = |c: f64| if c < 3.0 { 8.0 } else { -8.0 };
+        text += &format!(
+            "[[materials]]\nname = \"m{m}\"\nmodel = \"neo_hookean\"\ndensity = {}.0\n\
+             youngs_modulus = 1.0e5\npoisson_ratio = 0.3\n[[bodies]]\nmaterial = \"m{m}\"\n\
+             shape = {{ sphere = {{ center = [{x}, {y}, 0.5], radius = 0.4 }} }}\n\
+             velocity = [{}, {}, 0.0]\nseeding = \"cut\"\n",
+            1000 + 10 * m,
+            toward(x),
+            toward(y)
+        );
+    }
+    std::fs::write(&sc, text).unwrap();
+    let full = dir.join("full");
+    ok(2, &["run", s(&sc), "--out", s(&full), "--quiet"]);
+    let moved = &summary(&full)["halo"]["migration"]["bytes_per_rank_per_step"]["max"];
+    assert!(moved.as_f64().unwrap() > 0.0, "particles handed over: {moved}");
+    let c = files(&full, "checkpoint_");
+    assert_eq!(c.len(), 1, "one checkpoint half-way: {c:?}");
+    let f = hdf5::File::open(&c[0]).unwrap();
+    let material: Vec<u64> = f.dataset("kind_material").unwrap().read_raw().unwrap();
+    let vol0: Vec<f64> = f.dataset("kind_vol0").unwrap().read_raw().unwrap();
+    assert_eq!(material.len(), 17 * 512);
+    assert!(8 * vol0.len() > 64 * 1024, "{} kinds", vol0.len());
+    assert_eq!(material[17 * 512 - 1], 16);
+    drop(f);
+    let out = dir.join("r22");
+    ok(
+        2,
+        &["run", "--restart", s(&c[0]), "--out", s(&out), "--quiet"],
+    );
+    assert_identical(&full, &out, "many kinds 2→2");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -1556,7 +1639,7 @@ fn unusable_checkpoints_are_rejected() {
     };
     run(
         &with_attr("future.h5", "version", 99),
-        "checkpoint format version 99, but this mpmcg reads versions 3 to 7",
+        "checkpoint format version 99, but this mpmcg reads versions 3 to 8",
     );
     // Scene defaults of a later build: their method is unknown here.
     run(

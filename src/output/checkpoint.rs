@@ -9,9 +9,9 @@
 //! crash during a write leaves the previous checkpoints intact. Then the oldest
 //! checkpoints beyond `keep` of this run's [`Lineage`] are deleted.
 //!
-//! # Format (version 6; versions 3 to 5 are read too)
+//! # Format (version 8; versions 3 to 7 are read too)
 //!
-//! Root attributes: `format` = "mpmcg-checkpoint", `version` = 6, `lineage` (the id
+//! Root attributes: `format` = "mpmcg-checkpoint", `version` = 8, `lineage` (the id
 //! of the run and its restarts; pruning deletes only checkpoints of its own lineage),
 //! `dim`, `step`,
 //! `time`, `dt`, `max_speed` (fastest signal speed over all ranks after the step; the
@@ -21,9 +21,7 @@
 //! `carries_stress` (0/1; absent in version 3, whose records always hold the stress),
 //! `carries_mass` (0; absent before version 5, whose records hold the mass),
 //! `carries_vol0` (0; absent before version 6, whose records hold the reference
-//! volume, and the material where the `kind` column is), `kind_material` and
-//! `kind_vol0` (per kind of particle, its material's index and reference volume; the
-//! `kind` column indexes them; absent before version 6), `carries_vol` (0 where the
+//! volume, and the material where the `kind` column is), `carries_vol` (0 where the
 //! particles carry `F`, whose volume is `det F · V₀`; absent before version 6, whose
 //! records always hold the volume), and
 //! the run loop's diagnostics: `initial_totals` and
@@ -31,7 +29,8 @@
 //! `initial_particles`, `last_particles`, `energy_scale`, `max_energy_deviation`,
 //! `max_errors` (displacement, velocity), `has_last_errors`, `last_errors`,
 //! `next_history_time`, `last_history_step`, `next_snapshot_time`,
-//! `next_checkpoint_time`.
+//! `next_checkpoint_time`, `scene_defaults` (the version of the scene defaults the
+//! stored scene was read with; absent before version 7).
 //!
 //! The file starts with a 512-byte user block that HDF5 leaves alone: the seal
 //! ([`seal`](fn@seal)), `mpmcg checkpoint`, the length of the rest and a hash of every byte of
@@ -44,7 +43,10 @@
 //! rank; `external_work` (ranks, f64): each writer rank's accumulated external work;
 //! `checksum` (ranks, u64): a hash of each writer rank's rows; `scene` (u8): the scene
 //! text verbatim; `history` (u8): `history.csv` up to this step; `snapshot_steps`,
-//! `snapshot_times`, `snapshot_particles`: the snapshots written so far.
+//! `snapshot_times`, `snapshot_particles`: the snapshots written so far;
+//! `kind_material` (u64) and `kind_vol0` (f64): per kind of particle, its material's
+//! index and reference volume, which the `kind` column indexes (root attributes in
+//! versions 6 and 7, absent before).
 //!
 //! Restart on the writer's rank count reads each rank's own rows back in their order
 //! (bit-identical continuation). On another rank count every rank reads all rows in
@@ -81,8 +83,10 @@ pub const FORMAT: &str = "mpmcg-checkpoint";
 /// attributes `kind_material` and `kind_vol0`), where before 6 it held the material;
 /// and no `vol` column where the particles carry `F` (`carries_vol` = 0: the volume
 /// is `det F · V₀`). 7: the attribute `scene_defaults`, the version of the scene
-/// defaults the stored scene was read with (1 when absent).
-pub const VERSION: u64 = 7;
+/// defaults the stored scene was read with (1 when absent). 8: `kind_material` and
+/// `kind_vol0` are datasets, not attributes (which hold at most 64 KB: a few bodies
+/// seeded `cut` have more kinds).
+pub const VERSION: u64 = 8;
 /// The oldest version this build reads: a version 3 record always has the stress
 /// columns, which a scene that does not store the stress drops on reading, records
 /// before version 5 the mass, dropped too, and before 6 the material and `vol0`,

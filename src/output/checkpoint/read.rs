@@ -289,29 +289,32 @@ pub fn read<const D: usize>(
     })
 }
 
-/// A checkpoint of version 6 or later names the stored scene's kinds of particle
-/// (`kind_material`, `kind_vol0`), which its `kind` column indexes.
+/// A checkpoint of version 6 or later names the stored scene's kinds of particle,
+/// which its `kind` column indexes: `kind_material` and `kind_vol0`, datasets from
+/// version 8 and root attributes before.
 fn same_kinds(f: &hdf5::File, path: &Path, kinds: &Kinds) -> Result<(), String> {
     let n = kinds.material.len();
-    let material: Vec<u64> = attr_vec(f, path, "kind_material", n)?;
-    let vol0: Vec<f64> = attr_vec(f, path, "kind_vol0", n)?;
-    let same = material
-        .iter()
-        .zip(&kinds.material)
-        .all(|(&a, &b)| a == u64::from(b))
-        && vol0
-            .iter()
-            .zip(&kinds.vol0)
-            .all(|(a, b)| a.to_bits() == b.to_bits());
-    if same {
-        return Ok(());
+    let (material, vol0, what): (Vec<u64>, Vec<f64>, _) = if has_attr(f, "kind_vol0") {
+        let m = attr_vec(f, path, "kind_material", n)?;
+        (m, attr_vec(f, path, "kind_vol0", n)?, "attributes")
+    } else {
+        let m = dataset(f, path, "kind_material", n)?;
+        (m, dataset(f, path, "kind_vol0", n)?, "datasets")
+    };
+    let other = (0..n).find(|&k| {
+        material[k] != u64::from(kinds.material[k]) || vol0[k].to_bits() != kinds.vol0[k].to_bits()
+    });
+    match other {
+        None => Ok(()),
+        Some(k) => Err(format!(
+            "{}: damaged checkpoint: {what} `kind_material` and `kind_vol0` are not the kinds of particle of the stored scene: kind {k} is material {} of reference volume {:e}, where the scene's is material {} of {:e}",
+            path.display(),
+            material[k],
+            vol0[k],
+            kinds.material[k],
+            kinds.vol0[k]
+        )),
     }
-    Err(format!(
-        "{}: damaged checkpoint: attributes `kind_material` {material:?} and `kind_vol0` {vol0:?} are not the kinds of particle of the stored scene ({:?}, {:?})",
-        path.display(),
-        kinds.material,
-        kinds.vol0
-    ))
 }
 
 /// The run loop's state (`history.csv` on rank 0 only) of a checkpoint at `step`. Its

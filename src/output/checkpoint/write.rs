@@ -6,7 +6,7 @@ use super::{
     checkpoint_name, columns, row_hash, step_of, temp_name, totals_vec, Lineage, RunState, FORMAT,
     VERSION,
 };
-use crate::mpm::particles::{Carries, Particles};
+use crate::mpm::particles::{Carries, Kinds, Particles};
 use crate::mpm::solver::Solver;
 use crate::output::io::{self, agree, h5err, lockstep, IoError, Writer};
 use decomposition::Communicator;
@@ -53,6 +53,7 @@ pub fn write<const D: usize>(
     };
     let result = (|| -> Result<(), IoError> {
         write_header(&o, solver, &lineage.id, speed[0], total)?;
+        write_kinds(&o, &solver.kinds)?;
         write_run_state(&o, run)?;
         let hash = write_particles(&o, solver, offset, total)?;
         // One value per writer rank.
@@ -167,11 +168,26 @@ fn write_header<const D: usize>(
     for (name, on) in Carries::NAMES.iter().zip(carries.flags()) {
         o.u64(&format!("carries_{name}"), u64::from(on))?;
     }
-    let kinds = &solver.kinds;
-    let material: Vec<u64> = kinds.material.iter().map(|&m| u64::from(m)).collect();
-    o.u64s("kind_material", &material)?;
-    o.f64s("kind_vol0", &kinds.vol0)?;
     Ok(())
+}
+
+/// The kinds of particle the `kind` column indexes, `kind_material` and `kind_vol0`,
+/// as datasets of rank 0's rows: a body seeded `cut` adds hundreds of kinds, more than
+/// the 64 KB an HDF5 attribute holds.
+fn write_kinds(o: &Out, kinds: &Kinds) -> Result<(), IoError> {
+    let root = o.comm.rank() == 0;
+    let n = kinds.material.len() as u64;
+    let rows = o.rows(0, if root { n } else { 0 }, n);
+    let (material, vol0): (Vec<u64>, &[f64]) = if root {
+        (
+            kinds.material.iter().map(|&m| u64::from(m)).collect(),
+            &kinds.vol0,
+        )
+    } else {
+        (Vec::new(), &[])
+    };
+    rows.u64s("kind_material", &material)?;
+    rows.floats("kind_vol0", vol0, 0)
 }
 
 /// The run loop's diagnostics and schedule as root attributes.
