@@ -49,9 +49,10 @@
 //! versions 6 and 7, absent before).
 //!
 //! Restart on the writer's rank count reads each rank's own rows back in their order
-//! (bit-identical continuation). On another rank count every rank reads all rows in
-//! chunks and keeps those in its cells: O(N) reading per rank, fine for the sizes of a
-//! few nodes but not for thousands of ranks.
+//! (bit-identical continuation). On another rank count every rank reads, in chunks,
+//! the rows of the writers whose blocks overlap its own and keeps those in its cells:
+//! from few writers onto many ranks that is most of the file per rank, fine for the
+//! sizes of a few nodes but not for thousands of ranks.
 
 mod access;
 mod lineage;
