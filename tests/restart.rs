@@ -699,7 +699,10 @@ fn many_kinds_of_particle_restart() {
     let full = dir.join("full");
     ok(2, &["run", s(&sc), "--out", s(&full), "--quiet"]);
     let moved = &summary(&full)["halo"]["migration"]["bytes_per_rank_per_step"]["max"];
-    assert!(moved.as_f64().unwrap() > 0.0, "particles handed over: {moved}");
+    assert!(
+        moved.as_f64().unwrap() > 0.0,
+        "particles handed over: {moved}"
+    );
     let c = files(&full, "checkpoint_");
     assert_eq!(c.len(), 1, "one checkpoint half-way: {c:?}");
     let f = hdf5::File::open(&c[0]).unwrap();
