@@ -683,6 +683,66 @@ fn sigterm_is_honoured_within_a_step_at_the_highest_output_rate() {
 /// without end, an impossible thread count, a restart with nothing to run, an error
 /// that quotes megabytes of input, and an error under `mpirun -n 3` (printed by every
 /// rank before).
+/// A scene whose particles cannot fit is refused before they are seeded: 3D, 150³
+/// cells of 2 × 2 × 2 particles (27 million, 4 GiB of particle state) in a process
+/// whose address space is capped at 1.5 GB ends with exit status 2 and a message that
+/// names the particles, the limit and what to change, within seconds, where it used to
+/// end in an allocation failure (exit 134, a backtrace). Under the same cap a scene of
+/// 20³ cells runs.
+#[test]
+fn a_scene_too_large_for_memory_is_refused_before_seeding() {
+    let dir = temp_dir("too-large");
+    let scene = |cells: usize| {
+        format!(
+            "name = \"large\"\ndim = 3\n[time]\nend = 1.0e-4\n[grid]\n\
+             lower = [0.0, 0.0, 0.0]\nupper = [1.0, 1.0, 1.0]\ncells = [{cells}, {cells}, {cells}]\n\
+             [[materials]]\nname = \"m\"\nmodel = \"neo_hookean\"\ndensity = 1000.0\n\
+             youngs_modulus = 1.0e6\npoisson_ratio = 0.3\n[[bodies]]\nmaterial = \"m\"\n\
+             shape = {{ box = {{ lower = [0.0, 0.0, 0.0], upper = [1.0, 1.0, 1.0] }} }}\n"
+        )
+    };
+    let run = |cells: usize| {
+        let sc = dir.join(format!("s{cells}.toml"));
+        std::fs::write(&sc, scene(cells)).unwrap();
+        let out = dir.join(format!("o{cells}"));
+        let t0 = Instant::now();
+        let o = std::process::Command::new("sh")
+            .args([
+                "-c",
+                "ulimit -v 1500000; exec \"$0\" run \"$1\" --out \"$2\" --quiet --threads 1",
+                &bin(),
+                sc.to_str().unwrap(),
+                out.to_str().unwrap(),
+            ])
+            .output()
+            .unwrap();
+        (o, t0.elapsed())
+    };
+    let (o, took) = run(150);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    for words in [
+        "the particles do not fit in memory: rank 0 would seed at least",
+        "(160 bytes each) takes more than the",
+        "its address-space limit (ulimit -v) leaves; run on more nodes, or with fewer particles per cell or a coarser grid",
+    ] {
+        assert!(err.contains(words), "{words:?} not in: {err}");
+    }
+    assert!(
+        !err.contains("panicked") && !err.contains("backtrace"),
+        "{err}"
+    );
+    assert!(took < Duration::from_secs(60), "refused after {took:?}");
+    let (o, _) = run(20);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn small_input_faults_end_with_exit_2() {
     let dir = temp_dir("small-faults");

@@ -28,6 +28,9 @@ pub trait Communicator {
     fn min_f64(&self, x: &mut [f64]);
     /// Element-wise sum over ranks, in place.
     fn sum_u64(&self, x: &mut [u64]);
+    /// Element-wise sum over the ranks that share this rank's node (its memory), in
+    /// place: for set-up, not the step (an MPI run forms the node's communicator anew).
+    fn node_sum_u64(&self, x: &mut [u64]);
     /// Sum of `x` over ranks below this one (0 on rank 0).
     fn exclusive_scan_u64(&self, x: u64) -> u64;
     /// Send `sends[k]` to `peers[k]` and receive into `recvs[k]` from `peers[k]`.
@@ -66,6 +69,7 @@ impl Communicator for SerialComm {
     fn max_f64(&self, _: &mut [f64]) {}
     fn min_f64(&self, _: &mut [f64]) {}
     fn sum_u64(&self, _: &mut [u64]) {}
+    fn node_sum_u64(&self, _: &mut [u64]) {}
     fn exclusive_scan_u64(&self, _: u64) -> u64 {
         0
     }
@@ -229,6 +233,9 @@ impl Communicator for MpiComm {
     }
     fn sum_u64(&self, x: &mut [u64]) {
         reduce(&self.world, x, SystemOperation::sum());
+    }
+    fn node_sum_u64(&self, x: &mut [u64]) {
+        self.node().sum_u64(x);
     }
     fn exclusive_scan_u64(&self, x: u64) -> u64 {
         let mut out = 0u64;

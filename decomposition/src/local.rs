@@ -271,6 +271,10 @@ impl Communicator for LocalComm {
             }
         }
     }
+    /// The ranks are threads of one process, so on one node.
+    fn node_sum_u64(&self, x: &mut [u64]) {
+        self.sum_u64(x);
+    }
     fn exclusive_scan_u64(&self, x: u64) -> u64 {
         let all = self.all_gather(Payload::U64(vec![x]));
         all[..self.rank].iter().map(|p| p.u64()[0]).sum()

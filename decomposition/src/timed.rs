@@ -94,6 +94,9 @@ impl Communicator for Timed<'_> {
     fn sum_u64(&self, x: &mut [u64]) {
         self.collective(|| self.inner.sum_u64(x))
     }
+    fn node_sum_u64(&self, x: &mut [u64]) {
+        self.collective(|| self.inner.node_sum_u64(x))
+    }
     fn exclusive_scan_u64(&self, x: u64) -> u64 {
         self.collective(|| self.inner.exclusive_scan_u64(x))
     }

@@ -20,6 +20,7 @@ pub mod affinity;
 pub mod cli;
 #[allow(unsafe_code)] // `xgetbv`: the OS's saved vector registers.
 pub mod cpu;
+pub mod memory;
 pub mod progress;
 pub mod run;
 #[allow(unsafe_code)] // Signal handlers.

@@ -4,11 +4,14 @@
 use super::schedules::SnapshotSchedule;
 use super::summary::{rank_load, RestartSummary};
 use super::{RunError, RunOptions};
+use crate::driver::memory;
 use crate::input::plan::CheckpointEvery;
 use crate::input::scene::{Balance, Scene};
+use crate::mpm::particles::{Carries, Particles};
 use crate::mpm::solver::{Load, Solver};
 use crate::output::checkpoint::{self, RunState};
 use crate::output::io::agree;
+use crate::physics::benchmark::Benchmark;
 use decomposition::{Communicator, Layout};
 use std::path::Path;
 
@@ -30,6 +33,7 @@ pub(super) fn set_up<'c, const D: usize>(
 ) -> Result<SetUp<'c, D>, RunError> {
     let balance = scene.parallel.balance;
     let Some(path) = &opts.restart else {
+        check_memory(scene, comm, layout)?;
         let mut solver = Solver::new(scene, comm, layout.clone());
         // Seeded in equal blocks, then cut for an equal share of the particles.
         if balance != Balance::Off {
@@ -255,5 +259,67 @@ pub(super) fn initial<const D: usize>(
         history: Vec::new(),
         last: tot0.clone(),
         initial: tot0,
+    }
+}
+
+/// Collective: refuse (exit 2) a scene whose particles cannot fit, before seeding them.
+/// Each rank counts the particles its block will seed; their state alone (a particle's
+/// checkpoint record, less than a run holds per particle) must fit in what the node has
+/// available, summed over the node's ranks, and in what each process's address-space
+/// limit leaves. Otherwise the run would end in an allocation failure or at the hands of
+/// the kernel's OOM killer, after the queue wait and the set-up.
+fn check_memory<const D: usize>(
+    scene: &Scene,
+    comm: &dyn Communicator,
+    layout: &Layout<D>,
+) -> Result<(), RunError> {
+    let bytes = 8 * Particles::<D>::record_width(Carries::for_scene(scene)) as u64;
+    let (node, mine) = (memory::node_available(), memory::address_space_left());
+    // Counting stops once the count alone is too many.
+    let stop = [node, mine]
+        .into_iter()
+        .flatten()
+        .min()
+        .map_or(0, |b| b / bytes + 1);
+    let block = decomposition::Block::new(layout, comm.rank());
+    let geom = Solver::<D>::geometry(scene);
+    let benchmark = Benchmark::<D>::new(scene);
+    let n = Particles::<D>::count_seeded(
+        scene,
+        &geom,
+        benchmark.as_ref(),
+        (block.cell_lo, block.cell_hi),
+        stop,
+    );
+    let mut on_node = [n];
+    comm.node_sum_u64(&mut on_node);
+    let gib = |b: u64| b as f64 / f64::from(1u32 << 30);
+    // Where the count stopped, it is a lower bound and so is the state's size.
+    let stopped = n == stop;
+    let state = |count: u64, room: u64, what: &str| {
+        if stopped {
+            format!("at least {count} particles, whose state alone ({bytes} bytes each) takes more than the {:.1} GiB {what}", gib(room))
+        } else {
+            format!("{count} particles, whose state alone takes {:.1} GiB ({bytes} bytes each), more than the {:.1} GiB {what}", gib(count * bytes), gib(room))
+        }
+    };
+    let advice = "run on more nodes, or with fewer particles per cell or a coarser grid";
+    let err = if let Some(room) = node.filter(|&a| on_node[0].saturating_mul(bytes) > a) {
+        Some(format!(
+            "the particles do not fit in memory: this node's ranks would seed {}; {advice}",
+            state(on_node[0], room, "the node has available")
+        ))
+    } else {
+        mine.filter(|&a| n.saturating_mul(bytes) > a).map(|room| {
+            format!(
+                "the particles do not fit in memory: rank {} would seed {}; {advice}",
+                comm.rank(),
+                state(n, room, "its address-space limit (ulimit -v) leaves")
+            )
+        })
+    };
+    match agree(comm, err) {
+        Some(m) => Err(RunError::Input(m)),
+        None => Ok(()),
     }
 }

@@ -23,50 +23,56 @@ impl<const D: usize> Particles<D> {
     ) -> Self {
         let carries = Carries::for_scene(scene);
         let mut p = Particles::<D>::default();
-        // Benchmarks may start displaced: look that many cells beyond the block.
-        let disp = match benchmark {
-            Some(Benchmark::AxisAlignedMms { a, .. }) => a.abs(),
-            _ => 0.0,
-        };
-        let mut id_base = 0u64;
         let plan = &scene.plan;
-        let body_kinds = plan.body_kind.iter().zip(&plan.body_cut_kinds);
-        for (body, (&k, &cut_kinds)) in scene.bodies.iter().zip(body_kinds) {
-            let n = body.particles_per_cell;
-            let sub = n.pow(D as u32);
-            let seed = BodySeed {
+        let seeds: Vec<BodySeed<D>> = scene
+            .bodies
+            .iter()
+            .zip(plan.body_kind.iter().zip(&plan.body_cut_kinds))
+            .map(|(body, (&k, &cut_kinds))| BodySeed {
                 mat: &materials[k],
                 kind: k,
                 cut_kinds,
                 vol0: &kinds.vol0,
-                half: std::array::from_fn(|a| 0.5 * geom.h[a] / n as f64),
+                half: std::array::from_fn(|a| 0.5 * geom.h[a] / body.particles_per_cell as f64),
                 carries,
-            };
-            let (c0, c1) = body_cells::<D>(body, geom);
-            // Restrict to the block, padded by the initial displacement.
-            let pad: [usize; D] =
-                std::array::from_fn(|a| 1 + (disp * geom.inv_h[a]).ceil() as usize);
-            let r0: [usize; D] =
-                std::array::from_fn(|a| c0[a].max(cell_lo[a].saturating_sub(pad[a])));
-            let r1: [usize; D] = std::array::from_fn(|a| c1[a].min(cell_hi[a] + pad[a]));
-            let dims: [usize; D] = std::array::from_fn(|a| c1[a] - c0[a]);
-            let body_cells: usize = dims.iter().product();
-            if (0..D).all(|a| r0[a] < r1[a]) {
-                lattice_points::<D>(body, geom, (c0, c1), (r0, r1), |lin, s, xref, share| {
-                    let xr = vector::<D>(&xref);
-                    let (x, v, f) = initial_motion(body, benchmark, &xr);
-                    let (c, _) = geom.locate(&std::array::from_fn(|a| x[a]));
-                    if (0..D).any(|a| c[a] < cell_lo[a] as i64 || c[a] >= cell_hi[a] as i64) {
-                        return true;
-                    }
-                    let id = id_base + (lin * sub + s) as u64;
-                    p.push_seeded(&seed, (id, share), xr, (x, v, f));
-                    true
-                });
-            }
-            id_base += (body_cells * sub) as u64;
-        }
+            })
+            .collect();
+        each_seeded(
+            scene,
+            geom,
+            benchmark,
+            (cell_lo, cell_hi),
+            |b, id, share, xr, motion| {
+                p.push_seeded(&seeds[b], (id, share), xr, motion);
+                true
+            },
+        );
         p
+    }
+
+    /// How many particles [`seed`](Particles::seed) would put in the owned cells
+    /// `[cell_lo, cell_hi)`, without seeding them; the count stops at `stop_at`.
+    pub fn count_seeded(
+        scene: &Scene,
+        geom: &Geom<D>,
+        benchmark: Option<&Benchmark<D>>,
+        (cell_lo, cell_hi): ([usize; D], [usize; D]),
+        stop_at: u64,
+    ) -> u64 {
+        let mut n = 0u64;
+        if stop_at > 0 {
+            each_seeded(
+                scene,
+                geom,
+                benchmark,
+                (cell_lo, cell_hi),
+                |_, _, _, _, _| {
+                    n += 1;
+                    n < stop_at
+                },
+            );
+        }
+        n
     }
 
     /// Append a new particle `id` of `seed`'s body with `share` of its lattice box
@@ -125,6 +131,52 @@ impl<const D: usize> Particles<D> {
         }
         self.push_initial_state(carries);
         debug_assert!(self.consistent(carries));
+    }
+}
+
+/// Calls `f(body, id, share, xr, (x, v, F))` for each particle of every body whose
+/// current position falls in the owned cells `[cell_lo, cell_hi)`, in global id order
+/// ([`lattice_points`], [`initial_motion`]); stops when `f` returns false.
+fn each_seeded<const D: usize>(
+    scene: &Scene,
+    geom: &Geom<D>,
+    benchmark: Option<&Benchmark<D>>,
+    (cell_lo, cell_hi): ([usize; D], [usize; D]),
+    mut f: impl FnMut(usize, u64, u32, Vector<D>, (Vector<D>, Vector<D>, Mat<D>)) -> bool,
+) {
+    // Benchmarks may start displaced: look that many cells beyond the block.
+    let disp = match benchmark {
+        Some(Benchmark::AxisAlignedMms { a, .. }) => a.abs(),
+        _ => 0.0,
+    };
+    let mut id_base = 0u64;
+    for (b, body) in scene.bodies.iter().enumerate() {
+        let sub = body.particles_per_cell.pow(D as u32);
+        let (c0, c1) = body_cells::<D>(body, geom);
+        // Restrict to the block, padded by the initial displacement.
+        let pad: [usize; D] = std::array::from_fn(|a| 1 + (disp * geom.inv_h[a]).ceil() as usize);
+        let r0: [usize; D] = std::array::from_fn(|a| c0[a].max(cell_lo[a].saturating_sub(pad[a])));
+        let r1: [usize; D] = std::array::from_fn(|a| c1[a].min(cell_hi[a] + pad[a]));
+        let dims: [usize; D] = std::array::from_fn(|a| c1[a] - c0[a]);
+        let body_cells: usize = dims.iter().product();
+        let mut go_on = true;
+        if (0..D).all(|a| r0[a] < r1[a]) {
+            lattice_points::<D>(body, geom, (c0, c1), (r0, r1), |lin, s, xref, share| {
+                let xr = vector::<D>(&xref);
+                let (x, v, def) = initial_motion(body, benchmark, &xr);
+                let (c, _) = geom.locate(&std::array::from_fn(|a| x[a]));
+                if (0..D).any(|a| c[a] < cell_lo[a] as i64 || c[a] >= cell_hi[a] as i64) {
+                    return true;
+                }
+                let id = id_base + (lin * sub + s) as u64;
+                go_on = f(b, id, share, xr, (x, v, def));
+                go_on
+            });
+        }
+        if !go_on {
+            return;
+        }
+        id_base += (body_cells * sub) as u64;
     }
 }
 
