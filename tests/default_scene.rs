@@ -54,6 +54,22 @@ fn default_scene_runs_collides_and_rebounds() {
     assert!(ke_end > 0.8 * ke0, "no rebound: final KE {ke_end} of {ke0}");
     // And the energy balance holds through the impact.
     assert!(s["energy"]["max_relative_drift"].as_f64().unwrap() < 0.01);
+    // `mpmcg check` of the same scene counts the particles the run seeded, and their
+    // state at a checkpoint record each (2D, neo-Hookean: x, v, F, x₀, kind, id).
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/inputs/default.toml");
+    let o = Command::new(env!("CARGO_BIN_EXE_mpmcg"))
+        .args(["check", scene])
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&o.stdout);
+    let n = s["particles"].as_u64().unwrap();
+    assert!(
+        said.contains(&format!(
+            "; {n} particles, {} KiB of particle state at 104 bytes each)",
+            (n * 104 + 512) / 1024
+        )),
+        "{said}"
+    );
 }
 
 /// A long run stays physical: the default disks, each also spinning at 1 rad/s (rim

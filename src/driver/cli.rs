@@ -174,12 +174,13 @@ pub fn main() -> ExitCode {
             Ok((s, _)) => match run::check_bodies(&s) {
                 Ok(()) => {
                     println!(
-                        "{}: ok ({}D, {} cells, {} bodies, gradient {})",
+                        "{}: ok ({}D, {} cells, {} bodies, gradient {}; {})",
                         scene.display(),
                         s.dim,
                         s.grid.cells.iter().product::<usize>(),
                         s.bodies.len(),
-                        s.method.gradient.name()
+                        s.method.gradient.name(),
+                        particles_and_memory(&s)
                     );
                     ExitCode::SUCCESS
                 }
@@ -324,6 +325,34 @@ fn run_main(
     };
     let result = run::run(&sc, &comm, &opts);
     report(result, root, &opts)
+}
+
+/// `mpmcg check`'s account of a scene's size: the particles it seeds and their state's
+/// bytes, counted up to what this machine has available, beyond which it says so (a
+/// cluster's nodes may have more).
+fn particles_and_memory(s: &scene::Scene) -> String {
+    let available = super::memory::node_available();
+    let bytes = run::particle_state_bytes(s);
+    let stop = available.map_or(u64::MAX, |a| a / bytes + 1);
+    let n = run::particle_count(s, stop);
+    let size = |b: u64| {
+        let b = b as f64;
+        match b {
+            _ if b < f64::from(1u32 << 20) => format!("{:.0} KiB", b / 1024.0),
+            _ if b < f64::from(1u32 << 30) => format!("{:.1} MiB", b / f64::from(1u32 << 20)),
+            _ => format!("{:.1} GiB", b / f64::from(1u32 << 30)),
+        }
+    };
+    match available {
+        Some(a) if n == stop => format!(
+            "at least {n} particles, whose state alone ({bytes} bytes each) takes more than the {} this machine has available: run it on more nodes",
+            size(a)
+        ),
+        _ => format!(
+            "{n} particles, {} of particle state at {bytes} bytes each",
+            size(n.saturating_mul(bytes))
+        ),
+    }
 }
 
 /// The thread count per rank (`--threads`, else under mpirun with several ranks the

@@ -4,6 +4,7 @@
 
 use crate::driver::progress::Progress;
 use crate::input::scene::{Face, Scene};
+use crate::mpm::particles::{Carries, Particles};
 use crate::mpm::solver::{Failure, Solver};
 use crate::output::checkpoint::{self, RunState};
 use decomposition::{Communicator, Layout, Timed};
@@ -102,6 +103,33 @@ pub fn check_bodies(scene: &Scene) -> Result<(), String> {
         1 => check_bodies_dim::<1>(scene),
         2 => check_bodies_dim::<2>(scene),
         _ => check_bodies_dim::<3>(scene),
+    }
+}
+
+/// The particles the scene's bodies seed over the whole grid, for `mpmcg check`; the
+/// count stops at `stop_at`.
+pub fn particle_count(scene: &Scene, stop_at: u64) -> u64 {
+    match scene.dim {
+        1 => particle_count_dim::<1>(scene, stop_at),
+        2 => particle_count_dim::<2>(scene, stop_at),
+        _ => particle_count_dim::<3>(scene, stop_at),
+    }
+}
+
+fn particle_count_dim<const D: usize>(scene: &Scene, stop_at: u64) -> u64 {
+    let geom = Solver::<D>::geometry(scene);
+    let benchmark = crate::physics::benchmark::Benchmark::<D>::new(scene);
+    let all = ([0; D], std::array::from_fn(|a| scene.grid.cells[a]));
+    Particles::<D>::count_seeded(scene, &geom, benchmark.as_ref(), all, stop_at)
+}
+
+/// The bytes of one of the scene's particles' state ([`Particles::state_bytes`]).
+pub fn particle_state_bytes(scene: &Scene) -> u64 {
+    let carries = Carries::for_scene(scene);
+    match scene.dim {
+        1 => Particles::<1>::state_bytes(carries),
+        2 => Particles::<2>::state_bytes(carries),
+        _ => Particles::<3>::state_bytes(carries),
     }
 }
 

@@ -203,6 +203,13 @@ macro_rules! particle_fields {
                 w
             }
 
+            /// Bytes of a particle's state (its record, as migration and checkpoints
+            /// hold it): less than a run holds per particle, which adds its grid, cell
+            /// and order.
+            pub fn state_bytes(c: Carries) -> u64 {
+                8 * Self::record_width(c) as u64
+            }
+
             /// Apply the permutation `perm` (new position k holds old particle `perm[k]`)
             /// to every array and to `extra` (empty, or one entry per particle); `done`
             /// (one bit per particle) is reused, so no allocation happens once it has

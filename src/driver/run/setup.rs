@@ -273,7 +273,7 @@ fn check_memory<const D: usize>(
     comm: &dyn Communicator,
     layout: &Layout<D>,
 ) -> Result<(), RunError> {
-    let bytes = 8 * Particles::<D>::record_width(Carries::for_scene(scene)) as u64;
+    let bytes = Particles::<D>::state_bytes(Carries::for_scene(scene));
     let (node, mine) = (memory::node_available(), memory::address_space_left());
     // Counting stops once the count alone is too many.
     let stop = [node, mine]
