@@ -66,7 +66,8 @@ impl<'c, const D: usize> Solver<'c, D> {
                 &mut scat[..nn * aw],
                 &vel,
                 slot,
-                &self.grid.node_vol
+                &self.grid.node_vol,
+                0
             );
             let d = &self.grid.centroid_d;
             nodes.par_owned(&mut vel, vw, |n, c, v| {

@@ -213,11 +213,19 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// `slot`, then the smoothed velocity
     /// `v̄_j = (1/V_j) Σ_i (v_i + L̄_j (x_j − x_i)) ∫ w S_j S_i dv` (the weighted mean of the
     /// grid velocity over the node's support, corrected by L̄_j to the node, so that a
-    /// linear field gives its own nodal value; walls as on the grid velocity), both to
-    /// the ghosts in `avg` ([`AvgRecord`]). The particles' velocity gradient and the
-    /// velocity they move with ([`kernel::moving_velocity`]) are built from these.
+    /// linear field gives its own nodal value; walls as on the grid velocity), both in
+    /// `avg` ([`AvgRecord`]), out to the ghosts the particles read. The particles'
+    /// velocity gradient and the velocity they move with ([`kernel::moving_velocity`])
+    /// are built from these.
+    ///
+    /// A particle's hat functions reach the first ghost layer, where the ghosts form
+    /// their own L̄ and v̄ from the velocities of the second (the same bits as their
+    /// owners', as σ̄ in [`Solver::averaged_force`]), and so does the sharpening, whose
+    /// ghost copy follows: no copy of their own. Only the domain rule's particles, which
+    /// reach the second layer, need it.
     pub(super) fn averaged_velocity_gradient(&mut self, slot: usize) {
         let aw = AvgRecord::<D>::WIDTH;
+        let copy = self.scheme.wide() && self.sharpen <= 0.0;
         let mut scat = std::mem::take(&mut self.grid.scat);
         let avg = &mut scat[..self.grid.node_vol.len() * aw];
         let nodes = self.nodes();
@@ -228,9 +236,12 @@ impl<'c, const D: usize> Solver<'c, D> {
             avg,
             &self.grid.vel,
             slot,
-            &self.grid.node_vol
+            &self.grid.node_vol,
+            usize::from(!copy)
         );
-        self.block.ghost_copy(self.comm, avg, aw);
+        if copy {
+            self.block.ghost_copy(self.comm, avg, aw);
+        }
         self.sharpen_averages((avg, aw, D * D));
         self.grid.scat = scat;
     }

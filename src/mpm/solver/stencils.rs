@@ -416,9 +416,10 @@ impl<const D: usize> NodeView<'_, D> {
     }
 
     /// For every row of [`TILE`] nodes along the first axis of tile `slot` that holds
-    /// an owned node: `f(o0, p0, own, cs, low)`, with `o0` the tile offset of the row's
-    /// first node, `p0` its index in the tile's padded arrays ([`NodeView::par_tiles`];
-    /// the row's node `x` is at `p0 + x`), which of the row's nodes are owned, their
+    /// an owned node, or a ghost within `reach` nodes of the owned box:
+    /// `f(o0, p0, own, cs, low)`, with `o0` the tile offset of the row's first node,
+    /// `p0` its index in the tile's padded arrays ([`NodeView::par_tiles`]; the row's
+    /// node `x` is at `p0 + x`), which of the row's nodes are owned or so near, their
     /// local coordinates, and per node the axes (bit `a`) along which it has no cell
     /// below ([`NodeView::row_cells`]). The node stencils work a row at a time, one node
     /// per lane.
@@ -426,6 +427,7 @@ impl<const D: usize> NodeView<'_, D> {
     pub(super) fn pad_rows(
         &self,
         slot: usize,
+        reach: usize,
         mut f: impl FnMut(usize, usize, &[bool; TILE], &[[usize; D]; TILE], &[usize; TILE]),
     ) {
         let inner = self.inner_first(slot);
@@ -444,7 +446,9 @@ impl<const D: usize> NodeView<'_, D> {
                 let locs = self.tiles.local_row(slot, o0);
                 for x in 0..TILE {
                     if let Some(c) = locs[x] {
-                        own[x] = (0..D).all(|a| c[a] >= self.own_lo[a] && c[a] < self.own_hi[a]);
+                        own[x] = (0..D).all(|a| {
+                            c[a] + reach >= self.own_lo[a] && c[a] < self.own_hi[a] + reach
+                        });
                         cs[x] = c;
                     }
                 }
@@ -555,7 +559,7 @@ impl<const D: usize> NodeView<'_, D> {
             // PAD^b entries, which no cell reads, are 0: [`pair_table`].)
             let mut ssp = [[[0.0; NP]; D]; D];
             let ssp = pair_table(&mut ssp, |a, b| &sp[index(a, b)], |lo, hi| lo + hi);
-            self.pad_rows(slot, |o0, p0, own, _, low| {
+            self.pad_rows(slot, 0, |o0, p0, own, _, low| {
                 let mut f = [[0.0; TILE]; D];
                 for q in 0..(1 << D) {
                     let (cell, w) = Self::row_cells(cw, low, p0, q);
@@ -601,13 +605,15 @@ impl<const D: usize> NodeView<'_, D> {
     }
 
     /// `L̄_j` and `v̄_j` of [`Solver::averaged_velocity_gradient`] on every owned node
-    /// into `avg`, from velocity slot `slot` of `grid_vel`.
+    /// and the ghosts within `reach` nodes of them into `avg`, from velocity slot `slot`
+    /// of `grid_vel`.
     pub(super) fn gradient_tiles<const NP: usize>(
         &self,
         avg: &mut [f64],
         grid_vel: &[f64],
         slot: usize,
         node_vol: &[f64],
+        reach: usize,
     ) {
         let aw = AvgRecord::<D>::WIDTH;
         let (cell_k, cell_m, cell_md) = (self.cell_k, self.cell_m, self.cell_md);
@@ -640,7 +646,7 @@ impl<const D: usize> NodeView<'_, D> {
             // A row of TILE nodes at a time, one per lane, as in `force_tiles`: each
             // lane does its node's operations in its order, and a skipped cell adds an
             // exact zero to sums that never hold −0, so the same bits.
-            self.pad_rows(tile, |o0, p0, own, cs, low| {
+            self.pad_rows(tile, reach, |o0, p0, own, cs, low| {
                 // One visit of the cells: with m_ji = w_c ∫_c S_j S_i dv,
                 // Σ m_ji (v_i + L̄ (x_j − x_i)) = Σ m_ji v_i + L̄ Σ m_ji (x_j − x_i), and
                 // the last sum is Σ_c w_c `cell_md` of the node's corner: it needs no
