@@ -17,11 +17,13 @@
 use super::*;
 
 impl<'c, const D: usize> Solver<'c, D> {
-    /// The offsets `d_i` of the owned nodes that carry mass (zero elsewhere), from the
-    /// first moments the step's scatter summed: every scheme's weights reproduce a
-    /// linear field, so the node positions interpolated at a particle are its own
-    /// where its weights reach no wall. Each moment is relative to its node, so an
-    /// image across a periodic seam adds to its node what it should.
+    /// The offsets `d_i` of the nodes that carry mass (zero elsewhere), owned and on the
+    /// first ghost layer (whose summed records the scatter copied: the same bits as
+    /// their owners'), from the first moments the step's scatter summed: every
+    /// scheme's weights reproduce a linear field, so the node positions interpolated
+    /// at a particle are its own where its weights reach no wall. Each moment is
+    /// relative to its node, so an image across a periodic seam adds to its node what
+    /// it should.
     pub(super) fn centroid_offsets(&mut self) {
         let nn = self.grid.vel.len() / VelRecord::<D>::WIDTH;
         let sw = self.grid.sw;
@@ -29,7 +31,7 @@ impl<'c, const D: usize> Solver<'c, D> {
         d.clear();
         d.resize(nn * D, 0.0);
         let (scat, floor) = (&self.grid.scat, self.grid.mass_floor);
-        self.nodes().par_owned(&mut d, D, |n, _, d| {
+        self.nodes().par_near(&mut d, D, 1, |n, _, d| {
             let rec = &scat[n * sw..(n + 1) * sw];
             let m = rec[NodeRecord::<D>::MASS];
             if m > floor {
@@ -45,6 +47,11 @@ impl<'c, const D: usize> Solver<'c, D> {
     /// centroids to the nodes: `centroid_passes` passes of `v ← P (v₀ − L̄(v) d)`, each
     /// forming `L̄` in the storage of the scatter records as the `AveragedGradient`
     /// after it does.
+    ///
+    /// The passes go in pairs over the two ghost layers: the first of a pair forms `L̄`
+    /// and `v` on the first ghost layer too, from the second layer's velocities, the
+    /// same bits as the owners' (as `AveragedGradient` does), and the second reads them
+    /// there for the owned nodes; then one ghost copy. So a ghost copy per two passes.
     pub(super) fn centroid_velocity(&mut self, slot: usize) {
         let (aw, vw) = (AvgRecord::<D>::WIDTH, VelRecord::<D>::WIDTH);
         let nn = self.grid.vel.len() / vw;
@@ -55,7 +62,11 @@ impl<'c, const D: usize> Solver<'c, D> {
             let at = VelRecord::<D>::at(n, slot);
             b.copy_from_slice(&self.grid.vel[at..at + D]);
         }
-        for _ in 0..self.centroid_passes {
+        let passes = self.centroid_passes;
+        for k in 0..passes {
+            // The first of a pair reaches the first ghost layer; the last pass (or the
+            // second of a pair) copies.
+            let reach = usize::from(k % 2 == 0 && k + 1 < passes);
             let mut scat = std::mem::take(&mut self.grid.scat);
             let mut vel = std::mem::take(&mut self.grid.vel);
             let nodes = self.nodes();
@@ -67,10 +78,10 @@ impl<'c, const D: usize> Solver<'c, D> {
                 &vel,
                 slot,
                 &self.grid.node_vol,
-                0
+                reach
             );
             let d = &self.grid.centroid_d;
-            nodes.par_owned(&mut vel, vw, |n, c, v| {
+            nodes.par_near(&mut vel, vw, reach, |n, c, v| {
                 let l = &scat[n * aw..n * aw + D * D];
                 let mut u = [0.0; 6];
                 for a in 0..D {
@@ -84,7 +95,9 @@ impl<'c, const D: usize> Solver<'c, D> {
                 nodes.apply_bc(c, &mut u[..vw]);
                 v[slot * D..(slot + 1) * D].copy_from_slice(&u[..D]);
             });
-            self.block.ghost_copy(self.comm, &mut vel, vw);
+            if reach == 0 {
+                self.block.ghost_copy(self.comm, &mut vel, vw);
+            }
             self.grid.scat = scat;
             self.grid.vel = vel;
         }

@@ -23,9 +23,15 @@ impl<'c, const D: usize> Solver<'c, D> {
         if two {
             // The ghosts get the summed averaged-stress sums and cover (and the moments
             // between them), from which they form their own fill and σ̄ as their owners
-            // do: one exchange where copying the fill and then σ̄ took two.
+            // do: one exchange where copying the fill and then σ̄ took two. Under the
+            // centroid correction the whole record, whose mass and moments give the
+            // first ghost layer its own offsets ([`Solver::centroid_offsets`]).
             let sw = self.grid.sw;
-            let first = NodeRecord::<D>::stress_sum(0, 0);
+            let first = if self.centroid_passes > 0 {
+                NodeRecord::<D>::MASS
+            } else {
+                NodeRecord::<D>::stress_sum(0, 0)
+            };
             self.block
                 .ghost_copy_slots(self.comm, &mut self.grid.scat, sw, first..sw);
             self.domain_weights();
