@@ -335,22 +335,14 @@ fn particles_and_memory(s: &scene::Scene) -> String {
     let bytes = run::particle_state_bytes(s);
     let stop = available.map_or(u64::MAX, |a| a / bytes + 1);
     let n = run::particle_count(s, stop);
-    let size = |b: u64| {
-        let b = b as f64;
-        match b {
-            _ if b < f64::from(1u32 << 20) => format!("{:.0} KiB", b / 1024.0),
-            _ if b < f64::from(1u32 << 30) => format!("{:.1} MiB", b / f64::from(1u32 << 20)),
-            _ => format!("{:.1} GiB", b / f64::from(1u32 << 30)),
-        }
-    };
     match available {
         Some(a) if n == stop => format!(
-            "at least {n} particles, whose state alone ({bytes} bytes each) takes more than the {} this machine has available: run it on more nodes",
-            size(a)
+            "{}: run it on more nodes",
+            super::memory::particles_over(n, bytes, a, "this machine has available", true)
         ),
         _ => format!(
             "{n} particles, {} of particle state at {bytes} bytes each",
-            size(n.saturating_mul(bytes))
+            super::memory::size(n.saturating_mul(bytes))
         ),
     }
 }

@@ -28,6 +28,37 @@ pub fn address_space_left() -> Option<u64> {
     Some(limit.saturating_sub(mapped))
 }
 
+/// A size for people: KiB, MiB or GiB.
+pub fn size(bytes: u64) -> String {
+    let b = bytes as f64;
+    let (mib, gib) = (f64::from(1u32 << 20), f64::from(1u32 << 30));
+    if b < mib {
+        format!("{:.0} KiB", b / 1024.0)
+    } else if b < gib {
+        format!("{:.1} MiB", b / mib)
+    } else {
+        format!("{:.1} GiB", b / gib)
+    }
+}
+
+/// `count` particles of `bytes` each against the `room` bytes that `what` (“the node has
+/// available”): their state's size beside it or, where the count stopped once it was
+/// too many (`lower`), as at least that many.
+pub fn particles_over(count: u64, bytes: u64, room: u64, what: &str, lower: bool) -> String {
+    if lower {
+        format!(
+            "at least {count} particles, whose state alone ({bytes} bytes each) takes more than the {} {what}",
+            size(room)
+        )
+    } else {
+        format!(
+            "{count} particles, whose state alone takes {} ({bytes} bytes each), more than the {} {what}",
+            size(count.saturating_mul(bytes)),
+            size(room)
+        )
+    }
+}
+
 /// `MemAvailable` of /proc/meminfo, in bytes.
 fn mem_available(meminfo: &str) -> Option<u64> {
     kib_field(meminfo, "MemAvailable:")
@@ -89,6 +120,15 @@ fn cgroup_left(cgroup: &str, root: &Path) -> Option<u64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sizes_read_as_people_write_them() {
+        assert_eq!(size(43_264), "42 KiB");
+        assert_eq!(size(3 << 20), "3.0 MiB");
+        assert_eq!(size(24_000_000_000), "22.4 GiB");
+        let said = particles_over(10, 160, 1000, "are left", false);
+        assert_eq!(said, "10 particles, whose state alone takes 2 KiB (160 bytes each), more than the 1 KiB are left");
+    }
 
     #[test]
     fn proc_files_parse_as_linux_writes_them() {

@@ -291,30 +291,29 @@ fn check_memory<const D: usize>(
         (block.cell_lo, block.cell_hi),
         stop,
     );
-    let mut on_node = [n];
-    comm.node_sum_u64(&mut on_node);
-    let gib = |b: u64| b as f64 / f64::from(1u32 << 30);
-    // Where the count stopped, it is a lower bound and so is the state's size.
+    // Where a count stopped, it is a lower bound, and so is the node's sum.
     let stopped = n == stop;
-    let state = |count: u64, room: u64, what: &str| {
-        if stopped {
-            format!("at least {count} particles, whose state alone ({bytes} bytes each) takes more than the {:.1} GiB {what}", gib(room))
-        } else {
-            format!("{count} particles, whose state alone takes {:.1} GiB ({bytes} bytes each), more than the {:.1} GiB {what}", gib(count * bytes), gib(room))
-        }
-    };
+    let mut on_node = [n, u64::from(stopped)];
+    comm.node_sum_u64(&mut on_node);
     let advice = "run on more nodes, or with fewer particles per cell or a coarser grid";
     let err = if let Some(room) = node.filter(|&a| on_node[0].saturating_mul(bytes) > a) {
         Some(format!(
             "the particles do not fit in memory: this node's ranks would seed {}; {advice}",
-            state(on_node[0], room, "the node has available")
+            memory::particles_over(
+                on_node[0],
+                bytes,
+                room,
+                "the node has available",
+                on_node[1] > 0
+            )
         ))
     } else {
         mine.filter(|&a| n.saturating_mul(bytes) > a).map(|room| {
+            let what = "its address-space limit (ulimit -v) leaves";
             format!(
                 "the particles do not fit in memory: rank {} would seed {}; {advice}",
                 comm.rank(),
-                state(n, room, "its address-space limit (ulimit -v) leaves")
+                memory::particles_over(n, bytes, room, what, stopped)
             )
         })
     };
