@@ -117,10 +117,20 @@ pub fn particle_count(scene: &Scene, stop_at: u64) -> u64 {
 }
 
 fn particle_count_dim<const D: usize>(scene: &Scene, stop_at: u64) -> u64 {
+    let all = ([0; D], std::array::from_fn(|a| scene.grid.cells[a]));
+    count_seeded_in::<D>(scene, all, stop_at)
+}
+
+/// The particles the scene's bodies seed in the cells `[lo, hi)`
+/// ([`Particles::count_seeded`]); the count stops at `stop_at`.
+fn count_seeded_in<const D: usize>(
+    scene: &Scene,
+    cells: ([usize; D], [usize; D]),
+    stop_at: u64,
+) -> u64 {
     let geom = Solver::<D>::geometry(scene);
     let benchmark = crate::physics::benchmark::Benchmark::<D>::new(scene);
-    let all = ([0; D], std::array::from_fn(|a| scene.grid.cells[a]));
-    Particles::<D>::count_seeded(scene, &geom, benchmark.as_ref(), all, stop_at)
+    Particles::<D>::count_seeded(scene, &geom, benchmark.as_ref(), cells, stop_at)
 }
 
 /// The bytes of one of the scene's particles' state ([`Particles::state_bytes`]).

@@ -11,7 +11,6 @@ use crate::mpm::particles::{Carries, Particles};
 use crate::mpm::solver::{Load, Solver};
 use crate::output::checkpoint::{self, RunState};
 use crate::output::io::agree;
-use crate::physics::benchmark::Benchmark;
 use decomposition::{Communicator, Layout};
 use std::path::Path;
 
@@ -282,15 +281,7 @@ fn check_memory<const D: usize>(
         .min()
         .map_or(0, |b| b / bytes + 1);
     let block = decomposition::Block::new(layout, comm.rank());
-    let geom = Solver::<D>::geometry(scene);
-    let benchmark = Benchmark::<D>::new(scene);
-    let n = Particles::<D>::count_seeded(
-        scene,
-        &geom,
-        benchmark.as_ref(),
-        (block.cell_lo, block.cell_hi),
-        stop,
-    );
+    let n = super::count_seeded_in::<D>(scene, (block.cell_lo, block.cell_hi), stop);
     // Where a count stopped, it is a lower bound, and so is the node's sum.
     let stopped = n == stop;
     let mut on_node = [n, u64::from(stopped)];

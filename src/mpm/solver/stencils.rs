@@ -272,14 +272,18 @@ impl<const D: usize> NodeView<'_, D> {
         self.each_tile(out, width, |slot, recs| {
             for (o, rec) in recs.chunks_exact_mut(width).enumerate() {
                 if let Some(c) = self.tiles.local(slot, o) {
-                    if (0..D)
-                        .all(|a| c[a] + reach >= self.own_lo[a] && c[a] < self.own_hi[a] + reach)
-                    {
+                    if self.near(c, reach) {
                         f(slot * tn + o, c, rec);
                     }
                 }
             }
         });
+    }
+
+    /// Whether local node `c` is owned or a ghost within `reach` nodes of the owned box.
+    #[inline(always)]
+    fn near(&self, c: [usize; D], reach: usize) -> bool {
+        (0..D).all(|a| c[a] + reach >= self.own_lo[a] && c[a] < self.own_hi[a] + reach)
     }
 
     /// `f(slot, recs)` for every active tile with its records of `width` numbers in
@@ -401,7 +405,7 @@ impl<const D: usize> NodeView<'_, D> {
             for (x, rec) in recs.chunks_exact_mut(width).enumerate() {
                 let o = row * TILE + x;
                 if let Some(c) = locs[x] {
-                    if owned || (0..D).all(|a| c[a] >= self.own_lo[a] && c[a] < self.own_hi[a]) {
+                    if owned || self.near(c, 0) {
                         let p = (0..D)
                             .map(|a| {
                                 (((o >> (TILE_LOG * a as u32)) & (TILE - 1)) + 1)
@@ -446,9 +450,7 @@ impl<const D: usize> NodeView<'_, D> {
                 let locs = self.tiles.local_row(slot, o0);
                 for x in 0..TILE {
                     if let Some(c) = locs[x] {
-                        own[x] = (0..D).all(|a| {
-                            c[a] + reach >= self.own_lo[a] && c[a] < self.own_hi[a] + reach
-                        });
+                        own[x] = self.near(c, reach);
                         cs[x] = c;
                     }
                 }
