@@ -743,6 +743,97 @@ fn a_scene_too_large_for_memory_is_refused_before_seeding() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A restart from a checkpoint with more particles than the job's memory can hold:
+/// refused before a row is read, on 1 rank and under `mpirun -n 2` (exit 2, one
+/// message with the count, both sizes and what to change), where it used to end in an
+/// allocation failure and a backtrace (exit 134); a small checkpoint restarts under the
+/// same limit.
+#[test]
+fn a_restart_too_large_for_memory_is_refused_before_reading() {
+    let dir = temp_dir("restart-too-large");
+    // 3D, 2 x 2 x 2 per cell: 50^3 cells hold 1 000 000 particles, whose state (160 MB)
+    // is more than a 244 MiB address-space limit leaves beside MPI and HDF5.
+    let scene = |cells: usize, end: f64| {
+        format!(
+            "name = \"r\"\ndim = 3\n[time]\nend = {end:e}\n[grid]\n\
+             lower = [0.0, 0.0, 0.0]\nupper = [1.0, 1.0, 1.0]\ncells = [{cells}, {cells}, {cells}]\n\
+             [[materials]]\nname = \"m\"\nmodel = \"neo_hookean\"\ndensity = 1000.0\n\
+             youngs_modulus = 1.0e6\npoisson_ratio = 0.3\n[[bodies]]\nmaterial = \"m\"\n\
+             shape = {{ box = {{ lower = [0.0, 0.0, 0.0], upper = [1.0, 1.0, 1.0] }} }}\n\
+             [output]\nsnapshots = false\n[checkpoint]\nevery_steps = 1\nkeep = 1\n"
+        )
+    };
+    // Two steps each (the step is proportional to the cell), so one checkpoint.
+    let checkpoint = |cells: usize| {
+        let end = 2.0e-4 * 50.0 / cells as f64;
+        let (first, longer) = (
+            dir.join(format!("s{cells}.toml")),
+            dir.join(format!("l{cells}.toml")),
+        );
+        std::fs::write(&first, scene(cells, end)).unwrap();
+        std::fs::write(&longer, scene(cells, 2.0 * end)).unwrap();
+        let out = dir.join(format!("o{cells}"));
+        let o = mpmcg(
+            1,
+            &[
+                "run",
+                first.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+                "--quiet",
+            ],
+        );
+        assert_eq!(
+            o.status.code(),
+            Some(0),
+            "{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        (out.join("checkpoint_000001.h5"), longer)
+    };
+    let restart = |ranks: usize, (ckpt, sc): &(PathBuf, PathBuf)| {
+        let mut cmd = if ranks == 1 {
+            std::process::Command::new(bin())
+        } else {
+            let mut c = common::mpirun(ranks);
+            c.arg(bin());
+            c
+        };
+        let out = dir.join(format!("restart{ranks}"));
+        let _ = std::fs::remove_dir_all(&out);
+        cmd.args([
+            "run",
+            "--restart",
+            ckpt.to_str().unwrap(),
+            sc.to_str().unwrap(),
+        ])
+        .args(["--out", out.to_str().unwrap(), "--quiet", "--threads", "1"]);
+        with_limit("-v", 250_000, &cmd).output().unwrap()
+    };
+    let big = checkpoint(50);
+    for ranks in [1, 2] {
+        let o = restart(ranks, &big);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{ranks} rank(s): {err}");
+        let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+        assert_eq!(lines.len(), 1, "one message: {err}");
+        for words in [
+            "the checkpoint's particles do not fit in memory: 1000000 particles, whose state alone takes 152.6 MiB (160 bytes each), more than the",
+            "the ranks' address-space limits (ulimit -v) leave; restart on more nodes",
+        ] {
+            assert!(lines[0].contains(words), "{words:?} not in: {err}");
+        }
+    }
+    let o = restart(1, &checkpoint(10));
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn small_input_faults_end_with_exit_2() {
     let dir = temp_dir("small-faults");
@@ -949,9 +1040,14 @@ fn killed_rank_ends_the_job_and_leaves_a_stale_lock() {
 
 /// `cmd` run under `ulimit -f KB` (a file size limit: works without root).
 fn with_file_limit(kb: u64, cmd: &std::process::Command) -> std::process::Command {
+    with_limit("-f", kb, cmd)
+}
+
+/// `cmd` run under `ulimit FLAG KB`.
+fn with_limit(flag: &str, kb: u64, cmd: &std::process::Command) -> std::process::Command {
     let mut c = std::process::Command::new("sh");
     c.arg("-c")
-        .arg(format!("ulimit -f {kb} && exec \"$@\""))
+        .arg(format!("ulimit {flag} {kb} && exec \"$@\""))
         .arg("sh")
         .arg(cmd.get_program())
         .args(cmd.get_args());

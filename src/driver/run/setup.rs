@@ -42,27 +42,30 @@ pub(super) fn set_up<'c, const D: usize>(
     };
     let geom = Solver::<D>::geometry(scene);
     let carries = crate::mpm::particles::Carries::for_scene(scene);
+    let header = checkpoint::read_header(path);
+    if let Some(m) = agree(comm, header.as_ref().err().cloned()) {
+        return Err(RunError::Input(m));
+    }
+    let header = header.expect("agreed: no rank failed");
+    check_restart_memory(comm, header.particles, Particles::<D>::state_bytes(carries))?;
     // The writer's blocks when it ran on this process grid (so each rank reads its own
     // rows and the run continues bit for bit), unless balancing is off.
-    let r = checkpoint::read_header(path).and_then(|h| {
-        let layout = match h.layout(layout) {
-            Some(l) if balance != Balance::Off => l,
-            _ => layout.clone(),
-        };
-        checkpoint::read::<D>(
-            &h,
-            comm.rank(),
-            &layout,
-            &geom,
-            carries,
-            &crate::mpm::particles::Kinds::of_scene(scene, &geom),
-        )
-        .map(|x| (h, x, layout))
-    });
+    let layout = match header.layout(layout) {
+        Some(l) if balance != Balance::Off => l,
+        _ => layout.clone(),
+    };
+    let r = checkpoint::read::<D>(
+        &header,
+        comm.rank(),
+        &layout,
+        &geom,
+        carries,
+        &crate::mpm::particles::Kinds::of_scene(scene, &geom),
+    );
     if let Some(m) = agree(comm, r.as_ref().err().cloned()) {
         return Err(RunError::Input(m));
     }
-    let (header, restored, layout) = r.expect("agreed: no rank failed");
+    let restored = r.expect("agreed: no rank failed");
     // Every rank read the same header, so every rank decides alike.
     if header.time >= scene.time.end {
         return Err(RunError::Input(format!(
@@ -309,6 +312,49 @@ fn check_memory<const D: usize>(
         })
     };
     match agree(comm, err) {
+        Some(m) => Err(RunError::Input(m)),
+        None => Ok(()),
+    }
+}
+
+/// Collective, on a restart: the checkpoint's `total` particles of `bytes` each against
+/// the memory of the whole job. A rank's share is known only once it has read the
+/// rows, but past what all the job's nodes have available, or all its ranks'
+/// address-space limits leave, some node or rank is sure to run out: refused then,
+/// before any row is read. Every rank forms the same sums, so all decide alike.
+fn check_restart_memory(comm: &dyn Communicator, total: u64, bytes: u64) -> Result<(), RunError> {
+    let (node, mine) = (memory::node_available(), memory::address_space_left());
+    let mut ranks_on_node = [1u64];
+    comm.node_sum_u64(&mut ranks_on_node);
+    // Each node counted once, a share of it per rank; a rank's figure capped at
+    // 2^48 bytes so that no sum over ranks can wrap. The second and fourth sums
+    // count the ranks that could not tell.
+    let cap = |b: u64| b.min(1 << 48);
+    let mut sums = [
+        node.map_or(0, |a| cap(a / ranks_on_node[0])),
+        u64::from(node.is_none()),
+        mine.map_or(0, cap),
+        u64::from(mine.is_none()),
+    ];
+    comm.sum_u64(&mut sums);
+    let need = total.saturating_mul(bytes);
+    let over = |room: u64, what: &str| {
+        format!(
+            "the checkpoint's particles do not fit in memory: {}; restart on more nodes (a checkpoint restarts on any rank count)",
+            memory::particles_over(total, bytes, room, what, false)
+        )
+    };
+    let err = if sums[1] == 0 && need > sums[0] {
+        Some(over(sums[0], "the job's nodes have available"))
+    } else if sums[3] == 0 && need > sums[2] {
+        Some(over(
+            sums[2],
+            "the ranks' address-space limits (ulimit -v) leave",
+        ))
+    } else {
+        None
+    };
+    match err {
         Some(m) => Err(RunError::Input(m)),
         None => Ok(()),
     }
