@@ -16,20 +16,53 @@ fn bin() -> String {
     std::env::var("MPMCG_TEST_BIN").unwrap_or_else(|_| env!("CARGO_BIN_EXE_mpmcg").into())
 }
 
-/// Run `mpmcg ARGS` on `ranks` ranks (1: no mpirun).
-fn mpmcg(ranks: usize, args: &[&str]) -> Output {
+/// The command that runs `mpmcg` on `ranks` ranks (1: no mpirun), arguments to follow.
+fn on_ranks(ranks: usize) -> std::process::Command {
     if ranks == 1 {
         std::process::Command::new(bin())
-            .args(args)
-            .output()
-            .unwrap()
     } else {
-        common::mpirun(ranks)
-            .arg(bin())
-            .args(args)
-            .output()
-            .unwrap()
+        let mut c = common::mpirun(ranks);
+        c.arg(bin());
+        c
     }
+}
+
+/// Run `mpmcg ARGS` on `ranks` ranks (1: no mpirun).
+fn mpmcg(ranks: usize, args: &[&str]) -> Output {
+    on_ranks(ranks).args(args).output().unwrap()
+}
+
+/// Assert that a run ended with exit 0, showing its stderr if not.
+fn assert_ok(o: &Output) {
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+/// Run `mpmcg ARGS --quiet` on one rank and assert that it succeeds.
+fn succeeds(args: &[&str]) {
+    let o = mpmcg(1, &[args, &["--quiet"]].concat());
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "mpmcg {args:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+/// A neo-Hookean unit cube filling a 3D grid of `cells` per axis (2 x 2 x 2 particles
+/// per cell), run to `end`, with `extra` appended.
+fn filled_cube(cells: usize, end: f64, extra: &str) -> String {
+    format!(
+        "name = \"cube\"\ndim = 3\n[time]\nend = {end:e}\n[grid]\n\
+         lower = [0.0, 0.0, 0.0]\nupper = [1.0, 1.0, 1.0]\ncells = [{cells}, {cells}, {cells}]\n\
+         [[materials]]\nname = \"m\"\nmodel = \"neo_hookean\"\ndensity = 1000.0\n\
+         youngs_modulus = 1.0e6\npoisson_ratio = 0.3\n[[bodies]]\nmaterial = \"m\"\n\
+         shape = {{ box = {{ lower = [0.0, 0.0, 0.0], upper = [1.0, 1.0, 1.0] }} }}\n{extra}"
+    )
 }
 
 /// A body thrown at 1e300 m/s under a CFL step: the step collapses to 1e-302 s.
@@ -200,24 +233,8 @@ fn full_disk_ends_cleanly_and_keeps_the_last_checkpoint() {
                     .pop()
                     .expect("a checkpoint");
                 let again = dir.join(format!("again{ranks}"));
-                let o = mpmcg(
-                    1,
-                    &[
-                        "run",
-                        "--restart",
-                        last.to_str().unwrap(),
-                        "--out",
-                        again.to_str().unwrap(),
-                        "--quiet",
-                    ],
-                );
-                assert_eq!(
-                    o.status.code(),
-                    Some(0),
-                    "restart from {}: {}",
-                    last.display(),
-                    String::from_utf8_lossy(&o.stderr)
-                );
+                let (last, again) = (last.to_str().unwrap(), again.to_str().unwrap());
+                succeeds(&["run", "--restart", last, "--out", again]);
             }
             std::fs::remove_dir_all(&out).unwrap();
         }
@@ -362,12 +379,7 @@ fn stale_lock_is_taken_over() {
         "--quiet",
     ];
     let o = mpmcg(1, &args);
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    assert_ok(&o);
     assert!(out.join("summary.json").exists());
     assert!(!out.join(LOCK).exists(), "released at the end");
 
@@ -513,13 +525,7 @@ fn fresh_run_replaces_an_earlier_runs_snapshots() {
 /// Run `mpmcg ARGS` on `ranks` ranks (its own process group), killed if it has not
 /// ended after `secs` seconds (then the status has no code).
 fn mpmcg_within(ranks: usize, args: &[&str], secs: u64) -> Output {
-    let mut cmd = if ranks == 1 {
-        std::process::Command::new(bin())
-    } else {
-        let mut c = common::mpirun(ranks);
-        c.arg(bin());
-        c
-    };
+    let mut cmd = on_ranks(ranks);
     cmd.args(args);
     output_within(cmd, secs)
 }
@@ -692,18 +698,9 @@ fn sigterm_is_honoured_within_a_step_at_the_highest_output_rate() {
 #[test]
 fn a_scene_too_large_for_memory_is_refused_before_seeding() {
     let dir = temp_dir("too-large");
-    let scene = |cells: usize| {
-        format!(
-            "name = \"large\"\ndim = 3\n[time]\nend = 1.0e-4\n[grid]\n\
-             lower = [0.0, 0.0, 0.0]\nupper = [1.0, 1.0, 1.0]\ncells = [{cells}, {cells}, {cells}]\n\
-             [[materials]]\nname = \"m\"\nmodel = \"neo_hookean\"\ndensity = 1000.0\n\
-             youngs_modulus = 1.0e6\npoisson_ratio = 0.3\n[[bodies]]\nmaterial = \"m\"\n\
-             shape = {{ box = {{ lower = [0.0, 0.0, 0.0], upper = [1.0, 1.0, 1.0] }} }}\n"
-        )
-    };
     let run = |cells: usize| {
         let sc = dir.join(format!("s{cells}.toml"));
-        std::fs::write(&sc, scene(cells)).unwrap();
+        std::fs::write(&sc, filled_cube(cells, 1.0e-4, "")).unwrap();
         let out = dir.join(format!("o{cells}"));
         let t0 = Instant::now();
         let o = std::process::Command::new("sh")
@@ -734,12 +731,7 @@ fn a_scene_too_large_for_memory_is_refused_before_seeding() {
     );
     assert!(took < Duration::from_secs(60), "refused after {took:?}");
     let (o, _) = run(20);
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    assert_ok(&o);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -754,14 +746,8 @@ fn a_restart_too_large_for_memory_is_refused_before_reading() {
     // 3D, 2 x 2 x 2 per cell: 50^3 cells hold 1 000 000 particles, whose state (160 MB)
     // is more than a 244 MiB address-space limit leaves beside MPI and HDF5.
     let scene = |cells: usize, end: f64| {
-        format!(
-            "name = \"r\"\ndim = 3\n[time]\nend = {end:e}\n[grid]\n\
-             lower = [0.0, 0.0, 0.0]\nupper = [1.0, 1.0, 1.0]\ncells = [{cells}, {cells}, {cells}]\n\
-             [[materials]]\nname = \"m\"\nmodel = \"neo_hookean\"\ndensity = 1000.0\n\
-             youngs_modulus = 1.0e6\npoisson_ratio = 0.3\n[[bodies]]\nmaterial = \"m\"\n\
-             shape = {{ box = {{ lower = [0.0, 0.0, 0.0], upper = [1.0, 1.0, 1.0] }} }}\n\
-             [output]\nsnapshots = false\n[checkpoint]\nevery_steps = 1\nkeep = 1\n"
-        )
+        let extra = "[output]\nsnapshots = false\n[checkpoint]\nevery_steps = 1\nkeep = 1\n";
+        filled_cube(cells, end, extra)
     };
     // Two steps each (the step is proportional to the cell), so one checkpoint.
     let checkpoint = |cells: usize| {
@@ -773,32 +759,16 @@ fn a_restart_too_large_for_memory_is_refused_before_reading() {
         std::fs::write(&first, scene(cells, end)).unwrap();
         std::fs::write(&longer, scene(cells, 2.0 * end)).unwrap();
         let out = dir.join(format!("o{cells}"));
-        let o = mpmcg(
-            1,
-            &[
-                "run",
-                first.to_str().unwrap(),
-                "--out",
-                out.to_str().unwrap(),
-                "--quiet",
-            ],
-        );
-        assert_eq!(
-            o.status.code(),
-            Some(0),
-            "{}",
-            String::from_utf8_lossy(&o.stderr)
-        );
+        succeeds(&[
+            "run",
+            first.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
         (out.join("checkpoint_000001.h5"), longer)
     };
     let restart = |ranks: usize, (ckpt, sc): &(PathBuf, PathBuf)| {
-        let mut cmd = if ranks == 1 {
-            std::process::Command::new(bin())
-        } else {
-            let mut c = common::mpirun(ranks);
-            c.arg(bin());
-            c
-        };
+        let mut cmd = on_ranks(ranks);
         let out = dir.join(format!("restart{ranks}"));
         let _ = std::fs::remove_dir_all(&out);
         cmd.args([
@@ -825,12 +795,7 @@ fn a_restart_too_large_for_memory_is_refused_before_reading() {
         }
     }
     let o = restart(1, &checkpoint(10));
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    assert_ok(&o);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -875,12 +840,7 @@ fn small_input_faults_end_with_exit_2() {
 
     // A restart whose time.end (0.01) is before the checkpoint's time (0.04).
     let o = mpmcg(1, &args);
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    assert_ok(&o);
     let ckpt = out.join("checkpoint_000040.h5");
     assert!(ckpt.exists());
     let earlier = dir.join("earlier.toml");
@@ -1018,22 +978,12 @@ fn killed_rank_ends_the_job_and_leaves_a_stale_lock() {
     assert!(out.join(LOCK).exists(), "a killed rank 0 cannot release it");
     let short = dir.join("short.toml");
     std::fs::write(&short, short_scene(0.05, "")).unwrap();
-    let o = mpmcg(
-        1,
-        &[
-            "run",
-            short.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--quiet",
-        ],
-    );
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    succeeds(&[
+        "run",
+        short.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     assert!(!out.join(LOCK).exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -1076,13 +1026,7 @@ fn file_size_limit_ends_cleanly() {
     .unwrap();
     for ranks in [1, 2] {
         let out = dir.join(format!("out{ranks}"));
-        let mut cmd = if ranks == 1 {
-            std::process::Command::new(bin())
-        } else {
-            let mut c = common::mpirun(ranks);
-            c.arg(bin());
-            c
-        };
+        let mut cmd = on_ranks(ranks);
         cmd.args([
             "run",
             scene.to_str().unwrap(),
