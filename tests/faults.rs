@@ -44,13 +44,7 @@ fn assert_ok(o: &Output) {
 
 /// Run `mpmcg ARGS --quiet` on one rank and assert that it succeeds.
 fn succeeds(args: &[&str]) {
-    let o = mpmcg(1, &[args, &["--quiet"]].concat());
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "mpmcg {args:?}: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    assert_ok(&mpmcg(1, &[args, &["--quiet"]].concat()));
 }
 
 /// A neo-Hookean unit cube filling a 3D grid of `cells` per axis (2 x 2 x 2 particles

@@ -327,9 +327,9 @@ fn check_restart_memory(comm: &dyn Communicator, total: u64, bytes: u64) -> Resu
     let mut ranks_on_node = [1u64];
     comm.node_sum_u64(&mut ranks_on_node);
     // Each node counted once, a share of it per rank; a rank's figure capped at
-    // 2^48 bytes so that no sum over ranks can wrap. The second and fourth sums
-    // count the ranks that could not tell.
-    let cap = |b: u64| b.min(1 << 48);
+    // 2^44 bytes (16 TiB), so that a sum over fewer than 2^20 ranks cannot wrap. The
+    // second and fourth sums count the ranks that could not tell.
+    let cap = |b: u64| b.min(1 << 44);
     let mut sums = [
         node.map_or(0, |a| cap(a / ranks_on_node[0])),
         u64::from(node.is_none()),
