@@ -339,23 +339,17 @@ fn check_restart_memory(comm: &dyn Communicator, total: u64, bytes: u64) -> Resu
     comm.sum_u64(&mut sums);
     let need = total.saturating_mul(bytes);
     let over = |room: u64, what: &str| {
-        format!(
+        RunError::Input(format!(
             "the checkpoint's particles do not fit in memory: {}; restart on more nodes (a checkpoint restarts on any rank count)",
             memory::particles_over(total, bytes, room, what, false)
-        )
-    };
-    let err = if sums[1] == 0 && need > sums[0] {
-        Some(over(sums[0], "the job's nodes have available"))
-    } else if sums[3] == 0 && need > sums[2] {
-        Some(over(
-            sums[2],
-            "the ranks' address-space limits (ulimit -v) leave",
         ))
-    } else {
-        None
     };
-    match err {
-        Some(m) => Err(RunError::Input(m)),
-        None => Ok(()),
+    if sums[1] == 0 && need > sums[0] {
+        return Err(over(sums[0], "the job's nodes have available"));
     }
+    if sums[3] == 0 && need > sums[2] {
+        let what = "the ranks' address-space limits (ulimit -v) leave";
+        return Err(over(sums[2], what));
+    }
+    Ok(())
 }
