@@ -7,7 +7,8 @@
 #![allow(clippy::needless_range_loop)]
 // `unsafe` only in the modules that allow it by name below, each block with its proof:
 // the system calls (signals, the process lock, file-size limits, the CPU's features,
-// HDF5 handles) and the parallel writes of the coloured particle passes.
+// HDF5 handles), the global allocator and the parallel writes of the coloured
+// particle passes.
 #![deny(unsafe_code)]
 
 // Layers, each importing only from the ones above it in this list: input, physics,

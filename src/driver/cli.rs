@@ -286,6 +286,7 @@ fn run_main(
         return ExitCode::from(1);
     };
     let comm = MpiComm::new(universe.world());
+    super::out_of_memory::set_rank(comm.rank());
     let root = comm.rank() == 0;
     let (sc, text) = match (fresh, &restart) {
         (Some(x), _) => x,

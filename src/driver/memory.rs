@@ -30,14 +30,24 @@ pub fn address_space_left() -> Option<u64> {
 
 /// A size for people: KiB, MiB or GiB.
 pub fn size(bytes: u64) -> String {
-    let b = bytes as f64;
-    let (mib, gib) = (f64::from(1u32 << 20), f64::from(1u32 << 30));
-    if b < mib {
-        format!("{:.0} KiB", b / 1024.0)
-    } else if b < gib {
-        format!("{:.1} MiB", b / mib)
-    } else {
-        format!("{:.1} GiB", b / gib)
+    Size(bytes).to_string()
+}
+
+/// A number of bytes written as [`size`] does, without a `String` of its own (the
+/// message of a refused allocation, [`super::out_of_memory`]).
+pub struct Size(pub u64);
+
+impl std::fmt::Display for Size {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let b = self.0 as f64;
+        let (mib, gib) = (f64::from(1u32 << 20), f64::from(1u32 << 30));
+        if b < mib {
+            write!(f, "{:.0} KiB", b / 1024.0)
+        } else if b < gib {
+            write!(f, "{:.1} MiB", b / mib)
+        } else {
+            write!(f, "{:.1} GiB", b / gib)
+        }
     }
 }
 

@@ -21,6 +21,8 @@ pub mod cli;
 #[allow(unsafe_code)] // `xgetbv`: the OS's saved vector registers.
 pub mod cpu;
 pub mod memory;
+#[allow(unsafe_code)] // The global allocator, and `write` and `_exit` where it is refused.
+pub mod out_of_memory;
 pub mod progress;
 pub mod run;
 #[allow(unsafe_code)] // Signal handlers.
