@@ -517,6 +517,25 @@ fn unknown_gradient() {
     .says("one of `mpm`, `gimp`, `averaged`, `mpmcg`");
 }
 
+/// `[benchmark] body_force` is for the benchmarks driven by one: named on the
+/// vibrating bar it is refused; an unknown rule names the two there are.
+#[test]
+fn body_force_rule_only_where_there_is_a_body_force() {
+    let with = |rule: &str| {
+        edit(
+            BAR,
+            "kind = \"vibrating_bar\"",
+            &format!("kind = \"vibrating_bar\"\nbody_force = \"{rule}\""),
+        )
+    };
+    check("bar_body_force", with("domain"))
+        .key("benchmark.body_force")
+        .says("not used by `vibrating_bar`, which has no body force");
+    check("unknown_rule", with("gauss"))
+        .key("benchmark.body_force")
+        .says("unknown variant `gauss`, expected `point` or `domain`");
+}
+
 #[test]
 fn unknown_names_elsewhere() {
     check("update", edit(BAR, "update = \"usl\"", "update = \"rk4\""))

@@ -108,5 +108,8 @@ pub struct Plan {
     /// share 1, followed by those of shares 2 to `cut_levels − 1` in order.
     pub body_cut_kinds: Vec<Option<usize>>,
     pub benchmark: Option<BenchmarkPlan>,
+    /// A benchmark's body force is averaged over each particle's reference box
+    /// (`[benchmark] body_force = "domain"`), not taken at its reference position.
+    pub body_force_over_domain: bool,
     pub checkpoint: Option<CheckpointEvery>,
 }

@@ -352,7 +352,9 @@ impl Carries {
                 || scene
                     .snapshot_plan()
                     .is_some_and(|o| o.fields.contains(&crate::input::scene::Field::Displacement)),
-            half: GradientScheme::of(scene.method.gradient, scene.method.quadrature).wide(),
+            // GIMP's domains, and the boxes a body force is averaged over.
+            half: GradientScheme::of(scene.method.gradient, scene.method.quadrature).wide()
+                || scene.plan.body_force_over_domain,
             plastic: laws().any(|l| matches!(l, Law::J2Plastic { .. })),
             damage: laws().any(|l| matches!(l, Law::Brittle { .. })),
             stress_zz: scene.dim == 2 && laws().any(|l| matches!(l, Law::Brittle { .. })),

@@ -206,6 +206,9 @@ pub struct Solver<'c, const D: usize> {
     xpic: Option<usize>,
     /// Passes of the centroid correction; 0 is off ([`Solver::centroid_velocity`]).
     centroid_passes: usize,
+    /// A benchmark's body force is averaged over each particle's reference box
+    /// ([`kernel::external_accel`]).
+    body_force_over_domain: bool,
     /// β of the sharpening of the nodal averages L̄ and σ̄ toward their consistent-mass
     /// projection; 0 is off ([`NodeView::sharpen`]).
     sharpen: f64,

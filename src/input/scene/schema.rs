@@ -460,6 +460,11 @@ pub struct BenchmarkSpec {
     pub amplitude: Option<f64>,
     pub mode: Option<u32>,
     pub c: Option<f64>,
+    /// Where each particle's body force is taken: at its reference position (`point`,
+    /// the default) or averaged over its reference box (`domain`: 2^D Gauss points,
+    /// exact for a force cubic in the reference position). Benchmarks with a body
+    /// force only.
+    pub body_force: Option<Quadrature>,
 }
 
 #[derive(Debug, Clone, Deserialize, Serialize)]

@@ -153,6 +153,10 @@ pub(super) fn validate(s: &Scene) -> Result<Plan, Invalid> {
         body_kind,
         body_cut_kinds,
         benchmark,
+        body_force_over_domain: s
+            .benchmark
+            .as_ref()
+            .is_some_and(|b| b.body_force == Some(Quadrature::Domain)),
         checkpoint,
     })
 }

@@ -28,15 +28,28 @@ pub struct ScatterParts<'a, const D: usize> {
 /// `out`, one entry per particle of `x0`: formed once a step, before the forces'
 /// scatter, which uses it, and kept for the work the gather or the remap of the same
 /// step counts with it. A benchmark's body force costs sines and a logarithm per
-/// particle; a pass of its own forms them in batches ([`At::add_body_forces`]).
-pub fn external_accel<const D: usize>(ctx: &Ctx<'_, D>, x0: &[Vector<D>], out: &mut [Vector<D>]) {
+/// particle; a pass of its own forms them in batches ([`At::add_body_forces`]). With
+/// `over`, the particles' reference half-widths, the body force is averaged over each
+/// particle's box instead ([`At::body_force_over`]).
+pub fn external_accel<const D: usize>(
+    ctx: &Ctx<'_, D>,
+    x0: &[Vector<D>],
+    over: Option<&[[f64; D]]>,
+    out: &mut [Vector<D>],
+) {
     assert_eq!(out.len(), x0.len());
     const CHUNK: usize = 4096;
     out.par_chunks_mut(CHUNK)
         .enumerate()
-        .for_each(|(c, out)| match ctx.body_force {
-            Some(b) => b.add_body_forces(ctx.gravity, x0, c * CHUNK, out),
-            None => out.fill(ctx.gravity),
+        .for_each(|(c, out)| match (ctx.body_force, over) {
+            (Some(b), Some(half)) => {
+                let first = c * CHUNK;
+                for (k, o) in out.iter_mut().enumerate() {
+                    *o = ctx.gravity + b.body_force_over(&x0[first + k], &half[first + k]);
+                }
+            }
+            (Some(b), None) => b.add_body_forces(ctx.gravity, x0, c * CHUNK, out),
+            (None, _) => out.fill(ctx.gravity),
         });
 }
 

@@ -62,7 +62,8 @@ impl<'c, const D: usize> Solver<'c, D> {
                 Vector::<D>::zeros(),
             );
             if keep {
-                kernel::external_accel(&ctx, &self.parts.x0, &mut self.scratch.accel);
+                let over = self.body_force_over_domain.then_some(&self.parts.half[..]);
+                kernel::external_accel(&ctx, &self.parts.x0, over, &mut self.scratch.accel);
             }
         }
         let parts = kernel::ScatterParts {

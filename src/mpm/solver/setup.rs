@@ -74,6 +74,7 @@ impl<'c, const D: usize> Solver<'c, D> {
             tiles,
             xpic: scene.method.xpic.map(|m| m as usize),
             centroid_passes: scene.method.centroid_passes as usize,
+            body_force_over_domain: scene.plan.body_force_over_domain,
             sharpen: scene.method.sharpen,
             null_space: scene
                 .snapshot_plan()

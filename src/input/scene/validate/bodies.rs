@@ -31,6 +31,12 @@ fn validate_benchmark(s: &Scene, b: &BenchmarkSpec) -> Result<BenchmarkPlan, Inv
             if b.c.is_some() {
                 return Err(("benchmark.c".into(), "not used by `vibrating_bar`".into()));
             }
+            if b.body_force.is_some() {
+                return Err((
+                    "benchmark.body_force".into(),
+                    "not used by `vibrating_bar`, which has no body force".into(),
+                ));
+            }
             let Shape::Box { lower, upper } = &body.shape else {
                 return Err((
                     "bodies[0].shape".into(),
