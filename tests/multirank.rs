@@ -634,6 +634,9 @@ fn rebalanced_runs_are_independent_of_rank_count() {
 /// particles arrive with reference positions the receiving rank kept no factors for
 /// (`benchmark::Memo`). 2 and 3 ranks give the 1-rank error norms (the maximum over
 /// the run and the final ones) to 1e-12, and the final momentum to 1e-12 of the mass.
+/// Also with MPM and the body force averaged over each particle's box (`body_force =
+/// "domain"`), whose half-widths then travel with the particles though the hats do not
+/// use them.
 #[test]
 fn benchmark_errors_are_independent_of_rank_count() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -643,7 +646,21 @@ fn benchmark_errors_are_independent_of_rank_count() {
         .replace("end = 0.02 ", "end = 0.005 ")
         + "\n[output]\nsnapshots = false\n";
     assert!(text.contains("cells = [32, 32]") && text.contains("end = 0.005 "));
-    let dir = temp_dir("ranks-mms");
+    let averaged = text
+        .replace("gradient = \"mpmcg\"", "gradient = \"mpm\"")
+        .replace(
+            "kind = \"axis_aligned_mms\"",
+            "kind = \"axis_aligned_mms\"\nbody_force = \"domain\"",
+        );
+    assert!(averaged.contains("body_force") && averaged.contains("\"mpm\""));
+    for (name, text) in [("point", text), ("averaged", averaged)] {
+        across_ranks(name, &text);
+    }
+}
+
+/// [`benchmark_errors_are_independent_of_rank_count`] of one scene.
+fn across_ranks(name: &str, text: &str) {
+    let dir = temp_dir(&format!("ranks-mms-{name}"));
     let sc = dir.join("scene.toml");
     std::fs::write(&sc, text).unwrap();
     let run = |n: usize| {
@@ -678,7 +695,7 @@ fn benchmark_errors_are_independent_of_rank_count() {
             );
             assert!(
                 (a - b).abs() <= 1e-12 * b,
-                "{k} on {n} ranks: {a} against {b}"
+                "{name}: {k} on {n} ranks: {a} against {b}"
             );
         }
         for k in 0..2 {
@@ -686,7 +703,10 @@ fn benchmark_errors_are_independent_of_rank_count() {
                 s["momentum"]["final"][k].as_f64().unwrap(),
                 s1["momentum"]["final"][k].as_f64().unwrap(),
             );
-            assert!((p - q).abs() < 1e-12 * mass, "momentum {k}: {p} vs {q}");
+            assert!(
+                (p - q).abs() < 1e-12 * mass,
+                "{name}: momentum {k}: {p} vs {q}"
+            );
         }
     }
     let _ = std::fs::remove_dir_all(&dir);
