@@ -72,6 +72,8 @@ fn errors(gradient: Gradient, cells: usize, sharpen: f64) -> (f64, f64) {
         "{} at {cells} cells",
         gradient.name()
     );
+    // The summary records how the body force was taken (the input's rule).
+    assert_eq!(s.body_force.as_deref(), Some("domain"));
     let e = s.error.expect("benchmark errors");
     println!(
         "{} {cells} cells, sharpen {sharpen}: displacement error {:.4e}, velocity error {:.4e}",

@@ -126,6 +126,9 @@ pub struct Summary {
     /// β of the sharpening of the nodal averages, when it is on.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sharpen: Option<f64>,
+    /// `domain` when a benchmark's body force is averaged over each particle's box.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub body_force: Option<String>,
     /// The version of the scene defaults the absent `[method]` keys took (a restart
     /// keeps its checkpoint's).
     pub scene_defaults: u32,
@@ -258,6 +261,7 @@ impl<'a, const D: usize> Run<'a, D> {
             centroid_passes: (scene.method.centroid_passes > 0)
                 .then_some(scene.method.centroid_passes),
             sharpen: (scene.method.sharpen > 0.0).then_some(scene.method.sharpen),
+            body_force: scene.plan.body_force_over_domain.then(|| "domain".into()),
             scene_defaults: scene.defaults,
             units: Labels::of::<D>(scene).units,
             status: String::new(),
