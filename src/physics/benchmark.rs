@@ -144,8 +144,9 @@ impl<const D: usize> Benchmark<D> {
                 let dy = x0[1] - center[1];
                 let r = dx.hypot(dy);
                 let q = r - 1.0;
-                // sin Θ and cos Θ as the ratios they are (atan2 and then sin_cos cost
-                // five times as much); at the centre, Θ = 0 as atan2 has it.
+                // sin Θ and cos Θ as the ratios they are, with no atan2 and sin_cos
+                // (the averaged force forms four of these a particle and step); at the
+                // centre, Θ = 0 as atan2 has it.
                 let (st, ct) = if r > 0.0 {
                     (dy / r, dx / r)
                 } else {
