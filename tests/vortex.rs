@@ -35,6 +35,9 @@ use mpmcg::input::scene::{parse_with, Gradient, Quadrature, DEFAULTS, PLAIN_DEFA
 
 const SCENE: &str = include_str!("../inputs/generalized_vortex.toml");
 
+/// Runs started by this test binary, to name their output folders.
+static RUNS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
 /// Maximum displacement error of the input scene with `gradient` on `cells`² cells.
 fn error(gradient: Gradient, cells: usize) -> f64 {
     errors(gradient, cells, 0.0).0
@@ -60,7 +63,12 @@ fn errors(gradient: Gradient, cells: usize, sharpen: f64) -> (f64, f64) {
     scene.grid.cells = vec![cells, cells];
     scene.time.cfl = Some(0.4);
     let opts = RunOptions {
-        out: temp_dir(&format!("vortex-{}-{cells}-{sharpen}", gradient.name())),
+        // A folder per run: the tests run in parallel and some repeat a run.
+        out: temp_dir(&format!(
+            "vortex-{}-{cells}-{sharpen}-{}",
+            gradient.name(),
+            RUNS.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+        )),
         quiet: true,
         threads: 1,
         ..RunOptions::default()
