@@ -82,28 +82,7 @@ fn validate_benchmark(s: &Scene, b: &BenchmarkSpec) -> Result<BenchmarkPlan, Inv
                     center: [center[0], center[1]],
                 })
             } else {
-                // sin(πX) is exact between slip faces at X = 0 and 1, and periodic with
-                // period 2 (its odd extension), so a periodic axis spans [0, 2].
-                for a in 0..s.dim {
-                    let periodic = s.grid.boundary.face(a, false) == Face::Periodic;
-                    let upper = if periodic { 2.0 } else { 1.0 };
-                    if s.grid.lower[a] != 0.0 || s.grid.upper[a] != upper {
-                        let key = if s.grid.lower[a] != 0.0 {
-                            "grid.lower"
-                        } else {
-                            "grid.upper"
-                        };
-                        return Err((
-                            key.into(),
-                            format!(
-                                "`axis_aligned_mms` is posed on [0, 1] per axis between slip faces, or on [0, 2] on a periodic axis (the solution's period); axis {a} spans [{}, {}]{}",
-                                s.grid.lower[a],
-                                s.grid.upper[a],
-                                if periodic { " and is periodic" } else { "" }
-                            ),
-                        ));
-                    }
-                }
+                mms_grid(s)?;
                 Ok(BenchmarkPlan::AxisAlignedMms {
                     amplitude: b.amplitude.unwrap_or(0.05),
                     c: b.c.unwrap_or(100.0),
@@ -111,6 +90,34 @@ fn validate_benchmark(s: &Scene, b: &BenchmarkSpec) -> Result<BenchmarkPlan, Inv
             }
         }
     }
+}
+
+/// The axis-aligned MMS's grid: [0, 1] per axis between slip faces, or [0, 2] on a
+/// periodic axis.
+fn mms_grid(s: &Scene) -> Result<(), Invalid> {
+    // sin(πX) is exact between slip faces at X = 0 and 1, and periodic with
+    // period 2 (its odd extension), so a periodic axis spans [0, 2].
+    for a in 0..s.dim {
+        let periodic = s.grid.boundary.face(a, false) == Face::Periodic;
+        let upper = if periodic { 2.0 } else { 1.0 };
+        if s.grid.lower[a] != 0.0 || s.grid.upper[a] != upper {
+            let key = if s.grid.lower[a] != 0.0 {
+                "grid.lower"
+            } else {
+                "grid.upper"
+            };
+            return Err((
+                key.into(),
+                format!(
+                    "`axis_aligned_mms` is posed on [0, 1] per axis between slip faces, or on [0, 2] on a periodic axis (the solution's period); axis {a} spans [{}, {}]{}",
+                    s.grid.lower[a],
+                    s.grid.upper[a],
+                    if periodic { " and is periodic" } else { "" }
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// `[[materials]]`: at least one, unique names, elastic constants in range and each
