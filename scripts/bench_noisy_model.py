@@ -23,6 +23,9 @@ import subprocess
 import sys
 import tempfile
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import bench_time_balance  # noqa: E402
+
 PHASES, PHASE_US = 9, 750
 
 # (what it models, rank 1's share, lookahead in phases, interior fraction, nap in µs)
@@ -57,15 +60,7 @@ def main():
         def run(share, lookahead, interior, nap, noisy):
             cmd = [mpirun, *root, "-n", "2", "--bind-to", "core", "--map-by", "core", binary]
             cmd += [str(a.steps), str(PHASES), str(PHASE_US), f"{share:.6f}", str(lookahead), str(interior), str(nap)]
-            busy = None
-            if noisy:
-                busy = subprocess.Popen(["taskset", "-c", "1", sys.executable, "-c", "while True: pass"])
-            try:
-                r = subprocess.run(cmd, capture_output=True, text=True)
-            finally:
-                if busy is not None:
-                    busy.kill()
-                    busy.wait()
+            r = bench_time_balance.run_beside_busy_loop(cmd, noisy)
             if r.returncode != 0:
                 sys.exit(f"the model failed ({r.returncode}): {' '.join(cmd)}\n{r.stderr}")
             return float(r.stdout.strip())

@@ -22,6 +22,7 @@ rebalances and the final cuts. Needs two cores; about 8 minutes with the default
 """
 
 import argparse
+import contextlib
 import json
 import os
 import shutil
@@ -34,6 +35,17 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import bench_peers  # noqa: E402
 
 CELLS, PPC = 256, 4
+
+
+def run_beside_busy_loop(cmd, noisy, core=1):
+    """`cmd`'s completed process; with `noisy`, while a busy loop (a process that never
+    sleeps) runs pinned to `core`."""
+    with contextlib.ExitStack() as stack:
+        if noisy:
+            busy = subprocess.Popen(["taskset", "-c", str(core), sys.executable, "-c", "while True: pass"])
+            stack.callback(busy.wait)
+            stack.callback(busy.kill)
+        return subprocess.run(cmd, capture_output=True, text=True)
 
 
 def scene(case, balance, steps):
@@ -79,16 +91,8 @@ def main():
             with open(path, "w") as f:
                 f.write(scene(case, balance, a.steps))
             out = os.path.join(tmp, "out")
-            busy = None
-            if noisy:
-                busy = subprocess.Popen(["taskset", "-c", "1", sys.executable, "-c", "while True: pass"])
-            try:
-                cmd = ranks + ["run", path, "--out", out, "--quiet", "--threads", "1"]
-                r = subprocess.run(cmd, capture_output=True, text=True)
-            finally:
-                if busy is not None:
-                    busy.kill()
-                    busy.wait()
+            cmd = ranks + ["run", path, "--out", out, "--quiet", "--threads", "1"]
+            r = run_beside_busy_loop(cmd, noisy)
             if r.returncode != 0:
                 sys.exit(f"mpmcg failed ({r.returncode}): {' '.join(cmd)}\n{r.stderr}")
             with open(os.path.join(out, "summary.json")) as f:
