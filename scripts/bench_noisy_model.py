@@ -24,6 +24,7 @@ import sys
 import tempfile
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import bench_peers  # noqa: E402
 import bench_time_balance  # noqa: E402
 
 PHASES, PHASE_US = 9, 750
@@ -46,19 +47,18 @@ def main():
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--steps", type=int, default=600)
     a = ap.parse_args()
-    mpirun, mpicc = shutil.which("mpirun"), shutil.which("mpicc")
-    if mpirun is None or mpicc is None:
-        sys.exit("mpirun and mpicc not found (scripts/setup.sh installs Open MPI)")
+    mpirun, mpicc = bench_peers.mpirun(), shutil.which("mpicc")
+    if mpicc is None:
+        sys.exit("mpicc not found (scripts/setup.sh installs Open MPI)")
     if os.cpu_count() < 2:
         sys.exit("needs two cores")
-    root = ["--allow-run-as-root"] if os.geteuid() == 0 else []
     source = os.path.join(os.path.dirname(os.path.abspath(__file__)), "noisy_model.c")
     with tempfile.TemporaryDirectory() as tmp:
         binary = os.path.join(tmp, "noisy_model")
         subprocess.run([mpicc, "-O2", "-o", binary, source], check=True)
 
         def run(share, lookahead, interior, nap, noisy):
-            cmd = [mpirun, *root, "-n", "2", "--bind-to", "core", "--map-by", "core", binary]
+            cmd = [*mpirun, "-n", "2", "--bind-to", "core", "--map-by", "core", binary]
             cmd += [str(a.steps), str(PHASES), str(PHASE_US), f"{share:.6f}", str(lookahead), str(interior), str(nap)]
             r = bench_time_balance.run_beside_busy_loop(cmd, noisy)
             if r.returncode != 0:

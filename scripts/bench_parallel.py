@@ -26,7 +26,6 @@ on an idle one.
 import argparse
 import json
 import os
-import shutil
 import statistics
 import subprocess
 import sys
@@ -48,17 +47,14 @@ def main():
     ap.add_argument("--update", default="musl")
     a = ap.parse_args()
     binary = os.path.abspath(a.mpmcg)
-    mpirun = shutil.which("mpirun")
-    if mpirun is None:
-        sys.exit("mpirun not found (scripts/setup.sh installs Open MPI)")
-    root = ["--allow-run-as-root"] if os.geteuid() == 0 else []
+    mpirun = bench_peers.mpirun()
     # Each configuration: the commands started together (one per copy), before and
     # after `run SCENE --out DIR --quiet`.
     single = ["--threads", "1"]
     configs = {
         "1 thread": [(["taskset", "-c", "0", binary], single)],
         "2 threads": [([binary], ["--threads", "2"])],
-        "2 ranks": [([mpirun, *root, "--oversubscribe", "-n", "2", binary], single)],
+        "2 ranks": [([*mpirun, "--oversubscribe", "-n", "2", binary], single)],
         "2 copies": [(["taskset", "-c", str(c), binary], single) for c in (0, 1)],
     }
     with tempfile.TemporaryDirectory() as tmp:

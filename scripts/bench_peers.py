@@ -26,6 +26,7 @@ import argparse
 import json
 import math
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -99,6 +100,15 @@ value = [{", ".join(str(x) for x in g)}]
 [output]
 snapshots = false
 """
+
+
+def mpirun():
+    """The start of an `mpirun` command: its path, and as root the flag Open MPI asks for;
+    exits with a message where Open MPI is not installed."""
+    path = shutil.which("mpirun")
+    if path is None:
+        sys.exit("mpirun not found (scripts/setup.sh installs Open MPI)")
+    return [path, "--allow-run-as-root"] if os.geteuid() == 0 else [path]
 
 
 def pinned(cmd, cpu):

@@ -28,7 +28,6 @@ Only the standard library. Usage:
 import argparse
 import json
 import os
-import shutil
 import statistics
 import subprocess
 import sys
@@ -66,9 +65,7 @@ def run(a, tmp, dim, cells, ppc, wide, steps):
         os.remove(rss)
     cmd = []
     if a.ranks > 1:
-        mpirun = shutil.which("mpirun") or sys.exit("mpirun not found (scripts/setup.sh)")
-        root = ["--allow-run-as-root"] if os.geteuid() == 0 else []
-        cmd += [mpirun, *root, "--oversubscribe", "-n", str(a.ranks)]
+        cmd += [*bench_peers.mpirun(), "--oversubscribe", "-n", str(a.ranks)]
     cmd += ["/usr/bin/time", "-f", "%M", "-a", "-o", rss]
     if a.cpu is not None and a.ranks == 1:
         cmd += ["taskset", "-c", str(a.cpu)]

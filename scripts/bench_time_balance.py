@@ -25,7 +25,6 @@ import argparse
 import contextlib
 import json
 import os
-import shutil
 import statistics
 import subprocess
 import sys
@@ -76,13 +75,9 @@ def main():
     ap.add_argument("--steps", type=int, default=1000)
     a = ap.parse_args()
     binary = os.path.abspath(a.mpmcg)
-    mpirun = shutil.which("mpirun")
-    if mpirun is None:
-        sys.exit("mpirun not found (scripts/setup.sh installs Open MPI)")
     if os.cpu_count() < 2:
         sys.exit("needs two cores")
-    root = ["--allow-run-as-root"] if os.geteuid() == 0 else []
-    ranks = [mpirun, *root, "-n", "2", "--bind-to", "core", "--map-by", "core", binary]
+    ranks = [*bench_peers.mpirun(), "-n", "2", "--bind-to", "core", "--map-by", "core", binary]
     balances = a.balance.split(",")
     with tempfile.TemporaryDirectory() as tmp:
 

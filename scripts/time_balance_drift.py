@@ -18,7 +18,6 @@ between rank counts); and the rebalances each made. About 25 s.
 import argparse
 import json
 import os
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -43,10 +42,7 @@ def main():
     ap.add_argument("--mpmcg", default="target/release/mpmcg")
     a = ap.parse_args()
     binary = os.path.abspath(a.mpmcg)
-    mpirun = shutil.which("mpirun")
-    if mpirun is None:
-        sys.exit("mpirun not found (scripts/setup.sh installs Open MPI)")
-    root = ["--allow-run-as-root"] if os.geteuid() == 0 else []
+    mpirun = bench_peers.mpirun()
     text = bench_peers.scene(2, CELLS, PPC, "mpmcg", "musl", END)
     text = text.replace("[output]\nsnapshots = false", '[output]\nevery = 0.1\nfields = ["velocity"]')
     with tempfile.TemporaryDirectory() as tmp:
@@ -54,7 +50,7 @@ def main():
             path = os.path.join(tmp, f"{name}.toml")
             with open(path, "w") as f:
                 f.write(text + f'[parallel]\nbalance = "{balance}"\n')
-            cmd = [mpirun, *root, "-n", str(ranks), "--bind-to", "core", "--map-by", "core", binary]
+            cmd = [*mpirun, "-n", str(ranks), "--bind-to", "core", "--map-by", "core", binary]
             cmd += ["run", path, "--out", os.path.join(tmp, name), "--quiet", "--threads", "1"]
             r = subprocess.run(cmd, capture_output=True, text=True)
             if r.returncode != 0:
